@@ -1,0 +1,198 @@
+"""The ``pfx`` command line (Typer).
+
+Every command turns a user's mistake (:class:`~pfx.errors.ConfigError`) into one line on
+stderr and exit status 2, with no traceback and nothing written.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+import yaml
+
+from pfx.errors import ConfigError, ModelNumericalError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="pfx: run, compare and reproduce particle-filter experiments from YAML configs.")
+
+LISTABLE = ("models", "resamplers", "weightings", "noises", "diffusions", "metrics", "figures")
+
+
+def _fail(message: str, status: int = 2) -> None:
+    typer.echo(f"pfx: error: {message}", err=True)
+    raise typer.Exit(status)
+
+
+def _guarded(command):
+    @functools.wraps(command)
+    def wrapper(*args, **kwargs):
+        try:
+            return command(*args, **kwargs)
+        except ConfigError as error:
+            _fail(str(error))
+        except ModelNumericalError as error:
+            _fail(str(error), status=1)
+        except KeyboardInterrupt:
+            _fail("interrupted; finished cells are kept, run again to resume", status=130)
+    return wrapper
+
+
+def _show_progress(quiet: bool) -> bool:
+    return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
+
+
+def _load_plan(path: Path, assignments: list[str], trials: Optional[int]):
+    from pfx.config.plan import build_plan
+    from pfx.config.yaml_loading import apply_overrides, load_config_file
+
+    raw = load_config_file(path)
+    raw = apply_overrides(raw, assignments, str(path))
+    return build_plan(raw, str(path), trials=trials)
+
+
+@app.command()
+@_guarded
+def run(
+    configs: List[Path] = typer.Argument(..., help="config file(s)", show_default=False),
+    out: Optional[Path] = typer.Option(None, "--out", help="result folder (default runs/<name>; "
+                                       "with several configs, their parent)"),
+    assignments: List[str] = typer.Option([], "--set", help="override a key: dotted.path=value"),
+    trials: Optional[int] = typer.Option(None, "--trials", min=1, help="override the trial count"),
+    workers: int = typer.Option(1, "--workers", min=1, help="worker processes"),
+    resume: bool = typer.Option(True, "--resume/--fresh", help="resume an interrupted run, or recompute"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar or messages"),
+):
+    """Run every cell and trial of the config(s); write CSV tables and figures."""
+    from pfx.runner import run_plan
+
+    plans = [_load_plan(path, assignments, trials) for path in configs]   # validate all first
+    for plan in plans:
+        if out is None:
+            target = Path("runs") / plan.experiment.name
+        else:
+            target = out / plan.experiment.name if len(plans) > 1 else out
+        report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
+        run_plan(plan, target, workers=workers, fresh=not resume, report=report,
+                 progress=_show_progress(quiet))
+        if not quiet:
+            typer.echo(f"{plan.experiment.name}: {len(plan.cells)} cell(s) x {plan.experiment.trials} "
+                       f"trial(s) -> {target}")
+
+
+@app.command()
+@_guarded
+def validate(
+    configs: List[Path] = typer.Argument(..., help="config file(s)", show_default=False),
+    assignments: List[str] = typer.Option([], "--set", help="override a key: dotted.path=value"),
+):
+    """Check configs and print each fully resolved config (exit 0, or 2 on the first error)."""
+    plans = [_load_plan(path, assignments, None) for path in configs]
+    for plan in plans:
+        typer.echo(f"# {plan.file}: valid; {len(plan.cells)} cell(s) x {plan.experiment.trials} trial(s); "
+                   f"config hash {plan.config_hash}")
+        typer.echo(yaml.safe_dump(plan.resolved, sort_keys=False).rstrip())
+
+
+@app.command(name="list")
+@_guarded
+def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {', '.join(LISTABLE)}")):
+    """List what a config can name, with a one-line description each."""
+    from pfx.registry import closest_name
+
+    registries = _registries()
+    if what is not None and what not in registries:
+        hint = closest_name(what, registries)
+        _fail(f"nothing called {what!r} to list" + (f" (did you mean {hint!r}?)" if hint else
+                                                   f"; choose from {', '.join(LISTABLE)}"))
+    for name in [what] if what else LISTABLE:
+        typer.echo(f"{name}:")
+        for item, description in registries[name].describe().items():
+            typer.echo(f"  {item:<18} {description}")
+
+
+def _registries():
+    from pfx.diffusion import DIFFUSIONS
+    from pfx.figures import FIGURES
+    from pfx.metrics import METRICS
+    from pfx.models import MODELS
+    from pfx.noise import NOISE_FAMILIES
+    from pfx.resampling import RESAMPLERS
+    from pfx.weighting import WEIGHTINGS
+
+    return {"models": MODELS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
+            "noises": NOISE_FAMILIES, "diffusions": DIFFUSIONS, "metrics": METRICS, "figures": FIGURES}
+
+
+@app.command()
+@_guarded
+def schema(output_format: str = typer.Option("json", "--format", help="json (JSON Schema) or markdown")):
+    """Print the JSON Schema of the config format (or the Markdown config reference)."""
+    from pfx.config.schema import Experiment
+
+    if output_format == "json":
+        typer.echo(json.dumps(Experiment.model_json_schema(), indent=2))
+    elif output_format == "markdown":
+        from pfx.config.reference import markdown_reference
+
+        typer.echo(markdown_reference())
+    else:
+        _fail(f"--format: unknown format {output_format!r} (json or markdown)")
+
+
+@app.command()
+@_guarded
+def figures(result_dir: Path = typer.Argument(..., help="a result folder written by pfx run")):
+    """Re-render a result folder's figures from its CSV files alone."""
+    from pfx.figures import render_figures
+
+    if not (result_dir / "manifest.json").is_file() or not (result_dir / "steps.csv").is_file():
+        raise ConfigError("not a finished pfx result folder (no manifest.json / steps.csv)", file=str(result_dir))
+    manifest = json.loads((result_dir / "manifest.json").read_text())
+    for path in render_figures(result_dir, None, tuple(manifest.get("formats", ["png"]))):
+        typer.echo(str(path))
+
+
+@app.command()
+@_guarded
+def reproduce(
+    papers: List[str] = typer.Argument(None, help="paper short names (default: all)"),
+    configs_dir: Path = typer.Option(Path("configs/papers"), "--configs", help="folder of per-paper config folders"),
+    out: Path = typer.Option(Path("results"), "--out", help="where results/<paper>/<experiment> go"),
+    resume: bool = typer.Option(False, "--resume/--fresh", help="keep up-to-date results instead of recomputing"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+):
+    """Regenerate the papers' tables and figures (what `make reproduce-papers` runs)."""
+    from pfx.reproduce import reproduce_papers
+
+    reproduce_papers(papers or [], configs_dir, out, fresh=not resume,
+                     report=lambda message: typer.echo(message, err=True), progress=_show_progress(quiet))
+
+
+@app.command()
+def compare(
+    result_dir: Path = typer.Argument(..., help="a result folder"),
+    metric: str = typer.Option(..., "--metric", help="metric column of trials.csv"),
+    by: str = typer.Option("arm", "--by", help="column whose values are compared"),
+):
+    """Paired differences between arms, with confidence intervals (not available yet)."""
+    _fail("'pfx compare' is not available yet in this version")
+
+
+@app.command()
+def bench():
+    """The performance benchmark against other Python particle-filter libraries (not available yet)."""
+    _fail("'pfx bench' is not available yet in this version")
+
+
+def main() -> None:
+    app(prog_name="pfx")
+
+
+if __name__ == "__main__":
+    main()

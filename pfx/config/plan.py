@@ -1,0 +1,176 @@
+"""Expand a validated config into the plan: every (arm x sweep combination) cell, resolved.
+
+A cell is fully resolved before anything runs: its true model, the model its filter assumes
+(the true model's parameters with ``filter.model`` merged over them), the prior, the filter
+settings and the metric parameters. Any invalid combination stops the whole plan with an
+error naming the arm or sweep entry responsible.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from pfx.config.schema import Experiment, FilterConfig
+from pfx.config.validation import validate
+from pfx.config.yaml_loading import deep_merge, set_path
+from pfx.errors import ConfigError
+from pfx.metrics import MetricsConfig
+from pfx.models import MODELS
+from pfx.models.base import Model, bind_law
+
+DEFAULT_ARM = "default"
+# sweep keys that already have a column of their own in the tables
+_KNOWN_COLUMNS = {"filter.particles": "n_particles", "filter.resampler": "resampler",
+                  "filter.ess_threshold": "ess_threshold", "filter.weighting": "weighting",
+                  "filter.kind": "filter", "filter.diffusion": "diffusion", "model.kind": "model"}
+
+
+@dataclass
+class Cell:
+    """One combination of settings, run for every trial."""
+
+    key: str                       # hex hash of the resolved settings: names the filter stream
+    labels: dict[str, Any]         # the columns that identify the cell in every CSV
+    truth_model: Model
+    filter_model: Model
+    filter: FilterConfig
+    prior: Any
+    metrics: MetricsConfig
+
+    @property
+    def stream_key(self) -> int:
+        return int(self.key, 16)
+
+
+@dataclass
+class Plan:
+    file: str
+    experiment: Experiment
+    resolved: dict                 # the resolved config (written as config.yaml)
+    cells: list[Cell] = field(default_factory=list)
+
+    @property
+    def config_hash(self) -> str:
+        return canonical_hash(self.resolved)
+
+    @property
+    def label_columns(self) -> list[str]:
+        return list(self.cells[0].labels) if self.cells else []
+
+
+def canonical_hash(data: Any, length: int = 16) -> str:
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:length]
+
+
+def sweep_column(key: str) -> str:
+    return _KNOWN_COLUMNS.get(key, key.replace(".", "_"))
+
+
+def _filter_model(raw_model: dict, overrides: dict, file: str, prefix: str) -> Model:
+    merged = deep_merge(raw_model, overrides)
+    if merged.get("kind") != raw_model.get("kind"):
+        raise ConfigError("the filter's model must be of the same kind as the true model",
+                          file=file, key=f"{prefix}.kind")
+    return validate(MODELS[merged["kind"]], merged, file=file, prefix=prefix)
+
+
+def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dict, file: str,
+                  prefix: str = "") -> Cell:
+    """Resolve one cell; errors are located under ``prefix`` (an arm or sweep entry) if given."""
+    cell_raw = {key: copy.deepcopy(value) for key, value in raw.items() if key not in ("arms", "sweep")}
+    if arm_raw:
+        cell_raw["filter"] = deep_merge(cell_raw.get("filter") or {}, arm_raw)
+    for dotted, value in combination.items():
+        set_path(cell_raw, dotted, copy.deepcopy(value))
+
+    def locate(error: ConfigError) -> ConfigError:
+        if not prefix:
+            return error
+        return ConfigError(f"{error.key}: {error.reason}" if error.key else error.reason,
+                           file=file, key=prefix)
+
+    try:
+        experiment = validate(Experiment, cell_raw, file=file)
+        settings = experiment.filter
+        filter_model = _filter_model(cell_raw["model"], settings.model, file, "filter.model")
+        truth = experiment.model
+        if (filter_model.state_dimension, filter_model.measurement_dimension) != \
+                (truth.state_dimension, truth.measurement_dimension):
+            raise ConfigError("the filter's model must have the true model's state and measurement sizes",
+                              file=file, key="filter.model")
+        prior = settings.initial or filter_model.default_prior()
+        try:
+            bind_law(prior, filter_model.state_dimension, "initial")
+        except ValueError as error:
+            raise ConfigError(str(error).split(": ", 1)[-1], file=file,
+                              key="filter." + str(error).split(":")[0].lstrip("@")) from None
+    except ConfigError as error:
+        raise locate(error) from None
+
+    settings_dump = settings.model_dump(mode="json", exclude={"model", "initial"})
+    identity = {"arm": arm, "truth": truth.model_dump(mode="json"), "filter": settings_dump,
+                "filter_model": filter_model.model_dump(mode="json"), "prior": prior.model_dump(mode="json")}
+    labels: dict[str, Any] = {
+        "arm": arm,
+        "model": truth.kind,
+        "filter": settings.kind,
+        "n_particles": settings.particles,
+        "resampler": settings.resampler,
+        "ess_threshold": settings.effective_threshold(),
+        "weighting": settings.weighting.label(),
+        "diffusion": settings.diffusion.kind,
+    }
+    for dotted, value in combination.items():
+        column = sweep_column(dotted)
+        if column not in labels:
+            labels[column] = value if isinstance(value, (int, float, str, bool)) else json.dumps(value)
+    return Cell(key=canonical_hash(identity, 12), labels=labels, truth_model=truth,
+                filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics)
+
+
+def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan:
+    """Validate the whole config and expand it into cells; raise ConfigError on any problem."""
+    raw = copy.deepcopy(raw)
+    if trials is not None:
+        raw["trials"] = trials
+    experiment = validate(Experiment, raw, file=file)
+    raw_arms = raw.get("arms") or {}
+    arms: dict[str, Optional[dict]] = {name: raw_arms[name] for name in experiment.arms} or {DEFAULT_ARM: None}
+    sweep = experiment.sweep
+
+    for dotted in sweep:
+        head = dotted.split(".")[0]
+        if head not in ("model", "filter", "metrics"):
+            raise ConfigError("sweep keys must start with model., filter. or metrics.", file=file,
+                              key=f"sweep.{dotted}")
+    # Check each arm and each sweep value on its own first, so errors name their source.
+    for name, arm_raw in arms.items():
+        if arm_raw is not None:
+            _resolve_cell(raw, name, arm_raw, {}, file, prefix=f"arms.{name}")
+    for dotted, values in sweep.items():
+        for index, value in enumerate(values):
+            _resolve_cell(raw, DEFAULT_ARM, None, {dotted: value}, file, prefix=f"sweep.{dotted}[{index}]")
+
+    cells: list[Cell] = []
+    keys = list(sweep)
+    for name, arm_raw in arms.items():
+        for values in itertools.product(*(sweep[key] for key in keys)):
+            combination = dict(zip(keys, values))
+            where = f"arms.{name}" if arm_raw is not None else "sweep"
+            cells.append(_resolve_cell(raw, name, arm_raw, combination, file,
+                                       prefix=where if (arm_raw is not None or keys) else ""))
+    seen: dict[str, int] = {}
+    for index, cell in enumerate(cells):
+        if cell.key in seen:
+            raise ConfigError(f"cells {seen[cell.key] + 1} and {index + 1} have identical settings; "
+                              "remove the repeated sweep value", file=file, key="sweep")
+        seen[cell.key] = index
+
+    resolved = experiment.model_dump(mode="json")
+    return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)

@@ -1,0 +1,88 @@
+"""The config reference in Markdown, generated from the same declarations as validation."""
+
+from __future__ import annotations
+
+import typing
+from typing import Any
+
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
+from pfx.config.schema import Experiment, FilterConfig, OutputsConfig
+from pfx.config.validation import _union_members, _unwrap
+from pfx.diffusion import DIFFUSIONS
+from pfx.initial_laws import GaussianLaw, PointLaw, UniformLaw
+from pfx.metrics import ConvergenceCriterion
+from pfx.models import MODELS
+from pfx.noise import Noise
+from pfx.weighting import WEIGHTINGS
+
+
+def _type_name(annotation: Any) -> str:
+    annotation = _unwrap(annotation)
+    origin = typing.get_origin(annotation)
+    if origin is typing.Literal:
+        return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
+    if origin in (typing.Union, __import__("types").UnionType):
+        return " or ".join(_type_name(a) for a in _union_members(annotation))
+    if origin in (list, tuple, dict):
+        arguments = ", ".join(_type_name(a) for a in typing.get_args(annotation) if a is not Ellipsis)
+        return f"{origin.__name__}[{arguments}]"
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return "mapping"
+    return getattr(annotation, "__name__", str(annotation)).replace("typing.", "")
+
+
+def _default(field) -> str:
+    if field.default is not PydanticUndefined:
+        value = field.default
+    elif field.default_factory is not None:
+        value = field.default_factory()
+    else:
+        return "**required**"
+    if isinstance(value, BaseModel):
+        value = value.model_dump(exclude_defaults=False) if "kind" not in type(value).model_fields else value.kind
+    if value is None:
+        return "(preset)" if field.description and "default" not in field.description else "none"
+    return f"`{value}`"
+
+
+def model_table(model: type[BaseModel], skip: tuple[str, ...] = ()) -> str:
+    lines = ["| key | type | default | meaning |", "| --- | --- | --- | --- |"]
+    for name, field in model.model_fields.items():
+        if name in skip:
+            continue
+        key = field.alias or name
+        description = (field.description or "").replace("|", "\\|")
+        lines.append(f"| `{key}` | {_type_name(field.annotation)} | {_default(field)} | {description} |")
+    return "\n".join(lines)
+
+
+def markdown_reference() -> str:
+    """The whole config reference, section by section."""
+    parts = ["### Top level", "", (Experiment.__doc__ or "").strip(), "", model_table(Experiment), ""]
+    parts += ["### `filter` (and each entry of `arms`)", "", model_table(FilterConfig), ""]
+    parts += ["### `model`", "",
+              "`kind` picks the model; fields left empty take the model's presets "
+              "(`pfx validate` prints the resolved values).", ""]
+    for name in MODELS:
+        model = MODELS[name]
+        parts += [f"#### `kind: {name}`", "", (model.__doc__ or "").strip(), "", model_table(model, ("kind",)), ""]
+    parts += ["### Noise (`process_noise`, `measurement_noise`)", "", model_table(Noise), ""]
+    parts += ["### Initial laws (`model.initial`, `filter.initial`)", ""]
+    for law in (PointLaw, GaussianLaw, UniformLaw):
+        parts += [f"- `kind: {law.model_fields['kind'].default}`: {law.__doc__.strip()} Keys: "
+                  + ", ".join(f"`{f.alias or n}`" for n, f in law.model_fields.items() if n != "kind")]
+    parts += ["", "### Weightings (`filter.weighting`)", ""]
+    for name in WEIGHTINGS:
+        model = WEIGHTINGS[name]
+        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
+        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
+    parts += ["", "### Diffusion (`filter.diffusion`)", ""]
+    for name in DIFFUSIONS:
+        model = DIFFUSIONS[name]
+        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
+        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
+    parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]
+    parts += ["### `outputs`", "", model_table(OutputsConfig), ""]
+    return "\n".join(parts)

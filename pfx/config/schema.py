@@ -1,0 +1,88 @@
+"""The config format, declared once.
+
+Every section is a pydantic model whose fields carry types, defaults, bounds and
+descriptions. From these declarations come validation (:func:`pfx.config.plan.build_plan`),
+the JSON Schema printed by ``pfx schema``, and the config reference in the README
+(``pfx schema --format markdown``). Model parameters are declared by the models themselves
+(:mod:`pfx.models`), weightings by :mod:`pfx.weighting`, and so on.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from pfx.diffusion import Diffusion, NoDiffusion
+from pfx.figures import FIGURES
+from pfx.initial_laws import InitialLaw
+from pfx.metrics import MetricsConfig
+from pfx.models import MODELS
+from pfx.resampling import RESAMPLERS
+from pfx.weighting import GaussianWeighting, Weighting
+
+ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
+FigureName = Literal[FIGURES.names()]  # type: ignore[valid-type]
+ModelConfig = Annotated[Union[tuple(MODELS[name] for name in MODELS)], Field(discriminator="kind")]
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
+
+
+class FilterConfig(BaseModel):
+    """The filter run on every cell (arms override any of these keys)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: Literal["particle", "sis"] = Field(
+        "particle", description="particle (SIR with the ESS rule) or sis (never resample)")
+    particles: int = Field(1000, ge=1, le=100_000_000, description="number of particles N")
+    resampler: ResamplerName = Field("systematic", description="resampling scheme (`pfx list resamplers`)")
+    ess_threshold: float = Field(
+        1.0, ge=0.0, le=1.0,
+        description="resample when ESS < ess_threshold * N; 1 = every step, 0 = never")
+    weighting: Weighting = Field(default_factory=GaussianWeighting,
+                                 description="weight update (`pfx list weightings`): a name or {kind: ..., ...}")
+    diffusion: Diffusion = Field(default_factory=NoDiffusion,
+                                 description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
+    initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
+    model: dict[str, Any] = Field(
+        default_factory=dict,
+        description="model parameters the filter assumes where they differ from the truth "
+                    "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")
+
+    def effective_threshold(self) -> float:
+        return 0.0 if self.kind == "sis" else self.ess_threshold
+
+
+class OutputsConfig(BaseModel):
+    """Which traces and figures to write."""
+
+    model_config = ConfigDict(extra="forbid")
+    trace_trials: int = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
+    figures: list[FigureName] = Field(  # type: ignore[valid-type]
+        default_factory=lambda: ["error_over_time", "ess_over_time"],
+        description="figures to render (`pfx list figures`)")
+    formats: list[Literal["png", "svg", "pdf"]] = Field(
+        default_factory=lambda: ["png"], description="figure file formats")
+
+
+class Experiment(BaseModel):
+    """One experiment: a model, a filter, its arms and sweep, trials and seed."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(pattern=NAME_PATTERN, max_length=100,
+                      description="experiment name (the default result folder is runs/<name>)")
+    description: str = Field("", description="free text, copied to the manifest")
+    seed: int = Field(0, ge=0, lt=2**63, description="root seed of every random stream")
+    trials: int = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
+    model: ModelConfig = Field(description="the true system (`pfx list models`)")
+    filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")
+    arms: dict[Annotated[str, Field(pattern=NAME_PATTERN)], FilterConfig] = Field(
+        default_factory=dict,
+        description="named filter variants; each overrides the filter defaults it names")
+    sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = Field(
+        default_factory=dict,
+        description="dotted key -> list of values; the Cartesian product forms the cells "
+                    "(e.g. filter.particles: [200, 400])")
+    metrics: MetricsConfig = Field(default_factory=MetricsConfig, description="metric parameters")
+    outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="tables and figures")

@@ -1,0 +1,173 @@
+"""Turn a pydantic ValidationError into one clear ConfigError line.
+
+The key path is the dotted location of the offending value (``filter.resampler``,
+``arms.MPF.weighting.form``, ``model.beacons[2]``). Unknown keys and unknown names get the
+closest valid name as a hint. Validators inside pfx locate cross-field errors below their
+model by starting the message with ``@sub.key:``.
+"""
+
+from __future__ import annotations
+
+import re
+import types
+import typing
+from typing import Any, Union
+
+from pydantic import BaseModel, ValidationError
+
+from pfx.errors import ConfigError
+from pfx.registry import closest_name
+
+
+def format_path(parts) -> str:
+    text = ""
+    for part in parts:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text
+
+
+def _unwrap(annotation):
+    """Strip Annotated/Optional layers; return the remaining annotation."""
+    while True:
+        origin = typing.get_origin(annotation)
+        if origin is typing.Annotated:
+            annotation = typing.get_args(annotation)[0]
+        elif origin in (Union, types.UnionType):
+            members = [a for a in typing.get_args(annotation) if a is not type(None)]
+            if len(members) == 1:
+                annotation = members[0]
+            else:
+                return annotation
+        else:
+            return annotation
+
+
+def _union_members(annotation):
+    return [_unwrap(a) for a in typing.get_args(annotation) if a is not type(None)]
+
+
+def _kind_of(model_class) -> Any:
+    field = model_class.model_fields.get("kind")
+    return field.default if field is not None else None
+
+
+def _walk(root: type[BaseModel], location: tuple) -> tuple[tuple, Any]:
+    """Follow ``location`` through the model tree.
+
+    Returns the location without discriminator tags (pydantic inserts the tag of a
+    discriminated union, e.g. ``model.falling_body.variant``) and the annotation reached
+    (None where the tree could not be followed).
+    """
+    annotation: Any = root
+    clean: list = []
+    for part in location:
+        if annotation is None:
+            clean.append(part)
+            continue
+        annotation = _unwrap(annotation)
+        origin = typing.get_origin(annotation)
+        if origin in (Union, types.UnionType):
+            members = [m for m in _union_members(annotation) if isinstance(m, type) and issubclass(m, BaseModel)]
+            chosen = [m for m in members if _kind_of(m) == part]
+            if chosen:
+                annotation = chosen[0]
+                continue
+            annotation = members[0] if members else None
+            if annotation is None:
+                clean.append(part)
+                continue
+        clean.append(part)
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            fields = {f.alias or name: f for name, f in annotation.model_fields.items()}
+            annotation = fields[part].annotation if part in fields else None
+        elif origin in (dict, list, tuple):
+            arguments = typing.get_args(annotation)
+            annotation = arguments[-1] if arguments else None
+        else:
+            annotation = None
+    return tuple(clean), annotation
+
+
+def _allowed_keys(annotation) -> list[str]:
+    """Field names of the model(s) an annotation stands for."""
+    annotation = _unwrap(annotation)
+    members = _union_members(annotation) if typing.get_origin(annotation) in (Union, types.UnionType) else [annotation]
+    names: list[str] = []
+    for member in members:
+        if isinstance(member, type) and issubclass(member, BaseModel):
+            names += [f.alias or n for n, f in member.model_fields.items() if (f.alias or n) not in names]
+    return names
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
+    location = tuple(error["loc"])
+    kind = error["type"]
+    context = error.get("ctx") or {}
+    message = error["msg"]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(_walk(root, location[:-1])[1])
+        hint = closest_name(location[-1], allowed)
+        suggestion = f" (did you mean {hint!r}?)" if hint else (
+            f" (valid keys: {', '.join(allowed)})" if allowed else "")
+        return location, f"unknown key {location[-1]!r}{suggestion}"
+    if kind == "missing":
+        return location, "required key is missing"
+    if kind == "union_tag_invalid":
+        expected = re.findall(r"'([^']*)'", str(context.get("expected_tags", "")))
+        hint = closest_name(context.get("tag"), expected)
+        suggestion = f" (did you mean {hint!r}?)" if hint else f" (known: {', '.join(expected)})"
+        what = str(location[-1]) if location else "kind"
+        return location + ("kind",), f"unknown {what} kind {context.get('tag')!r}{suggestion}"
+    if kind == "union_tag_not_found":
+        return location, f"needs a 'kind' key (one of: {context.get('expected_tags', '')})".replace("'", "")
+    if kind == "literal_error":
+        expected = re.findall(r"'([^']*)'", str(context.get("expected", "")))
+        hint = closest_name(error.get("input"), expected)
+        suggestion = f" (did you mean {hint!r}?)" if hint else f" (expected one of: {', '.join(expected)})"
+        return location, f"unknown value {_short(error.get('input'))}{suggestion}"
+    if kind == "value_error":
+        text = message.removeprefix("Value error, ")
+        match = re.match(r"@([\w.\[\]]+): (.*)", text, re.S)
+        if match:
+            extra = tuple(int(p) if p.isdigit() else p
+                          for p in re.split(r"\.|\[|\]", match.group(1)) if p)
+            return location + extra, match.group(2)
+        return location, text
+    if kind.endswith("_type") or kind.endswith("_parsing") or kind in ("model_type", "dict_type", "list_type"):
+        return location, f"{message[0].lower()}{message[1:]} (got {_short(error.get('input'))})"
+    return location, f"{message[0].lower()}{message[1:]} (got {_short(error.get('input'))})"
+
+
+def validate(model_class: type[BaseModel], data: Any, *, file: str | None = None, prefix: str = ""):
+    """Validate ``data`` as ``model_class``; raise ConfigError located at the first problem."""
+    try:
+        return model_class.model_validate(data)
+    except ValidationError as error:
+        raise to_config_error(error, model_class, file=file, prefix=prefix) from None
+
+
+def to_config_error(error: ValidationError, root: type[BaseModel], *, file=None, prefix="") -> ConfigError:
+    details = error.errors(include_url=False)
+    details[0]["loc"] = tuple(part for part in details[0]["loc"] if not _is_internal(part))
+    # A discriminated union reports the tag in the location; errors about other union members
+    # are noise when one member matched the tag. Report the first, most specific error.
+    location, reason = _describe(details[0], root)
+    location = tuple(part for part in location if not _is_internal(part))
+    location, _ = _walk(root, location)
+    key = format_path(location)
+    if prefix:
+        key = f"{prefix}.{key}" if key else prefix
+    return ConfigError(reason, file=file, key=key or None)
+
+
+def _is_internal(part) -> bool:
+    # pydantic adds markers such as 'function-before[...]' for wrapped validators
+    return isinstance(part, str) and ("[" in part and "(" in part or part.startswith("function-"))

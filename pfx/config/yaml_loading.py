@@ -1,0 +1,167 @@
+"""Safe YAML reading for configs, and dotted ``--set`` overrides.
+
+Only YAML's plain data types are constructed (``yaml.SafeLoader``): tags that would build
+Python objects are errors. Duplicate keys are errors (plain PyYAML keeps the last one
+silently). Aliases are allowed, but a document whose expansion would exceed
+:data:`MAX_EXPANDED_NODES` nodes ("billion laughs") is refused before it is expanded.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pfx.errors import ConfigError
+
+MAX_EXPANDED_NODES = 100_000
+MAX_FILE_BYTES = 10 * 1024 * 1024
+
+
+def _mark_error(file: str, mark, reason: str, key: str | None = None) -> ConfigError:
+    line = mark.line + 1 if mark is not None else None
+    column = mark.column + 1 if mark is not None else None
+    return ConfigError(reason, file=file, key=key, line=line, column=column)
+
+
+def _check_tree(node: yaml.Node, file: str) -> None:
+    """Refuse duplicate keys and documents whose aliases expand beyond the limit."""
+    sizes: dict[int, int] = {}
+
+    def expanded_size(current: yaml.Node, path: str, visiting: frozenset) -> int:
+        identity = id(current)
+        if identity in sizes:
+            return sizes[identity]
+        if identity in visiting:
+            raise _mark_error(file, current.start_mark, "recursive YAML alias", path or None)
+        visiting = visiting | {identity}
+        size = 1
+        if isinstance(current, yaml.MappingNode):
+            seen: dict[Any, yaml.Node] = {}
+            for key_node, value_node in current.value:
+                key = key_node.value if isinstance(key_node, yaml.ScalarNode) else str(key_node.start_mark)
+                child_path = f"{path}.{key}" if path else str(key)
+                if key in seen:
+                    raise _mark_error(file, key_node.start_mark, f"duplicate key {key!r}", child_path)
+                seen[key] = key_node
+                size += expanded_size(value_node, child_path, visiting) + 1
+        elif isinstance(current, yaml.SequenceNode):
+            for index, item in enumerate(current.value):
+                size += expanded_size(item, f"{path}[{index}]", visiting)
+        if size > MAX_EXPANDED_NODES:
+            raise _mark_error(file, current.start_mark,
+                              f"document expands to more than {MAX_EXPANDED_NODES} nodes "
+                              "(YAML alias bomb?); refused", path or None)
+        sizes[identity] = size
+        return size
+
+    expanded_size(node, "", frozenset())
+
+
+def parse_yaml(text: str, file: str) -> Any:
+    """Parse one YAML document safely; errors carry file, line and column."""
+    loader = yaml.SafeLoader(text)
+    try:
+        if not loader.check_node():
+            raise ConfigError("file is empty (expected a YAML mapping)", file=file)
+        node = loader.get_node()
+        if loader.check_node():
+            raise _mark_error(file, loader.peek_event().start_mark,
+                              "more than one YAML document (one experiment per file)")
+        _check_tree(node, file)
+        return loader.construct_document(node)
+    except yaml.MarkedYAMLError as error:
+        mark = error.problem_mark or error.context_mark
+        reason = (error.problem or error.context or "invalid YAML").strip()
+        if isinstance(error, yaml.constructor.ConstructorError):
+            reason = f"YAML tag not allowed: {reason}"
+        else:
+            reason = f"YAML syntax error: {reason}"
+        raise _mark_error(file, mark, reason) from None
+    except yaml.YAMLError as error:
+        raise ConfigError(f"YAML error: {error}", file=file) from None
+    finally:
+        loader.dispose()
+
+
+def load_config_file(path: str | Path) -> dict:
+    """Read a config file: a YAML mapping, checked as described in the module docstring."""
+    file = str(path)
+    path = Path(path)
+    if not path.exists():
+        raise ConfigError("no such file", file=file)
+    if path.is_dir():
+        raise ConfigError("is a directory, not a config file", file=file)
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(MAX_FILE_BYTES + 1)
+    except OSError as error:
+        raise ConfigError(f"cannot read file ({error.strerror})", file=file) from None
+    if len(data) > MAX_FILE_BYTES:
+        raise ConfigError(f"file larger than {MAX_FILE_BYTES // (1024 * 1024)} MiB", file=file)
+    if b"\x00" in data:
+        raise ConfigError("binary file, not YAML text", file=file)
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"not UTF-8 text (byte {error.start})", file=file) from None
+    document = parse_yaml(text, file)
+    if not isinstance(document, dict):
+        kind = "a list" if isinstance(document, list) else f"a {type(document).__name__}"
+        if document is None:
+            raise ConfigError("file holds no settings (expected a YAML mapping)", file=file)
+        raise ConfigError(f"top level must be a mapping of sections, not {kind}", file=file)
+    return document
+
+
+def split_path(dotted: str) -> list[str]:
+    parts = dotted.split(".")
+    if not dotted or any(not part for part in parts):
+        raise ConfigError(f"invalid key path {dotted!r}")
+    return parts
+
+
+def set_path(config: dict, dotted: str, value: Any) -> None:
+    """Set ``config[a][b][c] = value`` for ``dotted = 'a.b.c'``, creating mappings on the way."""
+    parts = split_path(dotted)
+    node = config
+    for index, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {}
+        elif isinstance(child, str) and index + 1 < len(parts):
+            # shorthand such as `weighting: gaussian` becomes a mapping when a field is set
+            child = node[part] = {"kind": child}
+        if not isinstance(child, dict):
+            raise ConfigError(f"cannot set {dotted}: {'.'.join(parts[:index + 1])} is not a mapping",
+                              key=dotted)
+        node = child
+    node[parts[-1]] = value
+
+
+def apply_overrides(config: dict, assignments: list[str], file: str) -> dict:
+    """Apply ``--set key.path=value`` assignments; values are parsed as YAML scalars/lists."""
+    result = copy.deepcopy(config)
+    for assignment in assignments:
+        if "=" not in assignment:
+            raise ConfigError(f"--set {assignment!r}: expected key.path=value", file=file)
+        dotted, _, raw_value = assignment.partition("=")
+        value = parse_yaml(raw_value, f"--set {dotted}") if raw_value.strip() else None
+        try:
+            set_path(result, dotted.strip(), value)
+        except ConfigError as error:
+            raise ConfigError(f"--set: {error.reason}", file=file, key=dotted.strip()) from None
+    return result
+
+
+def deep_merge(base: dict, override: dict) -> dict:
+    """A copy of ``base`` with ``override`` merged in, mapping by mapping."""
+    result = copy.deepcopy(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(result.get(key), dict) and "kind" not in value:
+            result[key] = deep_merge(result[key], value)
+        else:
+            result[key] = copy.deepcopy(value)
+    return result

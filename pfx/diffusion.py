@@ -1,0 +1,77 @@
+r"""Post-resampling diffusion ("roughening", "jitter") against sample impoverishment.
+
+After a trial resamples, duplicated particles are moved apart by independent noise:
+
+* ``none``: nothing.
+* ``gaussian``: :math:`x \leftarrow x + \sigma \epsilon`, fixed standard deviation ``std``
+  (a number or one per state component): han-lee's "diffusion rate".
+* ``roughening``: Gordon, Salmond & Smith (1993): :math:`\sigma_j = K E_j N^{-1/d}`, with
+  :math:`E_j` the range (max - min) of component :math:`j` over the trial's particles, ``factor``
+  :math:`K` (Simon uses K = 0.2), :math:`d` the state dimension.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+
+from pfx.registry import Registry
+from pfx.seeding import TrialStreams
+
+
+class _Diffusion(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    def apply(self, particles: np.ndarray, random: TrialStreams) -> np.ndarray:
+        raise NotImplementedError
+
+
+class NoDiffusion(_Diffusion):
+    """No post-resampling noise."""
+
+    kind: Literal["none"] = "none"
+
+    def apply(self, particles, random):
+        return particles
+
+
+class GaussianDiffusion(_Diffusion):
+    """Add N(0, std^2) to every component after resampling."""
+
+    kind: Literal["gaussian"] = "gaussian"
+    std: Union[float, list[float]] = Field(description="standard deviation (one, or one per component)")
+
+    def apply(self, particles, random):
+        std = np.asarray(self.std, dtype=float)
+        if std.ndim and std.shape[0] != particles.shape[-1]:
+            raise ValueError(f"diffusion.std has {std.shape[0]} values for {particles.shape[-1]} components")
+        return particles + std * random.standard_normal(particles.shape[1:])
+
+
+class Roughening(_Diffusion):
+    """Roughening: std_j = factor * range_j * N^(-1/d) (Gordon et al. 1993)."""
+
+    kind: Literal["roughening"] = "roughening"
+    factor: float = Field(0.2, gt=0, description="K in K * E_j * N^(-1/d)")
+
+    def apply(self, particles, random):
+        n, d = particles.shape[-2], particles.shape[-1]
+        spread = particles.max(axis=-2, keepdims=True) - particles.min(axis=-2, keepdims=True)
+        std = self.factor * spread * n ** (-1.0 / d)
+        return particles + std * random.standard_normal(particles.shape[1:])
+
+
+def _shorthand(value):
+    return {"kind": value} if isinstance(value, str) else value
+
+
+DIFFUSIONS: Registry[type[_Diffusion]] = Registry("diffusion")
+for _class in (NoDiffusion, GaussianDiffusion, Roughening):
+    DIFFUSIONS.add(_class.model_fields["kind"].default, _class)
+
+Diffusion = Annotated[
+    Annotated[Union[NoDiffusion, GaussianDiffusion, Roughening], Field(discriminator="kind")],
+    BeforeValidator(_shorthand),
+]

@@ -1,0 +1,198 @@
+r"""The batched particle filter: R independent trials x N particles advanced together.
+
+Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..T:
+
+1. **Predict**: :math:`x_{k,i} \sim p(x_k \mid x_{k-1,i}, u_k)` (the model's transition).
+2. **Weight**: :math:`\log \tilde w_{k,i} = \log w_{k-1,i} + \log \ell_k(x_{k,i})`, with the
+   configured weighting :math:`\ell` (the likelihood :math:`p(z_k \mid x_{k,i})` by default).
+3. **Normalise** in the log domain: :math:`\log w_{k,i} = \log \tilde w_{k,i} - L_k`,
+   :math:`L_k = \log \sum_i \tilde w_{k,i}` by log-sum-exp (shifted by the row maximum, so
+   extreme log-weights never overflow). :math:`\sum_k L_k` estimates :math:`\log p(z_{1:T})`.
+   If every weight of a trial underflows (:math:`L_k = -\infty`), the step is *degenerate*:
+   the policy is to reset that trial's weights to uniform and go on (counted per trial).
+4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling),
+   and :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
+5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
+   :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
+
+A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
+drag equation, for instance, blows up in finite time for a negative ballistic coefficient): it
+gets weight zero (log-weight -inf), its state is parked at 0 until resampling replaces it, and
+it is counted per trial (``lost_particles``). A trial that loses every particle, a NaN or
++inf log-likelihood of a finite particle, or a non-finite truth is a model error:
+:class:`ModelNumericalError` names the model and the step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from pfx.errors import ModelNumericalError
+from pfx.seeding import TrialStreams
+
+
+@dataclass
+class SpreadCriterion:
+    """Record, per step, the share of particles within ``radius`` of the particle mean."""
+
+    radius: float
+    weighted: bool
+
+
+@dataclass
+class FilterTrace:
+    """What a filter run leaves behind, per trial and step (steps 1..T)."""
+
+    estimates: np.ndarray            # (R, T, d) weighted mean before resampling
+    ess: np.ndarray                  # (R, T) effective sample size before resampling
+    resampled: np.ndarray            # (R, T) bool
+    degenerate: np.ndarray           # (R, T) bool: every weight underflowed
+    spread: np.ndarray               # (R, T) weighted RMS distance of position from its mean
+    log_likelihood: np.ndarray       # (R,) sum of the log normalisers
+    lost_particles: np.ndarray       # (R,) particles whose state became non-finite
+    within_radius: Optional[np.ndarray] = None  # (R, T) share of particles within the radius
+
+
+def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row-wise log-sum-exp normalisation; returns (normalised log-weights, log normaliser).
+
+    A row whose entries are all -inf has normaliser -inf and is returned unchanged.
+    """
+    peak = np.max(log_weights, axis=-1, keepdims=True)
+    finite_peak = np.where(np.isfinite(peak), peak, 0.0)
+    with np.errstate(under="ignore"):
+        total = np.sum(np.exp(log_weights - finite_peak), axis=-1, keepdims=True)
+    with np.errstate(divide="ignore"):
+        normaliser = np.log(total) + finite_peak
+    safe = np.where(np.isfinite(normaliser), normaliser, 0.0)
+    return log_weights - safe, normaliser[..., 0]
+
+
+def effective_sample_size(weights: np.ndarray) -> np.ndarray:
+    """ESS = 1 / sum_i w_i^2 for normalised weights, per row."""
+    return 1.0 / np.sum(weights * weights, axis=-1)
+
+
+def weighted_mean(weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
+    """sum_i w_i x_i per trial: (R, N), (R, N, d) -> (R, d)."""
+    return np.einsum("rn,rnd->rd", weights, particles)
+
+
+def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
+                        particles: int, resampler, ess_threshold: float, weighting, diffusion,
+                        spread_criterion: Optional[SpreadCriterion] = None) -> FilterTrace:
+    """Run the filter on measurements of shape (R, T, m); see the module docstring."""
+    trials, steps, _ = measurements.shape
+    n = particles
+    position = list(model.position_components)
+    state = prior.sample(random, (n,))
+    uniform_log_weight = -np.log(n)
+    log_weights = np.full((trials, n), uniform_log_weight)
+
+    estimates = np.empty((trials, steps, state.shape[-1]))
+    ess = np.empty((trials, steps))
+    resampled = np.zeros((trials, steps), dtype=bool)
+    degenerate = np.zeros((trials, steps), dtype=bool)
+    spread = np.empty((trials, steps))
+    within = np.empty((trials, steps)) if spread_criterion else None
+    log_likelihood = np.zeros(trials)
+    lost_particles = np.zeros(trials, dtype=np.int64)
+
+    for k in range(1, steps + 1):
+        t = k - 1
+        with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
+            state = model.transition(state, k, random)
+        finite = np.isfinite(state).all(axis=-1)
+        lost = None
+        if not finite.all():
+            lost = ~finite
+            lost_particles += lost.sum(axis=-1)
+            if (lost | np.isneginf(log_weights)).all(axis=-1).any():
+                raise ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or "
+                                          f"infinite at step {k} of the filter (check the prior and the noise)")
+            state[lost] = 0.0
+            log_weights[lost] = -np.inf
+        prior_weights = np.exp(log_weights)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            increment = weighting.log_weights(model, measurements[:, t, None, :], state, prior_weights)
+        if lost is not None:
+            increment[lost] = -np.inf
+        # a zero-weight particle stays at zero weight, whatever its likelihood evaluates to
+        increment = np.where(np.isneginf(log_weights), -np.inf, increment)
+        log_weights, normaliser = log_normalise(log_weights + increment)
+        if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
+            bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
+            raise ModelNumericalError(
+                f"model {model.kind} gave {bad} log-likelihood at step {k} of the filter "
+                "(did particles leave the model's domain? check the prior and the noise)")
+        underflow = np.isneginf(normaliser)
+        if underflow.any():
+            degenerate[underflow, t] = True
+            log_weights[underflow] = uniform_log_weight
+        log_likelihood += normaliser
+
+        weights = np.exp(log_weights)
+        ess[:, t] = effective_sample_size(weights)
+        estimates[:, t] = weighted_mean(weights, state)
+        if not np.isfinite(estimates[:, t]).all():
+            raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
+                                      "of the filter (check the prior and the noise)")
+
+        if ess_threshold >= 1.0:
+            rows = np.arange(trials)
+        elif ess_threshold > 0.0:
+            rows = np.flatnonzero(ess[:, t] < ess_threshold * n)
+        else:
+            rows = np.empty(0, dtype=np.intp)
+        if rows.size:
+            streams = random if rows.size == trials else random.subset(rows)
+            indices = resampler(weights[rows], streams)
+            chosen = np.take_along_axis(state[rows], indices[..., None], axis=1)
+            state[rows] = diffusion.apply(chosen, streams)
+            log_weights[rows] = uniform_log_weight
+            weights[rows] = 1.0 / n
+            resampled[rows, t] = True
+
+        with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
+            spread[:, t] = _spread(weights, state[..., position])
+            if spread_criterion is not None:
+                within[:, t] = _share_within(weights, state[..., position], spread_criterion)
+
+    return FilterTrace(estimates=estimates, ess=ess, resampled=resampled, degenerate=degenerate,
+                       spread=spread, log_likelihood=log_likelihood, lost_particles=lost_particles,
+                       within_radius=within)
+
+
+def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Weighted RMS distance of the particles' positions from their weighted mean."""
+    centre = weighted_mean(weights, positions)[:, None, :]
+    squared = np.sum((positions - centre) ** 2, axis=-1)
+    return np.sqrt(np.sum(weights * squared, axis=-1))
+
+
+def _share_within(weights: np.ndarray, positions: np.ndarray, criterion: SpreadCriterion) -> np.ndarray:
+    """Share of particles (by weight, or by count) within the radius of the (matching) mean."""
+    if not criterion.weighted:
+        weights = np.full_like(weights, 1.0 / weights.shape[-1])
+    centre = weighted_mean(weights, positions)[:, None, :]
+    inside = np.sum((positions - centre) ** 2, axis=-1) <= criterion.radius ** 2
+    return np.sum(weights * inside, axis=-1)
+
+
+def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
+    """True states x_0..x_T (R, T+1, d) and measurements z_1..z_T (R, T, m) from ``model``."""
+    trials = len(random)
+    state = model.initial.sample(random)
+    states = np.empty((trials, model.steps + 1, state.shape[-1]))
+    measurements = np.empty((trials, model.steps, model.measurement_dimension))
+    states[:, 0] = state
+    for k in range(1, model.steps + 1):
+        state = model.transition(state, k, random)
+        states[:, k] = state
+        measurements[:, k - 1] = model.simulate_measurement(state, random)
+        if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):
+            raise ModelNumericalError(f"model {model.kind} produced NaN or infinite values at step {k} of the truth")
+    return states, measurements

@@ -1,0 +1,42 @@
+"""Errors pfx reports to its user.
+
+A :class:`ConfigError` is the user's mistake, not a bug: the command line prints it as one
+line (file, key path, reason), exits with status 2 and writes nothing.
+"""
+
+from __future__ import annotations
+
+
+class ConfigError(Exception):
+    """A problem with the user's input, located by file, key path and (for YAML) position."""
+
+    def __init__(self, reason: str, *, file: str | None = None, key: str | None = None,
+                 line: int | None = None, column: int | None = None):
+        super().__init__(reason)
+        self.reason = reason
+        self.file = file
+        self.key = key
+        self.line = line
+        self.column = column
+
+    def located(self, *, file: str | None = None, key_prefix: str | None = None) -> "ConfigError":
+        """The same error with the file filled in and/or a prefix added to the key path."""
+        key = self.key
+        if key_prefix:
+            key = f"{key_prefix}.{key}" if key else key_prefix
+        return ConfigError(self.reason, file=self.file or file, key=key,
+                           line=self.line, column=self.column)
+
+    def __str__(self) -> str:
+        where = self.file or "<config>"
+        if self.line is not None:
+            where += f":{self.line}"
+            if self.column is not None:
+                where += f":{self.column}"
+        if self.key:
+            return f"{where}: {self.key}: {self.reason}"
+        return f"{where}: {self.reason}"
+
+
+class ModelNumericalError(RuntimeError):
+    """A model produced NaN or infinity; the message names the model and the step."""

@@ -1,0 +1,94 @@
+"""The figure registry, the read-only view of a result folder, and rendering."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from functools import cached_property
+from pathlib import Path
+from typing import Callable, Optional
+
+import pandas as pd
+
+from pfx.registry import Registry
+
+FIGURES: Registry[Callable] = Registry("figure")
+
+
+class ResultFolder:
+    """A result folder as figures see it: its CSV tables and its manifest, nothing else."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def table(self, name: str) -> pd.DataFrame:
+        return pd.read_csv(self.path / f"{name}.csv")
+
+    @cached_property
+    def trials(self) -> pd.DataFrame:
+        return self.table("trials")
+
+    @cached_property
+    def steps(self) -> pd.DataFrame:
+        return self.table("steps")
+
+    @cached_property
+    def summary(self) -> pd.DataFrame:
+        return self.table("summary")
+
+    @cached_property
+    def manifest(self) -> dict:
+        return json.loads((self.path / "manifest.json").read_text())
+
+    @property
+    def units(self) -> dict:
+        return self.manifest.get("units", {})
+
+    @property
+    def label_columns(self) -> list[str]:
+        return self.manifest.get("label_columns", ["arm"])
+
+    def cell_names(self, frame: pd.DataFrame) -> pd.Series:
+        """A legend label per row: the label columns that vary between cells, joined."""
+        columns = [c for c in self.label_columns if c in frame and self.trials[c].nunique() > 1]
+        if not columns:
+            columns = ["arm"]
+        return frame[columns].astype(str).agg(", ".join, axis=1) if len(columns) > 1 else frame[columns[0]].astype(str)
+
+
+def _save(figure, target: Path) -> None:
+    """Write a figure atomically (temporary file in the same folder, then rename)."""
+    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=".tmp-", suffix=target.suffix)
+    os.close(descriptor)
+    try:
+        figure.savefig(temporary, dpi=150, bbox_inches="tight")
+        os.replace(temporary, target)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def render_figures(result_dir: str | Path, names: Optional[list[str]] = None,
+                   formats: tuple[str, ...] = ("png",)) -> list[Path]:
+    """Render the named figures (default: those in the folder's manifest) from CSV; return paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    result = ResultFolder(result_dir)
+    names = names if names is not None else result.manifest.get("figures", [])
+    out = result.path / "figures"
+    out.mkdir(exist_ok=True)
+    written: list[Path] = []
+    for name in names:
+        figure = FIGURES[name](result)
+        if figure is None:
+            continue
+        for extension in formats:
+            target = out / f"{name}.{extension}"
+            _save(figure, target)
+            written.append(target)
+        plt.close(figure)
+    return written

@@ -1,0 +1,122 @@
+"""Initial laws p(x_0): where the truth starts, and the prior a filter starts from.
+
+A config names one of three forms::
+
+    initial: {kind: point, state: [3.0e5, -2.0e4, 1.0e-3]}
+    initial: {kind: gaussian, mean: [3.0e5, -2.0e4, 1.0e-3], covariance: [1.0e6, 4.0e6, 10.0]}
+    initial: {kind: uniform, low: [-20, -15], high: [20, 25]}
+
+``covariance`` takes the same forms as a noise variance (number, list or matrix).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Optional, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+
+from pfx.noise import Noise, Variance
+from pfx.seeding import TrialStreams
+
+
+class _InitialLaw(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    def bind(self, dimension: int) -> "_InitialLaw":
+        raise NotImplementedError
+
+    def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
+        """Draws of shape (trials, *shape, d)."""
+        raise NotImplementedError
+
+    def mean_vector(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def covariance_matrix(self) -> np.ndarray:
+        raise NotImplementedError
+
+
+def _check_length(values, dimension: int, key: str) -> None:
+    if len(values) != dimension:
+        raise ValueError(f"@{key}: expected {dimension} value(s), got {len(values)}")
+
+
+class PointLaw(_InitialLaw):
+    """A known initial state (a point mass)."""
+
+    kind: Literal["point"] = "point"
+    state: list[float] = Field(description="the initial state")
+
+    def bind(self, dimension):
+        _check_length(self.state, dimension, "state")
+        return self
+
+    def sample(self, random, shape=()):
+        value = np.asarray(self.state, dtype=float)
+        return np.broadcast_to(value, (len(random),) + tuple(shape) + value.shape).copy()
+
+    def mean_vector(self):
+        return np.asarray(self.state, dtype=float)
+
+    def covariance_matrix(self):
+        return np.zeros((len(self.state), len(self.state)))
+
+
+class GaussianLaw(_InitialLaw):
+    """A normal distribution with the given mean and covariance."""
+
+    kind: Literal["gaussian"] = "gaussian"
+    mean: list[float] = Field(description="mean vector")
+    covariance: Variance = Field(description="variance(s) or covariance matrix")
+
+    _noise: Optional[Noise] = PrivateAttr(None)
+
+    def bind(self, dimension):
+        _check_length(self.mean, dimension, "mean")
+        try:
+            self._noise = Noise(family="gaussian", variance=self.covariance).bind(dimension)
+        except ValueError as error:
+            raise ValueError(str(error).replace("@variance", "@covariance")) from None
+        return self
+
+    def sample(self, random, shape=()):
+        return np.asarray(self.mean) + self._noise.sample(random, shape)
+
+    def mean_vector(self):
+        return np.asarray(self.mean, dtype=float)
+
+    def covariance_matrix(self):
+        return self._noise.covariance()
+
+
+class UniformLaw(_InitialLaw):
+    """Independent uniform components on the box [low, high]."""
+
+    kind: Literal["uniform"] = "uniform"
+    low: list[float] = Field(description="lower corner of the box")
+    high: list[float] = Field(description="upper corner of the box")
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if len(self.low) == len(self.high) and any(h <= l for l, h in zip(self.low, self.high)):
+            raise ValueError("@high: every high must exceed its low")
+        return self
+
+    def bind(self, dimension):
+        _check_length(self.low, dimension, "low")
+        _check_length(self.high, dimension, "high")
+        return self
+
+    def sample(self, random, shape=()):
+        low, high = np.asarray(self.low), np.asarray(self.high)
+        return low + (high - low) * random.uniform(tuple(shape) + low.shape)
+
+    def mean_vector(self):
+        return (np.asarray(self.low) + np.asarray(self.high)) / 2.0
+
+    def covariance_matrix(self):
+        return np.diag((np.asarray(self.high) - np.asarray(self.low)) ** 2 / 12.0)
+
+
+InitialLaw = Annotated[Union[PointLaw, GaussianLaw, UniformLaw], Field(discriminator="kind")]

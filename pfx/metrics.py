@@ -1,0 +1,189 @@
+r"""Metrics: pure functions from a trial's truth and filter trace to numbers.
+
+All arrays carry the trial axis first; steps are numbered k = 1..T (step k is the k-th
+transition + measurement, i.e. the k-th action in kim-mcl's counting).
+
+* **RMSE** of component :math:`j`: :math:`\sqrt{\tfrac1T \sum_k (\hat x_{k,j} - x_{k,j})^2}`;
+  of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below.
+* **Error distance** :math:`e_k = \lVert \hat p_k - p_k \rVert_2` over the model's position
+  components; reported time-averaged (:math:`\tfrac1T\sum_k e_k`) and final (:math:`e_T`).
+* **Convergence step**, two criteria (the table using it must say which):
+
+  - ``spread``: the first step at which at least ``fraction`` of the particles lie within
+    ``radius`` of the particle mean, evaluated on the posterior cloud at the end of the step
+    (after any resampling); ``weighted`` counts particles by weight and uses the weighted mean,
+    otherwise each particle counts 1/N around the unweighted mean. kim-mcl: fraction 1.
+  - ``truth``: the first step from which the error distance stays below ``radius`` for
+    ``hold`` consecutive steps (needs the truth: for experiments, not for a deployed filter).
+
+  Error distance at convergence is :math:`e_k` at that step; never converging leaves both
+  empty and ``converged`` false.
+* **Mean ESS**, **resample count**, **degenerate-step count** (every weight underflowed; the
+  weights are reset to uniform), **lost particles** (states that became non-finite), and the filter's **log-likelihood** estimate
+  :math:`\sum_k \log \sum_i w_{k-1,i}\, \ell_k(x_{k,i})` (the marginal likelihood when the
+  weighting is ``gaussian``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from pfx.registry import Registry
+
+NEVER = -1
+
+
+class ConvergenceCriterion(BaseModel):
+    """Parameters of the convergence metric."""
+
+    model_config = ConfigDict(extra="forbid")
+    criterion: Literal["spread", "truth"] = Field("spread", description="spread (particle cloud) or truth (error) based")
+    radius: float = Field(1.0, gt=0, description="radius in position units")
+    fraction: float = Field(0.9, gt=0, le=1, description="spread: share of particles required inside the radius")
+    weighted: bool = Field(False, description="spread: weight particles (and the mean) by their weights")
+    hold: int = Field(1, ge=1, description="truth: steps the error must stay below the radius")
+
+
+class MetricsConfig(BaseModel):
+    """Parameters of the metrics (every metric is always computed)."""
+
+    model_config = ConfigDict(extra="forbid")
+    convergence: ConvergenceCriterion = Field(default_factory=ConvergenceCriterion)
+
+
+# -- pure functions ---------------------------------------------------------------------------
+
+def component_rmse(truth: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """RMSE over time of every state component: (trials, T, d) -> (trials, d)."""
+    return np.sqrt(np.mean((estimate - truth) ** 2, axis=1))
+
+
+def error_distance(truth: np.ndarray, estimate: np.ndarray, components) -> np.ndarray:
+    """Euclidean distance between true and estimated position: (trials, T)."""
+    difference = estimate[..., list(components)] - truth[..., list(components)]
+    return np.sqrt(np.sum(difference * difference, axis=-1))
+
+
+def first_step(condition: np.ndarray) -> np.ndarray:
+    """1-based index of the first True along the step axis, or NEVER."""
+    found = condition.any(axis=1)
+    return np.where(found, condition.argmax(axis=1) + 1, NEVER)
+
+
+def spread_convergence_step(fraction_within: np.ndarray, fraction: float) -> np.ndarray:
+    """First step at which at least ``fraction`` of the particles lie within the radius."""
+    return first_step(fraction_within >= fraction - 1e-12)
+
+
+def truth_convergence_step(distance: np.ndarray, radius: float, hold: int) -> np.ndarray:
+    """First step k with distance < radius at steps k .. k + hold - 1 (all inside the run)."""
+    below = distance < radius
+    steps = below.shape[1]
+    if hold > steps:
+        return np.full(below.shape[0], NEVER)
+    window = np.ones_like(below[:, : steps - hold + 1])
+    for offset in range(hold):
+        window &= below[:, offset: steps - hold + 1 + offset]
+    return first_step(window)
+
+
+def value_at_step(series: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """series[r, step[r] - 1], NaN where step is NEVER."""
+    index = np.clip(step - 1, 0, series.shape[1] - 1)
+    values = np.take_along_axis(series, index[:, None], axis=1)[:, 0]
+    return np.where(step == NEVER, np.nan, values)
+
+
+# -- metric families: column name -> per-trial values -----------------------------------------
+
+@dataclass
+class MetricInputs:
+    """Everything a metric may read: truth at steps 1..T, the filter trace, the model."""
+
+    truth: np.ndarray              # (trials, T, d)
+    trace: "object"                # pfx.engine.FilterTrace
+    model: "object"                # the truth model (names, position components)
+    particles: int
+    config: MetricsConfig
+
+
+MetricFamily = Callable[[MetricInputs], dict[str, np.ndarray]]
+METRICS: Registry[MetricFamily] = Registry("metric")
+
+
+def _distance(inputs: MetricInputs) -> np.ndarray:
+    return error_distance(inputs.truth, inputs.trace.estimates, inputs.model.position_components)
+
+
+@METRICS.register("rmse")
+def rmse_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """RMSE over time per state component (rmse_<name>) and of position (rmse_position)."""
+    values = component_rmse(inputs.truth, inputs.trace.estimates)
+    columns = {f"rmse_{name}": values[:, j] for j, name in enumerate(inputs.model.state_names)}
+    columns["rmse_position"] = np.sqrt(np.mean(_distance(inputs) ** 2, axis=1))
+    return columns
+
+
+@METRICS.register("error_distance")
+def error_distance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Position error distance averaged over time (error_distance_mean) and at the end (_final)."""
+    distance = _distance(inputs)
+    return {"error_distance_mean": distance.mean(axis=1), "error_distance_final": distance[:, -1]}
+
+
+@METRICS.register("convergence")
+def convergence_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Convergence step (spread or truth criterion), converged flag, error distance then."""
+    criterion = inputs.config.convergence
+    distance = _distance(inputs)
+    if criterion.criterion == "spread":
+        step = spread_convergence_step(inputs.trace.within_radius, criterion.fraction)
+    else:
+        step = truth_convergence_step(distance, criterion.radius, criterion.hold)
+    return {
+        "convergence_step": np.where(step == NEVER, np.nan, step.astype(float)),
+        "converged": step != NEVER,
+        "error_at_convergence": value_at_step(distance, step),
+    }
+
+
+@METRICS.register("ess")
+def ess_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Mean effective sample size over the steps (before resampling), in particles."""
+    return {"ess_mean": inputs.trace.ess.mean(axis=1)}
+
+
+@METRICS.register("resampling")
+def resampling_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Number of steps at which the trial resampled."""
+    return {"resample_count": inputs.trace.resampled.sum(axis=1)}
+
+
+@METRICS.register("degeneracy")
+def degeneracy_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Number of degenerate steps (every weight underflowed; weights reset to uniform)."""
+    return {"degenerate_steps": inputs.trace.degenerate.sum(axis=1)}
+
+
+@METRICS.register("lost_particles")
+def lost_particle_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Particles whose state became NaN or infinite (given weight zero), summed over steps."""
+    return {"lost_particles": inputs.trace.lost_particles}
+
+
+@METRICS.register("log_likelihood")
+def log_likelihood_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """The filter's estimate of log p(z_1:T) (exact meaning only with gaussian weighting)."""
+    return {"log_likelihood": inputs.trace.log_likelihood}
+
+
+def compute_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Every registered metric, as column name -> (trials,) array."""
+    columns: dict[str, np.ndarray] = {}
+    for family in METRICS.names():
+        columns.update(METRICS[family](inputs))
+    return columns

@@ -1,0 +1,163 @@
+r"""The state-space model interface every pfx model implements.
+
+A model is the triple of laws a particle filter needs, written as vectorised functions over
+arrays whose leading dimensions are free (``(trials, d)`` for the truth, ``(trials, N, d)``
+for particles):
+
+* the **initial law** :math:`p(x_0)` (``initial``; a filter's prior defaults to
+  :meth:`Model.default_prior`),
+* the **transition** :math:`x_k = f(x_{k-1}, u_k, w_k)` with control input :math:`u_k`
+  (:meth:`Model.control`) and process noise :math:`w_k` (:meth:`Model.propagate`),
+* the **measurement** :math:`z_k = h(x_k) + v_k` (:meth:`Model.measurement_mean`,
+  :meth:`Model.measure`) and its log-likelihood :math:`\log p(z_k \mid x_k)`
+  (:meth:`Model.log_likelihood`).
+
+The same class simulates the truth and runs inside the filter: a filter that assumes a
+different model is simply another instance (other noise, other motion) of the same kind.
+
+A model is a pydantic model: its fields are its parameters, declared once with types and
+descriptions; the config schema, ``pfx schema`` and the config docs all come from them.
+Fields left ``None`` are filled from the model's presets by :meth:`Model.presets`.
+Cross-field checks raise ``ValueError("@key.path: reason")`` so errors point at the key.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from pfx.initial_laws import InitialLaw
+from pfx.noise import Noise
+from pfx.seeding import TrialStreams
+
+
+class Model(BaseModel):
+    """Base class of all models (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    kind: str
+    steps: Optional[int] = Field(None, ge=1, le=1_000_000, description="number of filter steps T")
+    dt: Optional[float] = Field(None, gt=0, description="time between steps (seconds unless stated)")
+    process_noise: Optional[Noise] = Field(None, description="process noise w_k (family, variance)")
+    measurement_noise: Optional[Noise] = Field(None, description="measurement noise v_k (family, variance)")
+    initial: Optional[InitialLaw] = Field(None, description="initial law of the true state x_0")
+
+    # -- what a subclass provides --------------------------------------------------------------
+
+    def presets(self) -> dict[str, Any]:
+        """Default values for the fields left None (may depend on other fields)."""
+        return {}
+
+    def check(self) -> None:
+        """Cross-field checks; raise ValueError('@key: reason')."""
+
+    def setup(self) -> None:
+        """Precompute arrays (private attributes) once the parameters are resolved."""
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    @property
+    def state_units(self) -> tuple[str, ...]:
+        return ("",) * self.state_dimension
+
+    @property
+    def state_dimension(self) -> int:
+        return len(self.state_names)
+
+    @property
+    def measurement_dimension(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def process_noise_dimension(self) -> int:
+        return self.state_dimension
+
+    @property
+    def position_components(self) -> tuple[int, ...]:
+        """Indices of the state components that form the 'position' (for error distance)."""
+        return tuple(range(self.state_dimension))
+
+    @property
+    def position_unit(self) -> str:
+        units = {self.state_units[i] for i in self.position_components}
+        return units.pop() if len(units) == 1 else ""
+
+    time_unit: ClassVar[str] = "s"
+
+    def control(self, step: int) -> Optional[np.ndarray]:
+        """The control input u_k applied between step k-1 and step k (k = 1..T)."""
+        return None
+
+    def propagate(self, state: np.ndarray, control: Optional[np.ndarray], noise: np.ndarray) -> np.ndarray:
+        """x_k = f(x_{k-1}, u_k, w_k); ``noise`` has shape state.shape[:-1] + (process noise dim,)."""
+        raise NotImplementedError
+
+    def measurement_mean(self, state: np.ndarray) -> np.ndarray:
+        """h(x): the noise-free measurement, shape state.shape[:-1] + (m,)."""
+        raise NotImplementedError
+
+    def measure(self, state: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """z = h(x) + v."""
+        return self.measurement_mean(state) + noise
+
+    def log_likelihood(self, measurement: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """log p(z | x) under the measurement noise; ``measurement`` broadcasts against ``state``."""
+        return self.measurement_noise.log_density(measurement - self.measurement_mean(state))
+
+    def default_prior(self):
+        """The prior a filter starts from unless its config names one (default: ``initial``)."""
+        return self.initial
+
+    # -- composed operations used by the engine and the truth simulator ------------------------
+
+    def transition(self, state: np.ndarray, step: int, random: TrialStreams) -> np.ndarray:
+        """Sample x_k ~ p(x_k | x_{k-1}, u_k) for every leading index; trial axis first."""
+        noise = self.process_noise.sample(random, state.shape[1:-1])
+        return self.propagate(state, self.control(step), noise)
+
+    def simulate_measurement(self, state: np.ndarray, random: TrialStreams) -> np.ndarray:
+        """Sample z_k ~ p(z_k | x_k)."""
+        return self.measure(state, self.measurement_noise.sample(random, state.shape[1:-1]))
+
+    def times(self) -> np.ndarray:
+        """Time of steps 1..T."""
+        return self.dt * np.arange(1, self.steps + 1)
+
+    # -- validation ----------------------------------------------------------------------------
+
+    @model_validator(mode="after")
+    def _resolve(self) -> "Model":
+        for name, value in self.presets().items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+        missing = [name for name in ("steps", "dt", "process_noise", "measurement_noise", "initial")
+                   if getattr(self, name) is None]
+        if missing:
+            raise ValueError(f"@{missing[0]}: required for model {self.kind}")
+        self.check()
+        _bind(self.process_noise, self.process_noise_dimension, "process_noise", need_density=False)
+        _bind(self.measurement_noise, self.measurement_dimension, "measurement_noise", need_density=True)
+        _bind(self.initial, self.state_dimension, "initial")
+        self.setup()
+        return self
+
+
+def _bind(component, dimension: int, key: str, **options) -> None:
+    try:
+        component.bind(dimension, **options)
+    except ValueError as error:
+        message = str(error)
+        if message.startswith("@"):
+            raise ValueError(f"@{key}.{message[1:]}") from None
+        raise ValueError(f"@{key}: {message}") from None
+
+
+def bind_law(law, dimension: int, key: str):
+    """Bind an initial law to a dimension, locating errors under ``key``."""
+    _bind(law, dimension, key)
+    return law

@@ -1,0 +1,228 @@
+r"""Noise families, for the true system and for the model a filter assumes.
+
+Every family is parameterised by its **variance** so that families can be swapped at equal
+second moment. A family is defined by its unit-variance standard form :math:`z`; a noise of
+covariance :math:`\Sigma = L L^\top` is :math:`x = L z` with independent standard components,
+whose density is
+
+.. math:: p(x) = \prod_i f(z_i) \,/\, |\det L|, \qquad z = L^{-1} x .
+
+=============  =====================================================  =========================
+family         standard form (unit variance)                          density f(z)
+=============  =====================================================  =========================
+gaussian       N(0, 1)                                                exp(-z^2/2) / sqrt(2 pi)
+uniform        U(-sqrt 3, sqrt 3)                                     1 / (2 sqrt 3) inside
+triangular     symmetric on [-sqrt 6, sqrt 6], sqrt6 (U1 + U2 - 1)     (sqrt 6 - |z|) / 6
+laplace        scale b = 1/sqrt 2, b (E1 - E2) with E ~ Exp(1)        exp(-|z|/b) / (2b)
+student_t      t_nu scaled by s = sqrt((nu - 2)/nu), nu > 2           t_nu(z/s) / s
+=============  =====================================================  =========================
+
+The triangular density is Probabilistic Robotics' ``prob_triangular(a, b)`` (Table 5.2,
+corrected printing) at variance ``b = 1``.
+
+``variance`` in a config is a number (the same for every component), a list (one variance per
+component) or a full covariance matrix. Zero variances are allowed for noise that is only
+sampled (process noise); a noise whose density is evaluated (measurement noise) must be
+positive definite.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Literal, Optional, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from scipy.special import gammaln
+
+from pfx.registry import Registry
+from pfx.seeding import TrialStreams
+
+
+@dataclass(frozen=True)
+class NoiseFamily:
+    """A zero-mean, unit-variance distribution: how to draw it and its log-density."""
+
+    sample_standard: Callable[[TrialStreams, tuple, Optional[float]], np.ndarray]
+    log_density_standard: Callable[[np.ndarray, Optional[float]], np.ndarray]
+    description: str
+
+
+NOISE_FAMILIES: Registry[NoiseFamily] = Registry("noise family")
+
+_SQRT3 = math.sqrt(3.0)
+_SQRT6 = math.sqrt(6.0)
+_LAPLACE_SCALE = 1.0 / math.sqrt(2.0)
+
+
+def _gaussian_log_density(z, df=None):
+    return -0.5 * z * z - 0.5 * math.log(2.0 * math.pi)
+
+
+def _uniform_sample(random, shape, df=None):
+    return (2.0 * random.uniform(shape) - 1.0) * _SQRT3
+
+
+def _uniform_log_density(z, df=None):
+    with np.errstate(divide="ignore"):
+        return np.where(np.abs(z) <= _SQRT3, -math.log(2.0 * _SQRT3), -np.inf)
+
+
+def _triangular_sample(random, shape, df=None):
+    return _SQRT6 * (random.uniform(shape) + random.uniform(shape) - 1.0)
+
+
+def _triangular_log_density(z, df=None):
+    with np.errstate(divide="ignore"):
+        return np.log(np.maximum(_SQRT6 - np.abs(z), 0.0)) - math.log(6.0)
+
+
+def _laplace_sample(random, shape, df=None):
+    return _LAPLACE_SCALE * (random.standard_exponential(shape) - random.standard_exponential(shape))
+
+
+def _laplace_log_density(z, df=None):
+    return -np.abs(z) / _LAPLACE_SCALE - math.log(2.0 * _LAPLACE_SCALE)
+
+
+def _student_t_sample(random, shape, df):
+    return math.sqrt((df - 2.0) / df) * random.standard_t(df, shape)
+
+
+def _student_t_log_density(z, df):
+    scale = math.sqrt((df - 2.0) / df)
+    t = z / scale
+    return (gammaln((df + 1.0) / 2.0) - gammaln(df / 2.0) - 0.5 * math.log(df * math.pi)
+            - (df + 1.0) / 2.0 * np.log1p(t * t / df) - math.log(scale))
+
+
+for _name, _family in {
+    "gaussian": NoiseFamily(lambda r, s, df=None: r.standard_normal(s), _gaussian_log_density,
+                            "normal distribution"),
+    "uniform": NoiseFamily(_uniform_sample, _uniform_log_density,
+                           "uniform on [-sqrt(3 var), sqrt(3 var)] (bounded support)"),
+    "triangular": NoiseFamily(_triangular_sample, _triangular_log_density,
+                              "symmetric triangular on [-sqrt(6 var), sqrt(6 var)]"),
+    "laplace": NoiseFamily(_laplace_sample, _laplace_log_density,
+                           "double exponential (heavier tails than gaussian)"),
+    "student_t": NoiseFamily(_student_t_sample, _student_t_log_density,
+                             "Student t with df > 2 degrees of freedom (heavy tails)"),
+}.items():
+    NOISE_FAMILIES.add(_name, _family, _family.description)
+
+NoiseFamilyName = Literal[NOISE_FAMILIES.names()]  # type: ignore[valid-type]
+
+Variance = Union[float, list[float], list[list[float]]]
+
+
+class Noise(BaseModel):
+    """Zero-mean noise of a named family with a given variance (or covariance matrix)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    family: NoiseFamilyName = Field("gaussian", description="distribution family (`pfx list noises`)")
+    variance: Variance = Field(
+        1.0,
+        description="variance: a number for every component, a list with one per component, "
+                    "or a full covariance matrix")
+    df: Optional[float] = Field(
+        None, gt=2.0, description="degrees of freedom (student_t only; > 2 for a finite variance)")
+
+    _scale: Optional[np.ndarray] = PrivateAttr(None)       # per-component std (diagonal case)
+    _factor: Optional[np.ndarray] = PrivateAttr(None)      # L with L L^T = covariance
+    _inverse_factor: Optional[np.ndarray] = PrivateAttr(None)
+    _log_det_factor: float = PrivateAttr(0.0)
+    _dimension: Optional[int] = PrivateAttr(None)
+    _definite: bool = PrivateAttr(True)
+
+    @model_validator(mode="after")
+    def _check(self) -> "Noise":
+        if self.family == "student_t" and self.df is None:
+            raise ValueError("@df: student_t noise needs df (degrees of freedom, > 2)")
+        if self.family != "student_t" and self.df is not None:
+            raise ValueError(f"@df: df applies to student_t noise only, not {self.family}")
+        variance = np.asarray(self.variance, dtype=float)
+        if not np.all(np.isfinite(variance)):
+            raise ValueError("@variance: must be finite")
+        if variance.ndim < 2 and np.any(variance < 0):
+            raise ValueError("@variance: variances must be >= 0")
+        if variance.ndim == 2:
+            if variance.shape[0] != variance.shape[1]:
+                raise ValueError(f"@variance: covariance matrix must be square, got shape {variance.shape}")
+            if not np.allclose(variance, variance.T, rtol=1e-9, atol=1e-12 * max(1.0, np.abs(variance).max())):
+                raise ValueError("@variance: covariance matrix must be symmetric")
+            eigenvalues = np.linalg.eigvalsh(variance)
+            if eigenvalues.min() < -1e-10 * max(1.0, eigenvalues.max()):
+                raise ValueError("@variance: covariance matrix must be positive semi-definite")
+        return self
+
+    # -- binding to a dimension ---------------------------------------------------------------
+
+    def bind(self, dimension: int, *, need_density: bool = False) -> "Noise":
+        """Fix the number of components and precompute the factor L; check sizes."""
+        variance = np.asarray(self.variance, dtype=float)
+        if variance.ndim == 0:
+            variance = np.full(dimension, float(variance))
+        if variance.shape[0] != dimension:
+            raise ValueError(f"@variance: expected {dimension} component(s), got {variance.shape[0]}")
+        if variance.ndim == 1:
+            self._scale = np.sqrt(variance)
+            self._definite = bool(np.all(variance > 0))
+            if self._definite:
+                self._log_det_factor = float(np.sum(np.log(self._scale)))
+        else:
+            try:
+                self._factor = np.linalg.cholesky(variance)
+                self._definite = True
+                self._inverse_factor = np.linalg.inv(self._factor)
+                self._log_det_factor = float(np.sum(np.log(np.diag(self._factor))))
+            except np.linalg.LinAlgError:
+                values, vectors = np.linalg.eigh(variance)
+                self._factor = vectors * np.sqrt(np.clip(values, 0.0, None))
+                self._definite = False
+        if need_density and not self._definite:
+            raise ValueError("@variance: must be positive definite (its density is evaluated)")
+        self._dimension = dimension
+        return self
+
+    @property
+    def dimension(self) -> int:
+        if self._dimension is None:
+            raise RuntimeError("Noise.bind(dimension) must be called first")
+        return self._dimension
+
+    def covariance(self) -> np.ndarray:
+        """The covariance matrix, shape (k, k)."""
+        if self._scale is not None:
+            return np.diag(self._scale ** 2)
+        return self._factor @ self._factor.T
+
+    @property
+    def is_zero(self) -> bool:
+        if self._scale is not None:
+            return not np.any(self._scale)
+        return not np.any(self._factor)
+
+    # -- the two operations -------------------------------------------------------------------
+
+    def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
+        """Draws of shape ``(trials, *shape, k)``; no random numbers are used for zero noise."""
+        full_shape = tuple(shape) + (self.dimension,)
+        if self.is_zero:
+            return np.zeros((len(random),) + full_shape)
+        standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape, self.df)
+        if self._scale is not None:
+            return standard * self._scale
+        return standard @ self._factor.T
+
+    def log_density(self, value: np.ndarray) -> np.ndarray:
+        """log p(value) for ``value`` of shape (..., k); returns shape (...)."""
+        if not self._definite:
+            raise RuntimeError("log_density of a degenerate noise")
+        if self._scale is not None:
+            standard = value / self._scale
+        else:
+            standard = value @ self._inverse_factor.T
+        log_f = NOISE_FAMILIES[self.family].log_density_standard(standard, self.df)
+        return np.sum(log_f, axis=-1) - self._log_det_factor

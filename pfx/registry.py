@@ -1,0 +1,79 @@
+"""Name -> component registries.
+
+Every interchangeable component (model, resampler, weighting, noise family, diffusion,
+metric, figure) is registered under the name a config uses for it, with a one-line
+description that ``pfx list`` prints. Adding a component is one new function or class plus
+one ``register`` call; nothing else in pfx needs to change.
+"""
+
+from __future__ import annotations
+
+import difflib
+from typing import Callable, Generic, Iterator, TypeVar
+
+T = TypeVar("T")
+
+
+def first_line(text: str | None) -> str:
+    """The first non-empty line of a docstring, for one-line descriptions."""
+    for line in (text or "").strip().splitlines():
+        if line.strip():
+            return line.strip()
+    return ""
+
+
+def closest_name(name: str, candidates) -> str | None:
+    """The candidate that looks most like ``name``, or None when nothing is close."""
+    matches = difflib.get_close_matches(str(name), [str(c) for c in candidates], n=1, cutoff=0.5)
+    return matches[0] if matches else None
+
+
+class Registry(Generic[T]):
+    """An ordered mapping from config names to components, with descriptions."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self._items: dict[str, T] = {}
+        self._descriptions: dict[str, str] = {}
+
+    def register(self, name: str, description: str | None = None) -> Callable[[T], T]:
+        """Decorator: register the decorated object under ``name``."""
+
+        def decorate(item: T) -> T:
+            if name in self._items:
+                raise ValueError(f"{self.what} {name!r} registered twice")
+            self._items[name] = item
+            self._descriptions[name] = description or first_line(getattr(item, "__doc__", ""))
+            return item
+
+        return decorate
+
+    def add(self, name: str, item: T, description: str | None = None) -> T:
+        return self.register(name, description)(item)
+
+    def __getitem__(self, name: str) -> T:
+        try:
+            return self._items[name]
+        except KeyError:
+            hint = closest_name(name, self._items)
+            suffix = f" (did you mean {hint!r}?)" if hint else ""
+            raise KeyError(f"unknown {self.what} {name!r}{suffix}") from None
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._items
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._items)
+
+    def items(self):
+        return self._items.items()
+
+    def describe(self) -> dict[str, str]:
+        """name -> one-line description, in registration order."""
+        return dict(self._descriptions)

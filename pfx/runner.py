@@ -1,0 +1,280 @@
+"""Run a plan: every cell, every trial, in batches; write the result folder.
+
+Work is split into tasks of (cell, batch of trials). A batch runs all its trials at once in
+the engine; because every trial has its own random streams, batching and the number of
+worker processes change nothing in the results. Each finished cell is written atomically to
+``cells/`` inside the result folder; when every cell is done the tables, the summary and
+the figures are assembled and ``cells/`` is removed. Running again with the same config
+resumes from the finished cells; a folder made by a different config is refused unless
+``--fresh`` is given.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+import pandas as pd
+import yaml
+
+import pfx
+from pfx.config.plan import Cell, Plan
+from pfx.engine import SpreadCriterion, run_particle_filter, simulate_truth
+from pfx.errors import ConfigError
+from pfx.figures import render_figures
+from pfx.metrics import MetricInputs, compute_metrics
+from pfx.resampling import RESAMPLERS
+from pfx.seeding import TrialStreams, filter_seed, truth_seed
+from pfx.tables import summarize, write_csv, write_text
+
+MEMORY_BUDGET_BYTES = 512 * 1024 * 1024
+OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "config.yaml", "manifest.json")
+
+
+@dataclass
+class BatchResult:
+    cell_key: str
+    trials: pd.DataFrame
+    steps: pd.DataFrame
+    wall_time: float
+
+
+def bytes_per_trial(cell: Cell) -> int:
+    """Rough peak bytes of one trial in the engine: a few copies of the particle array."""
+    n, d = cell.filter.particles, cell.filter_model.state_dimension
+    m = cell.filter_model.measurement_dimension
+    return 8 * n * (6 * d + 3 * m + 8)
+
+
+def batch_size(cell: Cell, trials: int) -> int:
+    """Trials per batch: fits the memory budget, and leaves ~10 batches for progress."""
+    by_memory = max(1, MEMORY_BUDGET_BYTES // bytes_per_trial(cell))
+    return int(max(1, min(trials, by_memory, -(-trials // 10) if trials >= 20 else trials)))
+
+
+def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> BatchResult:
+    """Simulate the truth and run the filter for some trials of one cell; return table rows."""
+    truth_seeds = [truth_seed(seed, t) for t in trials]
+    filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
+    states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
+    criterion = cell.metrics.convergence
+    spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
+    started = time.perf_counter()
+    trace = run_particle_filter(
+        cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), prior=cell.prior,
+        particles=cell.filter.particles, resampler=RESAMPLERS[cell.filter.resampler],
+        ess_threshold=cell.filter.effective_threshold(), weighting=cell.filter.weighting,
+        diffusion=cell.filter.diffusion, spread_criterion=spread)
+    elapsed = time.perf_counter() - started
+    truth = states[:, 1:]
+    with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
+        metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
+                                           particles=cell.filter.particles, config=cell.metrics))
+    model = cell.truth_model
+    rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
+                         "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
+                         **metrics, "run_time_s": elapsed / len(trials)})
+    traced = [i for i, t in enumerate(trials) if t < trace_trials]
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = _steps_frame(cell, trials, traced, truth, trace)
+    return BatchResult(cell.key, rows, steps, elapsed)
+
+
+def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
+    if not traced:
+        return pd.DataFrame()
+    model = cell.truth_model
+    steps = model.steps
+    position = list(model.position_components)
+    frames = []
+    for i in traced:
+        error = trace.estimates[i][:, position] - truth[i][:, position]
+        columns = {"cell": cell.key, **cell.labels, "trial": trials[i], "step": np.arange(1, steps + 1),
+                   "time": model.times()}
+        for j, name in enumerate(model.state_names):
+            columns[f"truth_{name}"] = truth[i, :, j]
+            columns[f"estimate_{name}"] = trace.estimates[i, :, j]
+        columns["error_distance"] = np.sqrt(np.sum(error * error, axis=-1))
+        columns["ess"] = trace.ess[i]
+        columns["resampled"] = trace.resampled[i]
+        columns["degenerate"] = trace.degenerate[i]
+        columns["spread"] = trace.spread[i]
+        if trace.within_radius is not None:
+            columns["within_radius"] = trace.within_radius[i]
+        frames.append(pd.DataFrame(columns))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _git_revision() -> Optional[str]:
+    try:
+        output = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(pfx.__file__).parent,
+                                capture_output=True, text=True, timeout=5)
+        return output.stdout.strip() or None if output.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
+    """Check the result folder; return the keys of cells already finished (for resuming)."""
+    manifest_path = out / "manifest.json"
+    if out.exists() and not out.is_dir():
+        raise ConfigError("result path exists and is not a folder", file=str(out))
+    if fresh and out.exists():
+        for name in OUTPUT_FILES:
+            (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / "cells", ignore_errors=True)
+        shutil.rmtree(out / "figures", ignore_errors=True)
+        return set()
+    if not out.exists() or not any(out.iterdir()):
+        return set()
+    if not manifest_path.exists():
+        raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
+                          "use --fresh", file=str(out))
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (OSError, ValueError):
+        raise ConfigError("result folder has an unreadable manifest.json; use --fresh", file=str(out)) from None
+    if manifest.get("config_hash") != plan.config_hash:
+        raise ConfigError(f"result folder holds results of a different config (hash "
+                          f"{manifest.get('config_hash')} != {plan.config_hash}); use --fresh to "
+                          "replace them or --out for another folder", file=str(out))
+    done = {path.name.split(".")[0] for path in (out / "cells").glob("*.trials.csv")}
+    return done
+
+
+def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
+             report: Callable[[str], None] = lambda message: None, progress: bool = False) -> Path:
+    """Run every unfinished cell of the plan into ``out``; assemble tables and figures."""
+    out = Path(out)
+    done = prepare_folder(plan, out, fresh)
+    manifest_path = out / "manifest.json"
+    if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
+        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        return out
+    if done:
+        report(f"{out}: resuming: {len(done)} of {len(plan.cells)} cells already done")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "cells").mkdir(exist_ok=True)
+    experiment = plan.experiment
+    manifest = _manifest(plan, started=_now())
+    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+    write_text(json.dumps(manifest, indent=2), manifest_path)
+
+    trials = list(range(experiment.trials))
+    trace_trials = experiment.outputs.trace_trials
+    tasks = []
+    for cell in plan.cells:
+        if cell.key in done:
+            continue
+        size = batch_size(cell, len(trials))
+        tasks.append((cell, [trials[i:i + size] for i in range(0, len(trials), size)]))
+
+    started = time.perf_counter()
+    cell_times: dict[str, float] = {}
+    total = sum(len(batch) for _, batches in tasks for batch in batches)
+    bar = _progress_bar(progress, total, experiment.name)
+    with bar as live, (ProcessPoolExecutor(max_workers=workers) if workers > 1 else nullcontext()) as pool:
+        task_id = live.add_task("trials", total=total) if live else None
+        pending = []
+        for cell, batches in tasks:
+            if pool is None:
+                results = []
+                for batch in batches:
+                    results.append(run_batch(cell, experiment.seed, batch, trace_trials))
+                    if live:
+                        live.advance(task_id, len(batch))
+                _write_cell(out, cell, results, cell_times)
+            else:
+                pending.append((cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials)
+                                       for b in batches]))
+        for cell, futures in pending:
+            results = []
+            for future in futures:
+                results.append(future.result())
+                if live:
+                    live.advance(task_id, len(results[-1].trials))
+            _write_cell(out, cell, results, cell_times)
+
+    _assemble(plan, out, manifest, cell_times, time.perf_counter() - started)
+    return out
+
+
+def _progress_bar(enabled: bool, total: int, name: str):
+    if not enabled or total == 0:
+        return nullcontext()
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+
+    return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn("trials"),
+                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True)
+
+
+def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: dict) -> None:
+    trials = pd.concat([r.trials for r in results], ignore_index=True)
+    steps = pd.concat([r.steps for r in results], ignore_index=True)
+    write_csv(steps, out / "cells" / f"{cell.key}.steps.csv")
+    write_csv(trials, out / "cells" / f"{cell.key}.trials.csv")
+    cell_times[cell.key] = sum(r.wall_time for r in results)
+
+
+def _manifest(plan: Plan, started: str) -> dict:
+    model = plan.cells[0].truth_model
+    return {
+        "name": plan.experiment.name,
+        "description": plan.experiment.description,
+        "config_file": plan.file,
+        "config_hash": plan.config_hash,
+        "seed": plan.experiment.seed,
+        "trials": plan.experiment.trials,
+        "pfx_version": pfx.__version__,
+        "git_revision": _git_revision(),
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "started": started,
+        "finished": None,
+        "complete": False,
+        "label_columns": plan.label_columns,
+        "figures": list(plan.experiment.outputs.figures),
+        "formats": list(plan.experiment.outputs.formats),
+        "units": {"time": model.time_unit, "position": model.position_unit,
+                  **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
+        "cells": [{"cell": c.key, **c.labels} for c in plan.cells],
+    }
+
+
+def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time: float) -> None:
+    order = [cell.key for cell in plan.cells]
+    trials = pd.concat([pd.read_csv(out / "cells" / f"{key}.trials.csv", keep_default_na=True)
+                        for key in order], ignore_index=True)
+    steps_frames = []
+    for key in order:
+        path = out / "cells" / f"{key}.steps.csv"
+        if path.stat().st_size > 1:
+            steps_frames.append(pd.read_csv(path))
+    steps = pd.concat(steps_frames, ignore_index=True) if steps_frames else pd.DataFrame()
+    write_csv(trials, out / "trials.csv")
+    write_csv(steps, out / "steps.csv")
+    write_csv(summarize(trials, plan.label_columns), out / "summary.csv")
+    for entry in manifest["cells"]:
+        entry["wall_time_s"] = cell_times.get(entry["cell"])
+    manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)
+    write_text(json.dumps(manifest, indent=2), out / "manifest.json")
+    render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
+    shutil.rmtree(out / "cells", ignore_errors=True)

@@ -1,0 +1,76 @@
+"""The one CSV writer, and the summary table.
+
+CSV files are written atomically: to a temporary file in the same folder, then renamed over
+the target, so a reader (or an interrupted run) never sees half a file. Missing values (a
+trial that never converged) are written as empty fields, never as ``nan``; a diverged value is
+written as ``inf`` (pandas reads it back as infinity).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+SUMMARY_STATISTICS = ("n", "mean", "std", "sem", "ci95_low", "ci95_high", "median")
+# trials.csv columns that are identifiers or settings, not metrics to summarise
+NON_METRIC_COLUMNS = {"cell", "trial", "seed", "truth_seed", "filter_seed", "steps"}
+
+
+def write_text(text: str, path: str | Path) -> None:
+    """Write a text file atomically."""
+    path = Path(path)
+    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
+    try:
+        with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_csv(frame: pd.DataFrame, path: str | Path) -> None:
+    """Write a table atomically; NaN becomes an empty field."""
+    write_text(frame.to_csv(index=False, na_rep="", lineterminator="\n"), path)
+
+
+def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:
+    """One row per cell: n, mean, std, sem, 95% t-interval and median of every metric.
+
+    Only finite values count (``n`` says how many): a never-converged trial has no
+    convergence step. The interval is mean +- t_{0.975, n-1} * sem; empty when n < 2.
+    """
+    keys = ["cell"] + [c for c in label_columns if c != "cell"]
+    metrics = [c for c in trials.columns if c not in NON_METRIC_COLUMNS and c not in keys
+               and (pd.api.types.is_numeric_dtype(trials[c]) or pd.api.types.is_bool_dtype(trials[c]))]
+    rows = []
+    for _, group in trials.groupby("cell", sort=False):
+        row = {key: group[key].iloc[0] for key in keys}
+        row["trials"] = len(group)
+        for metric in metrics:
+            values = group[metric].to_numpy(dtype=float)
+            values = values[np.isfinite(values)]
+            row.update({f"{metric}_{name}": value for name, value in _statistics(values).items()})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _statistics(values: np.ndarray) -> dict[str, float]:
+    n = values.size
+    result = {"n": n, "mean": np.nan, "std": np.nan, "sem": np.nan,
+              "ci95_low": np.nan, "ci95_high": np.nan, "median": np.nan}
+    if n == 0:
+        return result
+    result["mean"] = float(values.mean())
+    result["median"] = float(np.median(values))
+    if n >= 2:
+        std = float(values.std(ddof=1))
+        sem = std / np.sqrt(n)
+        half = float(stats.t.ppf(0.975, n - 1)) * sem
+        result.update(std=std, sem=sem, ci95_low=result["mean"] - half, ci95_high=result["mean"] + half)
+    return result
