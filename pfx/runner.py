@@ -251,6 +251,7 @@ def _manifest(plan: Plan, started: str) -> dict:
         "finished": None,
         "complete": False,
         "label_columns": plan.label_columns,
+        "legend_columns": plan.legend_columns,
         "figures": list(plan.experiment.outputs.figures),
         "formats": list(plan.experiment.outputs.formats),
         "units": {"time": model.time_unit, "position": model.position_unit,

@@ -62,6 +62,12 @@ class Plan:
     def label_columns(self) -> list[str]:
         return list(self.cells[0].labels) if self.cells else []
 
+    @property
+    def legend_columns(self) -> list[str]:
+        """The columns that tell cells apart in a legend: the arm (if several), the sweep keys."""
+        arms = ["arm"] if len(self.experiment.arms) > 1 else []
+        return arms + [sweep_column(key) for key in self.experiment.sweep]
+
 
 def canonical_hash(data: Any, length: int = 16) -> str:
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)

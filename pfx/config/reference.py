@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import types
 import typing
 from typing import Any
 
@@ -23,8 +24,13 @@ def _type_name(annotation: Any) -> str:
     origin = typing.get_origin(annotation)
     if origin is typing.Literal:
         return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
-    if origin in (typing.Union, __import__("types").UnionType):
-        return " or ".join(_type_name(a) for a in _union_members(annotation))
+    if origin in (typing.Union, types.UnionType):
+        members = _union_members(annotation)
+        kinds = [m.model_fields["kind"].default for m in members
+                 if isinstance(m, type) and issubclass(m, BaseModel) and "kind" in m.model_fields]
+        if kinds and len(kinds) == len(members):
+            return "{kind: " + " \\| ".join(kinds) + ", ...}"
+        return " or ".join(_type_name(a) for a in members)
     if origin in (list, tuple, dict):
         arguments = ", ".join(_type_name(a) for a in typing.get_args(annotation) if a is not Ellipsis)
         return f"{origin.__name__}[{arguments}]"
@@ -86,3 +92,24 @@ def markdown_reference() -> str:
     parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]
     parts += ["### `outputs`", "", model_table(OutputsConfig), ""]
     return "\n".join(parts)
+
+
+def update_readme(path: str = "README.md") -> None:
+    """Rewrite the generated section of the README between its two markers."""
+    from pathlib import Path
+
+    start, end = "<!-- config-reference:start -->", "<!-- config-reference:end -->"
+    readme = Path(path)
+    text = readme.read_text()
+    before, rest = text.split(start, 1)
+    _, after = rest.split(end, 1)
+    readme.write_text(f"{before}{start}\n{markdown_reference()}\n{end}{after}")
+
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] == ["--update-readme"]:
+        update_readme()
+    else:
+        print(markdown_reference())

@@ -50,11 +50,17 @@ class ResultFolder:
         return self.manifest.get("label_columns", ["arm"])
 
     def cell_names(self, frame: pd.DataFrame) -> pd.Series:
-        """A legend label per row: the label columns that vary between cells, joined."""
-        columns = [c for c in self.label_columns if c in frame and self.trials[c].nunique() > 1]
+        """A legend label per row: the arm (if several) and the swept values, joined."""
+        columns = [c for c in self.manifest.get("legend_columns", []) if c in frame]
         if not columns:
             columns = ["arm"]
-        return frame[columns].astype(str).agg(", ".join, axis=1) if len(columns) > 1 else frame[columns[0]].astype(str)
+        if columns == ["arm"]:
+            return frame["arm"].astype(str)
+        parts = [(c + "=") + frame[c].astype(str) if c != "arm" else frame[c].astype(str) for c in columns]
+        label = parts[0]
+        for part in parts[1:]:
+            label = label + ", " + part
+        return label
 
 
 def _save(figure, target: Path) -> None:
