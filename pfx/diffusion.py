@@ -17,7 +17,7 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
-from pfx.registry import Registry
+from pfx.registry import Registry, kind_shorthand
 from pfx.seeding import TrialStreams
 
 
@@ -63,15 +63,11 @@ class Roughening(_Diffusion):
         return particles + std * random.standard_normal(particles.shape[1:])
 
 
-def _shorthand(value):
-    return {"kind": value} if isinstance(value, str) else value
-
-
 DIFFUSIONS: Registry[type[_Diffusion]] = Registry("diffusion")
 for _class in (NoDiffusion, GaussianDiffusion, Roughening):
     DIFFUSIONS.add(_class.model_fields["kind"].default, _class)
 
 Diffusion = Annotated[
     Annotated[Union[NoDiffusion, GaussianDiffusion, Roughening], Field(discriminator="kind")],
-    BeforeValidator(_shorthand),
+    BeforeValidator(kind_shorthand),
 ]

@@ -28,6 +28,11 @@ def closest_name(name: str, candidates) -> str | None:
     return matches[0] if matches else None
 
 
+def kind_shorthand(value):
+    """Let a config write ``weighting: gaussian`` for ``weighting: {kind: gaussian}``."""
+    return {"kind": value} if isinstance(value, str) else value
+
+
 class Registry(Generic[T]):
     """An ordered mapping from config names to components, with descriptions."""
 

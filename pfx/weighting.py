@@ -31,7 +31,7 @@ from typing import Annotated, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
-from pfx.registry import Registry
+from pfx.registry import Registry, kind_shorthand
 
 
 class _Weighting(BaseModel):
@@ -125,12 +125,8 @@ for _class in (GaussianWeighting, EuclideanWeighting, ManhattanWeighting, Mahala
     WEIGHTINGS.add(_class.model_fields["kind"].default, _class)
 
 
-def _shorthand(value):
-    return {"kind": value} if isinstance(value, str) else value
-
-
 Weighting = Annotated[
     Annotated[Union[GaussianWeighting, EuclideanWeighting, ManhattanWeighting, MahalanobisWeighting],
               Field(discriminator="kind")],
-    BeforeValidator(_shorthand),
+    BeforeValidator(kind_shorthand),
 ]

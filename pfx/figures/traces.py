@@ -2,62 +2,60 @@
 
 from __future__ import annotations
 
+import pandas as pd
+
 from pfx.figures.registry import FIGURES, ResultFolder
 
 
-def _time_axis(result: ResultFolder) -> tuple[str, str]:
+def _over_time(result: ResultFolder, values: pd.Series, ylabel: str, title: str, band: bool):
+    """One line per cell: the mean of ``values`` over the traced trials at each time."""
+    import matplotlib.pyplot as plt
+
+    steps = result.steps
     unit = result.units.get("time", "s")
-    return ("time", f"time [{unit}]") if unit != "step" else ("step", "step")
+    x_column, x_label = ("time", f"time [{unit}]") if unit != "step" else ("step", "step")
+    frame = steps.assign(_cell=result.cell_names(steps), _value=values)
+    figure, axes = plt.subplots(figsize=(7.5, 4.5))
+    for name, group in frame.groupby("_cell", sort=False):
+        by_time = group.groupby(x_column)["_value"]
+        mean = by_time.mean()
+        axes.plot(mean.index, mean.values, label=name, linewidth=1.6)
+        if band and group["trial"].nunique() > 1:
+            axes.fill_between(mean.index, by_time.min().values, by_time.max().values, alpha=0.15)
+    traced = frame.groupby("_cell")["trial"].nunique().max()
+    axes.set_xlabel(x_label)
+    axes.set_ylabel(ylabel)
+    axes.set_title(f"{result.manifest.get('name', '')}: {title}\n"
+                   f"(mean{' and range' if band else ''} of {traced} traced trial{'s' if traced > 1 else ''} per cell)",
+                   fontsize=11)
+    axes.grid(alpha=0.3)
+    if frame["_cell"].nunique() > 4:   # many cells: keep the legend off the data
+        axes.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    else:
+        axes.legend(fontsize=8)
+    figure.tight_layout()
+    return figure, axes
 
 
 @FIGURES.register("error_over_time")
 def error_over_time(result: ResultFolder):
-    """Mean position error distance over time per cell (traced trials), with its spread."""
-    import matplotlib.pyplot as plt
-
-    steps = result.steps
-    if steps.empty:
+    """Mean position error distance over time per cell (traced trials), with its range."""
+    if result.steps.empty:
         return None
-    x_column, x_label = _time_axis(result)
-    figure, axes = plt.subplots(figsize=(7.5, 4.5))
-    steps = steps.assign(_cell=result.cell_names(steps))
-    for name, group in steps.groupby("_cell", sort=False):
-        by_time = group.groupby(x_column)["error_distance"]
-        mean = by_time.mean()
-        axes.plot(mean.index, mean.values, label=name, linewidth=1.6)
-        if group["trial"].nunique() > 1:
-            axes.fill_between(mean.index, by_time.min().values, by_time.max().values, alpha=0.15)
     unit = result.units.get("position", "")
-    axes.set_xlabel(x_label)
-    axes.set_ylabel(f"error distance [{unit}]" if unit else "error distance")
-    traced = steps.groupby("_cell")["trial"].nunique().max()
-    axes.set_title(f"{result.manifest.get('name', '')}: position error over time "
-                   f"(mean and range of {traced} traced trial{'s' if traced > 1 else ''} per cell)")
-    axes.grid(alpha=0.3)
-    axes.legend(fontsize=8)
-    figure.tight_layout()
+    figure, _ = _over_time(result, result.steps["error_distance"],
+                           f"error distance [{unit}]" if unit else "error distance",
+                           "position error over time", band=True)
     return figure
 
 
 @FIGURES.register("ess_over_time")
 def ess_over_time(result: ResultFolder):
     """Mean effective sample size (as a share of N) over time per cell, before resampling."""
-    import matplotlib.pyplot as plt
-
     steps = result.steps
     if steps.empty:
         return None
-    x_column, x_label = _time_axis(result)
-    figure, axes = plt.subplots(figsize=(7.5, 4.5))
-    steps = steps.assign(_cell=result.cell_names(steps), _share=steps["ess"] / steps["n_particles"])
-    for name, group in steps.groupby("_cell", sort=False):
-        mean = group.groupby(x_column)["_share"].mean()
-        axes.plot(mean.index, mean.values, label=name, linewidth=1.6)
-    axes.set_xlabel(x_label)
-    axes.set_ylabel("ESS / N")
+    figure, axes = _over_time(result, steps["ess"] / steps["n_particles"], "ESS / N",
+                              "effective sample size before resampling", band=False)
     axes.set_ylim(0, 1.05)
-    axes.set_title(f"{result.manifest.get('name', '')}: effective sample size before resampling")
-    axes.grid(alpha=0.3)
-    axes.legend(fontsize=8)
-    figure.tight_layout()
     return figure
