@@ -63,12 +63,15 @@ def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     peak = np.max(log_weights, axis=-1, keepdims=True)
     finite_peak = np.where(np.isfinite(peak), peak, 0.0)
-    with np.errstate(under="ignore"):
-        total = np.sum(np.exp(log_weights - finite_peak), axis=-1, keepdims=True)
+    with np.errstate(under="ignore", over="ignore", invalid="ignore"):
+        shifted = log_weights - finite_peak
+        total = np.sum(np.exp(shifted), axis=-1, keepdims=True)
     with np.errstate(divide="ignore"):
-        normaliser = np.log(total) + finite_peak
-    safe = np.where(np.isfinite(normaliser), normaliser, 0.0)
-    return log_weights - safe, normaliser[..., 0]
+        log_total = np.log(total)
+    # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
+    # rounding when |peak| > ~1e16.
+    normalised = shifted - np.where(np.isfinite(log_total), log_total, 0.0)
+    return normalised, (log_total + finite_peak)[..., 0]
 
 
 def effective_sample_size(weights: np.ndarray) -> np.ndarray:

@@ -41,15 +41,18 @@ from pfx.seeding import TrialStreams
 def inverse_cdf(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Indices j with C_{j-1} <= u < C_j for each sorted point u, row by row.
 
-    The last cumulative weight is set to exactly 1 (round-off guard), so a point just below 1
-    never falls past the end; zero-weight particles are never selected.
+    Round-off guard: the cumulative weights are set to exactly 1 from the last particle with
+    positive weight onward, so a point just below 1 never falls past the end nor onto a
+    trailing zero-weight particle; zero-weight particles are never selected.
     """
     cumulative = np.cumsum(weights, axis=-1)
-    cumulative[..., -1] = 1.0
+    n = weights.shape[-1]
+    last_positive = n - 1 - np.argmax(weights[..., ::-1] > 0, axis=-1)
+    cumulative[np.arange(n) >= last_positive[..., None]] = 1.0
     indices = np.empty(points.shape, dtype=np.intp)
     for row in range(points.shape[0]):
         indices[row] = np.searchsorted(cumulative[row], points[row], side="right")
-    np.minimum(indices, weights.shape[-1] - 1, out=indices)
+    np.minimum(indices, n - 1, out=indices)
     return indices
 
 

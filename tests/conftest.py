@@ -54,6 +54,10 @@ class PfxResult(NamedTuple):
 def _environment() -> dict[str, str]:
     env = dict(os.environ)
     env["CI"] = "1"                          # no progress bar
+    # The suite runs several CLI processes side by side: one BLAS thread each avoids
+    # oversubscribing the CPUs (results must not depend on it).
+    for variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(variable, "1")
     env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     return env
 

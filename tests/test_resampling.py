@@ -187,6 +187,16 @@ def test_inverse_cdf_round_off_guard():
     np.testing.assert_array_equal(indices[:, -1], 999)
 
 
+def test_inverse_cdf_guard_never_selects_trailing_zero_weight():
+    """With rows summing to 1 - 1e-12 and a zero last weight (a lost particle parked at 0),
+    a point in the round-off gap must go to the last particle of positive weight: the
+    module promises that zero-weight particles are never selected. Forcing C_N = 1 makes the
+    gap belong to particle N - 1 instead (probability ~ gap per point in the engine, so
+    rare, but it would resurrect a lost particle)."""
+    w = np.array([[0.5, 0.5 - 1e-12, 0.0]])
+    assert inverse_cdf(w, np.array([[1 - 1e-13]]))[0, 0] == 1
+
+
 @pytest.mark.parametrize("name", ["systematic", "stratified", "multinomial"])
 def test_resamplers_never_return_n_with_short_sums(name):
     """Resamplers fed rows summing to 1 - 1e-12 never return index N."""
