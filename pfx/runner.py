@@ -218,11 +218,13 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
 def _progress_bar(enabled: bool, total: int, name: str):
     if not enabled or total == 0:
         return nullcontext()
+    from rich.console import Console
     from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                TimeElapsedColumn, TimeRemainingColumn)
 
     return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn("trials"),
-                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True)
+                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True,
+                    console=Console(stderr=True))
 
 
 def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: dict) -> None:
