@@ -92,9 +92,18 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> Ba
     return BatchResult(cell.key, rows, steps, elapsed)
 
 
+def steps_columns(cell: Cell) -> list[str]:
+    """The columns of steps.csv for a cell (so that an empty table still has its header)."""
+    states = cell.truth_model.state_names
+    columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
+                                                               for kind in ("truth", "estimate")],
+               "error_distance", "ess", "resampled", "degenerate", "spread"]
+    return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
+
+
 def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
     if not traced:
-        return pd.DataFrame()
+        return pd.DataFrame(columns=steps_columns(cell))
     model = cell.truth_model
     steps = model.steps
     position = list(model.position_components)
@@ -114,7 +123,7 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         if trace.within_radius is not None:
             columns["within_radius"] = trace.within_radius[i]
         frames.append(pd.DataFrame(columns))
-    return pd.concat(frames, ignore_index=True)
+    return pd.concat(frames, ignore_index=True)[steps_columns(cell)]
 
 
 def _git_revision() -> Optional[str]:
@@ -266,12 +275,8 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     order = [cell.key for cell in plan.cells]
     trials = pd.concat([pd.read_csv(out / "cells" / f"{key}.trials.csv", keep_default_na=True)
                         for key in order], ignore_index=True)
-    steps_frames = []
-    for key in order:
-        path = out / "cells" / f"{key}.steps.csv"
-        if path.stat().st_size > 1:
-            steps_frames.append(pd.read_csv(path))
-    steps = pd.concat(steps_frames, ignore_index=True) if steps_frames else pd.DataFrame()
+    steps_frames = [pd.read_csv(out / "cells" / f"{key}.steps.csv") for key in order]
+    steps = pd.concat([f for f in steps_frames if not f.empty] or steps_frames[:1], ignore_index=True)
     write_csv(trials, out / "trials.csv")
     write_csv(steps, out / "steps.csv")
     write_csv(summarize(trials, plan.label_columns), out / "summary.csv")
