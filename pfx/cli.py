@@ -71,13 +71,20 @@ def run(
     """Run every cell and trial of the config(s); write CSV tables and figures."""
     from pfx.runner import run_plan
 
+    from pfx.runner import check_folder
+
     plans = [_load_plan(path, assignments, trials) for path in configs]   # validate all first
-    for plan in plans:
-        if out is None:
-            target = Path("runs") / plan.experiment.name
-        else:
-            target = out / plan.experiment.name if len(plans) > 1 else out
-        report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
+    if out is None:
+        targets = [Path("runs") / plan.experiment.name for plan in plans]
+    else:
+        targets = [out / plan.experiment.name for plan in plans] if len(plans) > 1 else [out]
+    for index, target in enumerate(targets):
+        if target in targets[:index]:
+            raise ConfigError(f"two configs named {plans[index].experiment.name!r} would share the result "
+                              f"folder {target}; rename one", file=plans[index].file, key="name")
+        check_folder(plans[index], target, fresh=not resume)
+    report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
+    for plan, target in zip(plans, targets):
         run_plan(plan, target, workers=workers, fresh=not resume, report=report,
                  progress=_show_progress(quiet))
         if not quiet:
@@ -191,7 +198,18 @@ def bench():
 
 
 def main() -> None:
-    app(prog_name="pfx")
+    """Entry point: command-line usage errors, too, are one line and exit status 2."""
+    try:
+        result = app(prog_name="pfx", standalone_mode=False)
+    except Exception as error:  # typer's (or click's) UsageError family, whichever package provides it
+        if not hasattr(error, "format_message") or getattr(error, "exit_code", None) != 2:
+            raise
+        if type(error).__name__ == "NoArgsIsHelpError":
+            typer.echo(error.format_message())
+            sys.exit(0)
+        typer.echo(f"pfx: error: {' '.join(error.format_message().split())}", err=True)
+        sys.exit(2)
+    sys.exit(result if isinstance(result, int) else 0)
 
 
 if __name__ == "__main__":

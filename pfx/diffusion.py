@@ -22,7 +22,7 @@ from pfx.seeding import TrialStreams
 
 
 class _Diffusion(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     def apply(self, particles: np.ndarray, random: TrialStreams) -> np.ndarray:
         raise NotImplementedError

@@ -21,7 +21,7 @@ from pfx.seeding import TrialStreams
 
 
 class _InitialLaw(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     def bind(self, dimension: int) -> "_InitialLaw":
         raise NotImplementedError

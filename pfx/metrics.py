@@ -40,7 +40,7 @@ NEVER = -1
 class ConvergenceCriterion(BaseModel):
     """Parameters of the convergence metric."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     criterion: Literal["spread", "truth"] = Field("spread", description="spread (particle cloud) or truth (error) based")
     radius: float = Field(1.0, gt=0, description="radius in position units")
     fraction: float = Field(0.9, gt=0, le=1, description="spread: share of particles required inside the radius")
@@ -51,7 +51,7 @@ class ConvergenceCriterion(BaseModel):
 class MetricsConfig(BaseModel):
     """Parameters of the metrics (every metric is always computed)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     convergence: ConvergenceCriterion = Field(default_factory=ConvergenceCriterion)
 
 

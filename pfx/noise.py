@@ -119,7 +119,7 @@ Variance = Union[float, list[float], list[list[float]]]
 class Noise(BaseModel):
     """Zero-mean noise of a named family with a given variance (or covariance matrix)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     family: NoiseFamilyName = Field("gaussian", description="distribution family (`pfx list noises`)")
     variance: Variance = Field(

@@ -139,19 +139,13 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
-    """Check the result folder; return the keys of cells already finished (for resuming)."""
-    manifest_path = out / "manifest.json"
+def check_folder(plan: Plan, out: Path, fresh: bool) -> None:
+    """Refuse, without touching anything, a result folder this run may not write to."""
     if out.exists() and not out.is_dir():
         raise ConfigError("result path exists and is not a folder", file=str(out))
-    if fresh and out.exists():
-        for name in OUTPUT_FILES:
-            (out / name).unlink(missing_ok=True)
-        shutil.rmtree(out / "cells", ignore_errors=True)
-        shutil.rmtree(out / "figures", ignore_errors=True)
-        return set()
-    if not out.exists() or not any(out.iterdir()):
-        return set()
+    if fresh or not out.exists() or not any(out.iterdir()):
+        return
+    manifest_path = out / "manifest.json"
     if not manifest_path.exists():
         raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
                           "use --fresh", file=str(out))
@@ -163,8 +157,18 @@ def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
         raise ConfigError(f"result folder holds results of a different config (hash "
                           f"{manifest.get('config_hash')} != {plan.config_hash}); use --fresh to "
                           "replace them or --out for another folder", file=str(out))
-    done = {path.name.split(".")[0] for path in (out / "cells").glob("*.trials.csv")}
-    return done
+
+
+def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
+    """Check the result folder; return the keys of cells already finished (for resuming)."""
+    check_folder(plan, out, fresh)
+    if fresh and out.exists():
+        for name in OUTPUT_FILES:
+            (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / "cells", ignore_errors=True)
+        shutil.rmtree(out / "figures", ignore_errors=True)
+        return set()
+    return {path.name.split(".")[0] for path in (out / "cells").glob("*.trials.csv")}
 
 
 def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,

@@ -21,6 +21,16 @@ SUMMARY_STATISTICS = ("n", "mean", "std", "sem", "ci95_low", "ci95_high", "media
 NON_METRIC_COLUMNS = {"cell", "trial", "seed", "truth_seed", "filter_seed", "steps"}
 
 
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp creates files readable by their owner only; results get the usual permissions.
+FILE_MODE = 0o666 & ~_current_umask()
+
+
 def write_text(text: str, path: str | Path) -> None:
     """Write a text file atomically."""
     path = Path(path)
@@ -28,6 +38,7 @@ def write_text(text: str, path: str | Path) -> None:
     try:
         with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as handle:
             handle.write(text)
+        os.chmod(temporary, FILE_MODE)
         os.replace(temporary, path)
     finally:
         if os.path.exists(temporary):

@@ -35,7 +35,7 @@ from pfx.registry import Registry, kind_shorthand
 
 
 class _Weighting(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     def label(self) -> str:
         """Short name for tables: the kind, plus the form where there is one."""

@@ -11,7 +11,7 @@ and each test checks its own.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Union
 
@@ -75,26 +75,24 @@ def _nothing_executed(folder: Path, result) -> None:
 
 CASES = [
     # --- the file itself -------------------------------------------------------------------
-    Case("yaml-syntax", "name: tiny\nseed: 7\nmodel: {kind: linear_gaussian\ntrials: 2\n", None,
-         ("yaml syntax error",), location=r"exp\.yaml:\d+:\d+: ", run=True),
-    Case("yaml-syntax-position", "name: tiny\nmodel:\n  kind: linear_gaussian\n    steps: 5\n", None,
-         ("yaml syntax error",), location=r"exp\.yaml:4:10: "),
+    Case("yaml-syntax", "name: tiny\nmodel:\n  kind: linear_gaussian\n    steps: 5\n", None,
+         ("yaml syntax error",), location=r"exp\.yaml:4:10: ", run=True),
     Case("tab-indentation", "name: tiny\nmodel:\n\tkind: linear_gaussian\n", None,
          ("yaml syntax error", "\\t"), location=r"exp\.yaml:3:1: "),
     Case("top-level-list", "- name: tiny\n- seed: 7\n", None, ("top level must be a mapping", "list")),
     Case("top-level-scalar", "just some words\n", None, ("top level must be a mapping",)),
-    Case("empty-file", "", None, ("empty",), run=True),
-    Case("comments-only", "# nothing here\n", None, ("empty",)),
+    Case("empty-file", "", None, ("empty",)),
     Case("binary-file", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x01", None, ("binary",)),
-    Case("missing-file", None, None, ("no such file",), target="absent.yaml", run=True),
+    Case("missing-file", None, None, ("no such file",), target="absent.yaml"),
     Case("directory", None, None, ("directory",), target="a-folder"),
     Case("duplicate-key", "name: tiny\nmodel: {kind: linear_gaussian, transition_matrix: [[1]], "
          "measurement_matrix: [[1]]}\nfilter:\n  particles: 10\n  particles: 20\n",
-         "filter.particles", ("duplicate key",), location=r"exp\.yaml:5:3: ", run=True),
+         "filter.particles", ("duplicate key",), location=r"exp\.yaml:5:3: "),
     Case("python-tag", "name: tiny\ndescription: !!python/object/apply:os.system ['echo hi > pwned.txt']\n"
          "model: {kind: linear_gaussian, transition_matrix: [[1]], measurement_matrix: [[1]]}\n",
-         None, ("tag",), location=r"exp\.yaml:\d+:\d+: ", run=True, check=_nothing_executed),
-    Case("alias-bomb", _BILLION_LAUGHS, None, ("alias",), run=True),
+         None, ("tag",), location=r"exp\.yaml:2:14: ", run=True, check=_nothing_executed),
+    # refused by counting nodes before anything is expanded (9^9 strings if it were expanded)
+    Case("alias-bomb", _BILLION_LAUGHS, None, ("alias", "refused", "more than")),
     # --- unknown keys, with the closest valid name --------------------------------------------
     Case("unknown-top-level", _config(seeds=3), "seeds", ("unknown key", "did you mean 'seed'")),
     Case("unknown-filter", _filter(particels=50), "filter.particels",
@@ -107,14 +105,12 @@ CASES = [
     # --- wrong types and out-of-range values ---------------------------------------------------
     Case("particles-not-int", _filter(particles="many"), "filter.particles", ("integer", "many")),
     Case("particles-zero", _filter(particles=0), "filter.particles", ("greater than or equal to 1",)),
-    Case("particles-negative", _filter(particles=-5), "filter.particles", ("greater than or equal to 1",)),
-    Case("trials-zero", _config(trials=0), "trials", ("greater than or equal to 1",)),
     Case("trials-negative", _config(trials=-3), "trials", ("greater than or equal to 1",)),
     Case("ess-threshold-above-1", _filter(ess_threshold=1.5), "filter.ess_threshold", ("less than or equal to 1",)),
     Case("ess-threshold-negative", _filter(ess_threshold=-0.1), "filter.ess_threshold",
          ("greater than or equal to 0",)),
     Case("variance-negative", _model(process_noise={"variance": -1.0}), "model.process_noise.variance",
-         (">= 0",), run=True),
+         (">= 0",)),
     Case("covariance-not-definite", _model_2d(measurement_noise={"variance": [[1.0, 2.0], [2.0, 1.0]]}),
          "model.measurement_noise.variance", ("positive",)),
     Case("covariance-singular", _model_2d(measurement_noise={"variance": [[1.0, 1.0], [1.0, 1.0]]}),
@@ -128,12 +124,15 @@ CASES = [
          ("unknown", "did you mean 'linear_gaussian'")),
     Case("unknown-resampler", _filter(resampler="systemtic"), "filter.resampler",
          ("unknown", "did you mean 'systematic'")),
-    Case("unknown-weighting", _filter(weighting="mahalanobs"), "filter.weighting",
+    Case("unknown-weighting", _filter(weighting="mahalanobs"), "filter.weighting.kind",
          ("unknown", "did you mean 'mahalanobis'")),
     Case("unknown-noise-family", _model(measurement_noise={"family": "gausian"}),
          "model.measurement_noise.family", ("unknown", "did you mean 'gaussian'")),
     Case("unknown-figure", _config(outputs={"figures": ["error_over_tim"]}), "outputs.figures[0]",
          ("unknown", "did you mean 'error_over_time'")),
+    Case("model-without-kind", _config(model={"steps": 5, "transition_matrix": [[1.0]],
+                                              "measurement_matrix": [[1.0]]}),
+         "model.kind", ("missing", "linear_gaussian")),
     Case("student-t-without-df", _model(measurement_noise={"family": "student_t", "variance": 1.0}),
          "model.measurement_noise.df", ("df",)),
     # --- sweeps and arms ---------------------------------------------------------------------------
@@ -143,56 +142,58 @@ CASES = [
     Case("sweep-bad-value", _config(sweep={"filter.particles": [10, -1]}), "sweep.filter.particles[1]",
          ("greater than or equal to 1",), run=True),
     Case("arm-bad-value", _config(arms={"fast": {"particles": 10}, "broken": {"resampler": "systemtic"}}),
-         "arms.broken.resampler", ("unknown", "did you mean 'systematic'"), run=True),
+         "arms.broken.resampler", ("unknown", "did you mean 'systematic'")),
+    Case("arm-bad-name", _config(arms={"bad name": {"particles": 10}}), "arms.bad name", ("match",)),
     # --- command-line overrides ------------------------------------------------------------------
     Case("set-without-equals", _config(), None, ("--set", "key.path=value"),
-         extra_args=("--set", "filter.particles"), run=True),
+         extra_args=("--set", "filter.particles")),
     Case("set-unknown-key", _config(), "filter.particels", ("unknown key", "did you mean 'particles'"),
          extra_args=("--set", "filter.particels=50"), run=True),
-    Case("set-bad-value", _config(), "filter.particles", ("greater than or equal to 1",),
-         extra_args=("--set", "filter.particles=0")),
 ]
 
 MODES = [(case, mode) for case in CASES for mode in (("validate", "run") if case.run else ("validate",))]
+GOOD = "good.yaml"      # `pfx run` gets a valid config first: it must not run either (all are checked first)
 
 
-def _prepare(folder: Path, case: Case) -> None:
+def _prepare(folder: Path, case: Case, mode: str) -> None:
     folder.mkdir(parents=True)
     if case.content is not None:
         write_config_file(folder, case.content, FILE)
     if case.target == "a-folder":
         (folder / "a-folder").mkdir()
+    if mode == "run" and not case.extra_args:
+        write_config_file(folder, tiny_config_dict(), GOOD)
 
 
 def _arguments(case: Case, mode: str) -> list[str]:
     if mode == "validate":
         return ["validate", case.target, *case.extra_args]
-    return ["run", case.target, "--out", "out", *case.extra_args]
+    configs = [case.target] if case.extra_args else [GOOD, case.target]
+    return ["run", *configs, "--out", "out", *case.extra_args]
 
 
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory, run_pfx):
-    """Run every (case, mode) once, concurrently; {(case id, mode): (folder, result)}."""
+    """Run every (case, mode) once, concurrently; {(case id, mode): (folder, result, files before)}."""
     root = tmp_path_factory.mktemp("config-errors")
     jobs, folders = {}, {}
     for case, mode in MODES:
         folder = root / f"{case.id}-{mode}"
-        _prepare(folder, case)
-        folders[(case.id, mode)] = folder
+        _prepare(folder, case, mode)
+        folders[(case.id, mode)] = (folder, sorted(p.name for p in folder.iterdir()))
         jobs[(case.id, mode)] = (_arguments(case, mode), folder)
-    results = run_pfx.many(jobs, timeout=120)
-    return {key: (folders[key], results[key]) for key in jobs}
+    results = run_pfx.many(jobs, timeout=120)     # the timeout is a safety net (alias bomb), not a check
+    return {key: (*folders[key], results[key]) for key in jobs}
 
 
-def _params():
-    for case, mode in MODES:
-        marks = [pytest.mark.xfail(reason=case.xfail, strict=True)] if case.xfail else []
-        yield pytest.param(case, mode, id=f"{case.id}-{mode}", marks=marks)
+PARAMS = [pytest.param(case, mode, id=f"{case.id}-{mode}",
+                       marks=[pytest.mark.xfail(reason=case.xfail, strict=True)] if case.xfail else [])
+          for case, mode in MODES]
 
 
-@pytest.mark.parametrize("case, mode", _params())
+@pytest.mark.parametrize("case, mode", PARAMS)
 def test_config_error_is_one_clear_line(case: Case, mode: str, outcomes):
-    folder, result = outcomes[(case.id, mode)]
+    folder, files_before, result = outcomes[(case.id, mode)]
     assert "Traceback" not in result.output
     assert result.returncode == 2, result.output
     lines = result.stderr.splitlines()
@@ -200,21 +201,16 @@ def test_config_error_is_one_clear_line(case: Case, mode: str, outcomes):
     line = lines[0]
     assert line.startswith("pfx: error: "), line
     message = line[len("pfx: error: "):]
-    assert message.startswith(case.target), f"the message must start with the file name: {line}"
+    assert message.startswith(case.target + ":"), f"the message must start with the file name: {line}"
     if case.location:
         assert re.match(case.location, message), f"expected position {case.location!r}: {line}"
     if case.key:
-        assert f"{case.key}:" in message, f"key path {case.key!r} not named: {line}"
+        assert f": {case.key}: " in message, f"key path {case.key!r} not named: {line}"
     for fragment in case.reason:
         assert fragment.lower() in message.lower(), f"reason lacks {fragment!r}: {line}"
-    # a reason follows the location / key path
-    reason = message.rsplit(": ", 1)[-1] if ": " in message else ""
-    assert reason.strip(), line
+    assert message.rstrip().rsplit(": ", 1)[-1].strip(), f"no reason: {line}"
+    assert sorted(p.name for p in folder.iterdir()) == files_before, "the command wrote something"
     if mode == "run":
-        assert not (folder / "out").exists(), "pfx run wrote a result folder for a bad config"
-        assert not (folder / "runs").exists()
-    assert sorted(p.name for p in folder.iterdir()) == sorted(
-        ([FILE] if case.content is not None else []) + (["a-folder"] if case.target == "a-folder" else [])), \
-        "the command wrote something next to the config"
+        assert result.stdout == ""
     if case.check:
         case.check(folder, result)

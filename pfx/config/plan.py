@@ -34,7 +34,8 @@ _KNOWN_COLUMNS = {"filter.particles": "n_particles", "filter.resampler": "resamp
 class Cell:
     """One combination of settings, run for every trial."""
 
-    key: str                       # hex hash of the resolved settings: names the filter stream
+    key: str                       # hex hash of everything that defines the cell
+    filter_key: str                # hex hash of what the filter run depends on: names its stream
     labels: dict[str, Any]         # the columns that identify the cell in every CSV
     truth_model: Model
     filter_model: Model
@@ -44,7 +45,8 @@ class Cell:
 
     @property
     def stream_key(self) -> int:
-        return int(self.key, 16)
+        """Cells that differ only in metric parameters share the filter stream (paired)."""
+        return int(self.filter_key, 16)
 
 
 @dataclass
@@ -136,7 +138,9 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         column = sweep_column(dotted)
         if column not in labels:
             labels[column] = value if isinstance(value, (int, float, str, bool)) else json.dumps(value)
-    return Cell(key=canonical_hash(identity, 12), labels=labels, truth_model=truth,
+    metrics = experiment.metrics.model_dump(mode="json")
+    return Cell(key=canonical_hash({**identity, "metrics": metrics}, 12),
+                filter_key=canonical_hash(identity, 12), labels=labels, truth_model=truth,
                 filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictInt
 
 from pfx.diffusion import Diffusion, NoDiffusion
 from pfx.figures import FIGURES
@@ -30,11 +30,11 @@ NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
 class FilterConfig(BaseModel):
     """The filter run on every cell (arms override any of these keys)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     kind: Literal["particle", "sis"] = Field(
         "particle", description="particle (SIR with the ESS rule) or sis (never resample)")
-    particles: int = Field(1000, ge=1, le=100_000_000, description="number of particles N")
+    particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
     resampler: ResamplerName = Field("systematic", description="resampling scheme (`pfx list resamplers`)")
     ess_threshold: float = Field(
         1.0, ge=0.0, le=1.0,
@@ -56,8 +56,8 @@ class FilterConfig(BaseModel):
 class OutputsConfig(BaseModel):
     """Which traces and figures to write."""
 
-    model_config = ConfigDict(extra="forbid")
-    trace_trials: int = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
     figures: list[FigureName] = Field(  # type: ignore[valid-type]
         default_factory=lambda: ["error_over_time", "ess_over_time"],
         description="figures to render (`pfx list figures`)")
@@ -68,13 +68,13 @@ class OutputsConfig(BaseModel):
 class Experiment(BaseModel):
     """One experiment: a model, a filter, its arms and sweep, trials and seed."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     name: str = Field(pattern=NAME_PATTERN, max_length=100,
                       description="experiment name (the default result folder is runs/<name>)")
     description: str = Field("", description="free text, copied to the manifest")
-    seed: int = Field(0, ge=0, lt=2**63, description="root seed of every random stream")
-    trials: int = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
+    seed: StrictInt = Field(0, ge=0, lt=2**63, description="root seed of every random stream")
+    trials: StrictInt = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
     model: ModelConfig = Field(description="the true system (`pfx list models`)")
     filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")
     arms: dict[Annotated[str, Field(pattern=NAME_PATTERN)], FilterConfig] = Field(

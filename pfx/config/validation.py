@@ -127,7 +127,10 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
         what = str(location[-1]) if location else "kind"
         return location + ("kind",), f"unknown {what} kind {context.get('tag')!r}{suggestion}"
     if kind == "union_tag_not_found":
-        return location, f"needs a 'kind' key (one of: {context.get('expected_tags', '')})".replace("'", "")
+        annotation = _unwrap(_walk(root, location)[1])
+        kinds = [_kind_of(m) for m in _union_members(annotation)
+                 if isinstance(m, type) and issubclass(m, BaseModel)] if annotation is not None else []
+        return location + ("kind",), f"required key is missing (one of: {', '.join(map(str, kinds))})"
     if kind == "literal_error":
         expected = re.findall(r"'([^']*)'", str(context.get("expected", "")))
         hint = closest_name(error.get("input"), expected)
@@ -170,4 +173,5 @@ def to_config_error(error: ValidationError, root: type[BaseModel], *, file=None,
 
 def _is_internal(part) -> bool:
     # pydantic adds markers such as 'function-before[...]' for wrapped validators
-    return isinstance(part, str) and ("[" in part and "(" in part or part.startswith("function-"))
+    return isinstance(part, str) and (part == "[key]" or "[" in part and "(" in part
+                                      or part.startswith("function-"))

@@ -75,8 +75,10 @@ def parse_yaml(text: str, file: str) -> Any:
     except yaml.MarkedYAMLError as error:
         mark = error.problem_mark or error.context_mark
         reason = (error.problem or error.context or "invalid YAML").strip()
-        if isinstance(error, yaml.constructor.ConstructorError):
+        if isinstance(error, yaml.constructor.ConstructorError) and "tag" in reason:
             reason = f"YAML tag not allowed: {reason}"
+        elif isinstance(error, yaml.constructor.ConstructorError):
+            reason = f"YAML error: {reason}"
         else:
             reason = f"YAML syntax error: {reason}"
         raise _mark_error(file, mark, reason) from None

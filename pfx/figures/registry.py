@@ -12,6 +12,7 @@ from typing import Callable, Optional
 import pandas as pd
 
 from pfx.registry import Registry
+from pfx.tables import FILE_MODE
 
 FIGURES: Registry[Callable] = Registry("figure")
 
@@ -23,7 +24,10 @@ class ResultFolder:
         self.path = Path(path)
 
     def table(self, name: str) -> pd.DataFrame:
-        return pd.read_csv(self.path / f"{name}.csv")
+        try:
+            return pd.read_csv(self.path / f"{name}.csv")
+        except pd.errors.EmptyDataError:
+            return pd.DataFrame()
 
     @cached_property
     def trials(self) -> pd.DataFrame:
@@ -69,6 +73,7 @@ def _save(figure, target: Path) -> None:
     os.close(descriptor)
     try:
         figure.savefig(temporary, dpi=150, bbox_inches="tight")
+        os.chmod(temporary, FILE_MODE)
         os.replace(temporary, target)
     finally:
         if os.path.exists(temporary):

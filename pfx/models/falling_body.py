@@ -36,7 +36,7 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field, PrivateAttr
+from pydantic import Field, PrivateAttr, StrictInt
 
 from pfx.initial_laws import GaussianLaw, PointLaw
 from pfx.models.base import Model
@@ -76,7 +76,7 @@ class FallingBody(Model):
     scale_height: Optional[float] = Field(None, gt=0, description="k in exp(-x1/k) (1/gamma for jud)")
     gravity: Optional[float] = Field(None, ge=0, description="g (0 for jud)")
     integrator: Literal["rk4", "euler"] = Field("rk4", description="integration scheme between measurements")
-    substeps: Optional[int] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
+    substeps: Optional[StrictInt] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
 
     _sign: float = PrivateAttr(1.0)
 

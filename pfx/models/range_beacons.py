@@ -35,7 +35,7 @@ Point = tuple[float, float]
 class LissajousPath(BaseModel):
     """c(t) = centre + amplitude * sin(frequency * t + phase), t = 2 pi turns k / T."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["lissajous"] = "lissajous"
     center: Point = (0.0, 0.0)
     amplitude: Point = (1.0, 1.0)
@@ -52,7 +52,7 @@ class LissajousPath(BaseModel):
 class WaypointPath(BaseModel):
     """A polyline through the waypoints, sampled at T + 1 points of equal arc length."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["waypoints"] = "waypoints"
     points_: list[Point] = Field(alias="points", min_length=2)
     closed: bool = Field(False, description="return to the first waypoint at the end")
@@ -71,7 +71,7 @@ Path = Annotated[Union[LissajousPath, WaypointPath], Field(discriminator="kind")
 
 
 class Region(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     low: Point
     high: Point
 
