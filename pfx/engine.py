@@ -94,6 +94,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     state = prior.sample(random, (n,))
     uniform_log_weight = -np.log(n)
     log_weights = np.full((trials, n), uniform_log_weight)
+    weights = np.full((trials, n), 1.0 / n)    # always exp(log_weights)
 
     estimates = np.empty((trials, steps, state.shape[-1]))
     ess = np.empty((trials, steps))
@@ -118,14 +119,19 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                                           f"infinite at step {k} of the filter (check the prior and the noise)")
             state[lost] = 0.0
             log_weights[lost] = -np.inf
-        prior_weights = np.exp(log_weights)
+            weights[lost] = 0.0
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            increment = weighting.log_weights(model, measurements[:, t, None, :], state, prior_weights)
+            increment = weighting.log_weights(model, measurements[:, t, None, :], state, weights)
         if lost is not None:
             increment[lost] = -np.inf
-        # a zero-weight particle stays at zero weight, whatever its likelihood evaluates to
-        increment = np.where(np.isneginf(log_weights), -np.inf, increment)
-        log_weights, normaliser = log_normalise(log_weights + increment)
+        updated = log_weights + increment
+        normalised, normaliser = log_normalise(updated)
+        if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
+            # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
+            # (-inf + NaN would be NaN); only if that does not help is it the model's error.
+            updated = np.where(np.isneginf(log_weights), -np.inf, updated)
+            normalised, normaliser = log_normalise(updated)
+        log_weights = normalised
         if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
             bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
             raise ModelNumericalError(
