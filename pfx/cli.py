@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -38,9 +39,25 @@ def _guarded(command):
             _fail(str(error))
         except ModelNumericalError as error:
             _fail(str(error), status=1)
+        except Interrupted as error:
+            _fail(f"interrupted by {error.signal_name}; finished cells are kept, run again to resume",
+                  status=128 + error.signal_number)
         except KeyboardInterrupt:
-            _fail("interrupted; finished cells are kept, run again to resume", status=130)
+            _fail("interrupted by SIGINT; finished cells are kept, run again to resume", status=130)
     return wrapper
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM (or another stop signal), raised where the program is, like Ctrl-C."""
+
+    def __init__(self, signal_number: int):
+        super().__init__(signal_number)
+        self.signal_number = signal_number
+        self.signal_name = signal.Signals(signal_number).name
+
+
+def _raise_interrupted(signal_number, frame):
+    raise Interrupted(signal_number)
 
 
 def _show_progress(quiet: bool) -> bool:
@@ -67,10 +84,15 @@ def run(
     workers: int = typer.Option(1, "--workers", min=1, help="worker processes"),
     resume: bool = typer.Option(True, "--resume/--fresh", help="resume an interrupted run, or recompute"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar or messages"),
+    max_memory: Optional[str] = typer.Option(None, "--max-memory",
+                                             help="memory for particle arrays, e.g. 4G (default: half the available)"),
 ):
     """Run every cell and trial of the config(s); write CSV tables and figures."""
+    from pfx.memory import budget_from_option, check_fits
     from pfx.runner import run_plan
 
+    signal.signal(signal.SIGTERM, _raise_interrupted)
+    budget = budget_from_option(max_memory)
     from pfx.runner import check_folder
 
     plans = [_load_plan(path, assignments, trials) for path in configs]   # validate all first
@@ -83,10 +105,11 @@ def run(
             raise ConfigError(f"two configs named {plans[index].experiment.name!r} would share the result "
                               f"folder {target}; rename one", file=plans[index].file, key="name")
         check_folder(plans[index], target, fresh=not resume)
+        check_fits(plans[index], budget)
     report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
     for plan, target in zip(plans, targets):
         run_plan(plan, target, workers=workers, fresh=not resume, report=report,
-                 progress=_show_progress(quiet))
+                 progress=_show_progress(quiet), memory_budget=budget)
         if not quiet:
             typer.echo(f"{plan.experiment.name}: {len(plan.cells)} cell(s) x {plan.experiment.trials} "
                        f"trial(s) -> {target}")
@@ -177,6 +200,7 @@ def reproduce(
     """Regenerate the papers' tables and figures (what `make reproduce-papers` runs)."""
     from pfx.reproduce import reproduce_papers
 
+    signal.signal(signal.SIGTERM, _raise_interrupted)
     reproduce_papers(papers or [], configs_dir, out, fresh=not resume,
                      report=lambda message: typer.echo(message, err=True), progress=_show_progress(quiet))
 

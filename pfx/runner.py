@@ -15,11 +15,12 @@ import json
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -34,12 +35,13 @@ from pfx.config.plan import Cell, Plan
 from pfx.engine import SpreadCriterion, run_particle_filter, simulate_truth
 from pfx.errors import ConfigError
 from pfx.figures import render_figures
+from pfx.memory import check_fits, default_budget, trials_per_batch
 from pfx.metrics import MetricInputs, compute_metrics
 from pfx.resampling import RESAMPLERS
 from pfx.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
-MEMORY_BUDGET_BYTES = 512 * 1024 * 1024
+LOCK_FILE = ".pfx.lock"
 OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "config.yaml", "manifest.json")
 
 
@@ -49,19 +51,6 @@ class BatchResult:
     trials: pd.DataFrame
     steps: pd.DataFrame
     wall_time: float
-
-
-def bytes_per_trial(cell: Cell) -> int:
-    """Rough peak bytes of one trial in the engine: a few copies of the particle array."""
-    n, d = cell.filter.particles, cell.filter_model.state_dimension
-    m = cell.filter_model.measurement_dimension
-    return 8 * n * (6 * d + 3 * m + 8)
-
-
-def batch_size(cell: Cell, trials: int) -> int:
-    """Trials per batch: fits the memory budget, and leaves ~10 batches for progress."""
-    by_memory = max(1, MEMORY_BUDGET_BYTES // bytes_per_trial(cell))
-    return int(max(1, min(trials, by_memory, -(-trials // 10) if trials >= 20 else trials)))
 
 
 def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> BatchResult:
@@ -143,7 +132,7 @@ def check_folder(plan: Plan, out: Path, fresh: bool) -> None:
     """Refuse, without touching anything, a result folder this run may not write to."""
     if out.exists() and not out.is_dir():
         raise ConfigError("result path exists and is not a folder", file=str(out))
-    if fresh or not out.exists() or not any(out.iterdir()):
+    if fresh or not out.exists() or not [p for p in out.iterdir() if p.name != LOCK_FILE]:
         return
     manifest_path = out / "manifest.json"
     if not manifest_path.exists():
@@ -160,8 +149,7 @@ def check_folder(plan: Plan, out: Path, fresh: bool) -> None:
 
 
 def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
-    """Check the result folder; return the keys of cells already finished (for resuming)."""
-    check_folder(plan, out, fresh)
+    """Clear the folder for --fresh; return the keys of cells already finished (for resuming)."""
     if fresh and out.exists():
         for name in OUTPUT_FILES:
             (out / name).unlink(missing_ok=True)
@@ -172,60 +160,122 @@ def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
 
 
 def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
-             report: Callable[[str], None] = lambda message: None, progress: bool = False) -> Path:
-    """Run every unfinished cell of the plan into ``out``; assemble tables and figures."""
-    out = Path(out)
-    done = prepare_folder(plan, out, fresh)
-    manifest_path = out / "manifest.json"
-    if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
-        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
-        return out
-    if done:
-        report(f"{out}: resuming: {len(done)} of {len(plan.cells)} cells already done")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "cells").mkdir(exist_ok=True)
-    experiment = plan.experiment
-    manifest = _manifest(plan, started=_now())
-    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
-    write_text(json.dumps(manifest, indent=2), manifest_path)
+             report: Callable[[str], None] = lambda message: None, progress: bool = False,
+             memory_budget: Optional[int] = None) -> Path:
+    """Run every unfinished cell of the plan into ``out``; assemble tables and figures.
 
+    Interrupted (KeyboardInterrupt, or SIGTERM turned into one by the command line), it stops
+    the workers, keeps every finished cell and re-raises; running again resumes.
+    """
+    out = Path(out)
+    budget = memory_budget or default_budget()
+    check_fits(plan, budget)
+    check_folder(plan, out, fresh)
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out):
+        done = prepare_folder(plan, out, fresh)
+        manifest_path = out / "manifest.json"
+        if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
+            report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+            return out
+        if done:
+            report(f"{out}: resuming (same config hash {plan.config_hash}): {len(done)} of "
+                   f"{len(plan.cells)} cells already done, skipping them")
+        (out / "cells").mkdir(exist_ok=True)
+        manifest = _manifest(plan, started=_now())
+        write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+        write_text(json.dumps(manifest, indent=2), manifest_path)
+        started = time.perf_counter()
+        cell_times: dict[str, float] = {}
+        try:
+            _run_cells(plan, out, [c for c in plan.cells if c.key not in done], workers, budget,
+                       progress, cell_times)
+        except KeyboardInterrupt:
+            finished = len(list((out / "cells").glob("*.trials.csv")))
+            report(f"{out}: interrupted; {finished} of {len(plan.cells)} cells finished and kept; "
+                   "run the same command again to resume")
+            raise
+        _assemble(plan, out, manifest, cell_times, time.perf_counter() - started)
+    return out
+
+
+def _ignore_interrupts() -> None:
+    """Worker initialiser: the parent process alone reacts to Ctrl-C and SIGTERM."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _run_cells(plan: Plan, out: Path, cells: list[Cell], workers: int, budget: int, progress: bool,
+               cell_times: dict) -> None:
+    experiment = plan.experiment
     trials = list(range(experiment.trials))
     trace_trials = experiment.outputs.trace_trials
     tasks = []
-    for cell in plan.cells:
-        if cell.key in done:
-            continue
-        size = batch_size(cell, len(trials))
+    for cell in cells:
+        size = trials_per_batch(cell, len(trials), budget, workers)
         tasks.append((cell, [trials[i:i + size] for i in range(0, len(trials), size)]))
-
-    started = time.perf_counter()
-    cell_times: dict[str, float] = {}
     total = sum(len(batch) for _, batches in tasks for batch in batches)
-    bar = _progress_bar(progress, total, experiment.name)
-    with bar as live, (ProcessPoolExecutor(max_workers=workers) if workers > 1 else nullcontext()) as pool:
+    with _progress_bar(progress, total, experiment.name) as live:
         task_id = live.add_task("trials", total=total) if live else None
-        pending = []
-        for cell, batches in tasks:
-            if pool is None:
+
+        def advance(count: int) -> None:
+            if live:
+                live.advance(task_id, count)
+
+        if workers == 1:
+            for cell, batches in tasks:
                 results = []
                 for batch in batches:
                     results.append(run_batch(cell, experiment.seed, batch, trace_trials))
-                    if live:
-                        live.advance(task_id, len(batch))
+                    advance(len(batch))
                 _write_cell(out, cell, results, cell_times)
-            else:
-                pending.append((cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials)
-                                       for b in batches]))
-        for cell, futures in pending:
-            results = []
-            for future in futures:
-                results.append(future.result())
-                if live:
-                    live.advance(task_id, len(results[-1].trials))
-            _write_cell(out, cell, results, cell_times)
+            return
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_interrupts)
+        try:
+            pending = [(cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials) for b in batches])
+                       for cell, batches in tasks]
+            for cell, futures in pending:
+                results = []
+                for future in futures:
+                    results.append(future.result())
+                    advance(len(results[-1].trials))
+                _write_cell(out, cell, results, cell_times)
+        except BaseException:
+            in_flight = list((getattr(pool, "_processes", None) or {}).values())
+            pool.shutdown(wait=False, cancel_futures=True)
+            for process in in_flight:        # stop the batches still running
+                process.terminate()
+            raise
+        pool.shutdown()
 
-    _assemble(plan, out, manifest, cell_times, time.perf_counter() - started)
-    return out
+
+@contextmanager
+def folder_lock(out: Path):
+    """Hold an exclusive lock on the result folder; a second run on it is refused.
+
+    The lock (``.pfx.lock``, flock) dies with its process, so a killed run leaves no stale lock.
+    """
+    try:
+        import fcntl
+    except ImportError:          # no flock on this platform: run unlocked
+        yield
+        return
+    handle = open(out / LOCK_FILE, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip() or "?"
+            raise ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
+                              "wait for it or choose another --out", file=str(out)) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        yield
+    finally:
+        handle.close()
 
 
 def _progress_bar(enabled: bool, total: int, name: str):

@@ -1,216 +1,220 @@
-"""Every class of config error, through the real command line.
+"""Every class of config error, through the real command line, driven by a corpus of files.
 
-Each case is a bad input given to ``pfx validate`` (and, for a representative subset, to
-``pfx run --out out``). The contract (SPEC, Reliability): exit status 2, stderr exactly one line
-``pfx: error: <file>[:line:col]: [<key path>: ]<reason>``, no traceback, nothing written.
+The corpus is ``tests/malformed_configs/``: one malformed config per file (``NN-short-name.yaml``),
+each starting with
 
-All invocations are real subprocesses; a module fixture starts them concurrently (one per CPU)
-and each test checks its own.
+    # expect: <key path, or -> [@line:column] | <reason fragment> [| <reason fragment> ...]
+
+and, for a known pfx defect, a second line ``# xfail: <reason>`` (the case is then a strict xfail).
+Entries that cannot carry a comment (empty and binary files) and entries the test creates itself
+(a missing file, a directory, a path through a regular file, a Unix socket, a file over the size
+limit) are described in ``malformed_configs/EXPECTATIONS.yaml``.
+
+Each entry is given to ``pfx validate`` and, for a representative subset, to
+``pfx run good.yaml ENTRY --out out`` (a valid config first: nothing may run, since every config
+is checked first). The contract (SPEC, Reliability): exit status 2, stderr exactly one line
+``pfx: error: <file>[:line:col]: [<key path>: ]<reason>``, no traceback, no pydantic internals,
+nothing written, no code executed (YAML python tags), alias bombs refused before expansion.
+
+All invocations are real subprocesses started concurrently (one per CPU) by a module fixture;
+each test checks its own.
 """
 
 from __future__ import annotations
 
 import re
+import shutil
+import socket
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional, Union
+from typing import Any, Optional
 
 import pytest
 import yaml
 
 from conftest import tiny_config_dict, write_config_file
 
-FILE = "exp.yaml"
+CORPUS = Path(__file__).resolve().parent / "malformed_configs"
+GOOD = "good.yaml"          # a valid config given before the bad one to `pfx run`
+PREFIX = "pfx: error: "
+MAX_FILE_BYTES = 10 * 1024 * 1024
 
-
-def _config(**sections: Any) -> str:
-    """The tiny config with sections replaced (value None removes a section), as YAML text."""
-    data = tiny_config_dict()
-    for key, value in sections.items():
-        if value is None:
-            data.pop(key, None)
-        else:
-            data[key] = value
-    return yaml.safe_dump(data, sort_keys=False)
-
-
-def _filter(**changes: Any) -> str:
-    return _config(filter={**tiny_config_dict()["filter"], **changes})
-
-
-def _model(**changes: Any) -> str:
-    return _config(model={**tiny_config_dict()["model"], **changes})
-
-
-def _model_2d(**changes: Any) -> str:
-    """A 2-D state, 2-D measurement linear model (for covariance matrices)."""
-    return _config(model={"kind": "linear_gaussian", "steps": 5,
-                          "transition_matrix": [[1.0, 0.0], [0.0, 1.0]],
-                          "measurement_matrix": [[1.0, 0.0], [0.0, 1.0]], **changes})
-
-
-_BILLION_LAUGHS = "\n".join(
-    ['name: lol', 'a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
-    + [f"{c}: &{c} [{','.join(['*' + p] * 9)}]" for p, c in zip("abcdefgh", "bcdefghi")]) + "\n"
+# `pfx run --out out` on these too (by short name: the part after 'NN-'): one per family of checks
+RUN_SUBSET = {
+    "yaml-bad-indentation", "python-object-apply-tag", "alias-bomb", "unknown-key-filter",
+    "covariance-not-positive-definite", "sweep-bad-value", "particles-huge", "directory",
+    "diffusion-std-wrong-length",
+}
 
 
 @dataclass
-class Case:
-    id: str
-    content: Union[str, bytes, None]          # None: no file is written
-    key: Optional[str]                        # key path the message must name (None: no key)
-    reason: tuple[str, ...]                   # substrings of the reason (case-insensitive)
+class Entry:
+    id: str                             # corpus name without its extension
+    target: str                         # what is passed on the command line (relative to the case folder)
+    key: Optional[str]                  # key path the message must name (None: no key)
+    reason: tuple[str, ...]             # substrings of the reason (case-insensitive)
+    location: Optional[str] = None      # 'line:col' the message must carry after the file name
+    make: Optional[str] = None          # created by the test instead of copied from the corpus
+    xfail: Optional[str] = None
     extra_args: tuple[str, ...] = ()
-    target: str = FILE                        # what is passed on the command line
-    location: Optional[str] = None            # regex for 'file:line:col' where YAML positions apply
-    run: bool = False                         # also check `pfx run --out out`
-    xfail: Optional[str] = None               # reason, for a known pfx defect
-    check: Optional[Callable[[Path, Any], None]] = None   # extra check (case folder, result)
+    content: Optional[str] = None       # for the command-line cases: YAML text of the config
+
+    @property
+    def short(self) -> str:
+        return re.sub(r"^\d+-", "", self.id)
 
 
-def _nothing_executed(folder: Path, result) -> None:
-    assert not (folder / "pwned.txt").exists(), "the YAML tag ran os.system"
-    assert "hi" not in result.stdout
+def _parse_expect(name: str, head: str) -> tuple[Optional[str], Optional[str], tuple[str, ...]]:
+    match = re.match(r"# expect: (?P<key>.+?)(?: @(?P<location>\d+:\d+))? \|(?P<reasons>.*)$", head)
+    assert match, f"{name}: first line must be '# expect: KEY [@L:C] | reason [| ...]', got {head!r}"
+    reasons = tuple(r.strip() for r in match["reasons"].split("|") if r.strip())
+    assert reasons, f"{name}: no reason fragment"
+    key = None if match["key"] == "-" else match["key"]
+    return key, match["location"], reasons
 
 
-CASES = [
-    # --- the file itself -------------------------------------------------------------------
-    Case("yaml-syntax", "name: tiny\nmodel:\n  kind: linear_gaussian\n    steps: 5\n", None,
-         ("yaml syntax error",), location=r"exp\.yaml:4:10: ", run=True),
-    Case("tab-indentation", "name: tiny\nmodel:\n\tkind: linear_gaussian\n", None,
-         ("yaml syntax error", "\\t"), location=r"exp\.yaml:3:1: "),
-    Case("top-level-list", "- name: tiny\n- seed: 7\n", None, ("top level must be a mapping", "list")),
-    Case("top-level-scalar", "just some words\n", None, ("top level must be a mapping",)),
-    Case("empty-file", "", None, ("empty",)),
-    Case("binary-file", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x01", None, ("binary",)),
-    Case("missing-file", None, None, ("no such file",), target="absent.yaml"),
-    Case("directory", None, None, ("directory",), target="a-folder"),
-    Case("duplicate-key", "name: tiny\nmodel: {kind: linear_gaussian, transition_matrix: [[1]], "
-         "measurement_matrix: [[1]]}\nfilter:\n  particles: 10\n  particles: 20\n",
-         "filter.particles", ("duplicate key",), location=r"exp\.yaml:5:3: "),
-    Case("python-tag", "name: tiny\ndescription: !!python/object/apply:os.system ['echo hi > pwned.txt']\n"
-         "model: {kind: linear_gaussian, transition_matrix: [[1]], measurement_matrix: [[1]]}\n",
-         None, ("tag",), location=r"exp\.yaml:2:14: ", run=True, check=_nothing_executed),
-    # refused by counting nodes before anything is expanded (9^9 strings if it were expanded)
-    Case("alias-bomb", _BILLION_LAUGHS, None, ("alias", "refused", "more than")),
-    # --- unknown keys, with the closest valid name --------------------------------------------
-    Case("unknown-top-level", _config(seeds=3), "seeds", ("unknown key", "did you mean 'seed'")),
-    Case("unknown-filter", _filter(particels=50), "filter.particels",
-         ("unknown key", "did you mean 'particles'"), run=True),
-    Case("unknown-model", _model(stpes=5), "model.stpes", ("unknown key", "did you mean 'steps'")),
-    Case("unknown-convergence", _config(metrics={"convergence": {"radus": 2.0}}), "metrics.convergence.radus",
-         ("unknown key", "did you mean 'radius'")),
-    Case("unknown-outputs", _config(outputs={"trace_trial": 2}), "outputs.trace_trial",
-         ("unknown key", "did you mean 'trace_trials'")),
-    # --- wrong types and out-of-range values ---------------------------------------------------
-    Case("particles-not-int", _filter(particles="many"), "filter.particles", ("integer", "many")),
-    Case("particles-zero", _filter(particles=0), "filter.particles", ("greater than or equal to 1",)),
-    Case("trials-negative", _config(trials=-3), "trials", ("greater than or equal to 1",)),
-    Case("ess-threshold-above-1", _filter(ess_threshold=1.5), "filter.ess_threshold", ("less than or equal to 1",)),
-    Case("ess-threshold-negative", _filter(ess_threshold=-0.1), "filter.ess_threshold",
-         ("greater than or equal to 0",)),
-    Case("variance-negative", _model(process_noise={"variance": -1.0}), "model.process_noise.variance",
-         (">= 0",)),
-    Case("covariance-not-definite", _model_2d(measurement_noise={"variance": [[1.0, 2.0], [2.0, 1.0]]}),
-         "model.measurement_noise.variance", ("positive",)),
-    Case("covariance-singular", _model_2d(measurement_noise={"variance": [[1.0, 1.0], [1.0, 1.0]]}),
-         "model.measurement_noise.variance", ("positive definite",)),
-    Case("covariance-not-symmetric", _model_2d(measurement_noise={"variance": [[1.0, 0.5], [0.0, 1.0]]}),
-         "model.measurement_noise.variance", ("symmetric",)),
-    Case("variance-wrong-size", _model(measurement_noise={"variance": [1.0, 2.0]}),
-         "model.measurement_noise.variance", ("expected 1 component", "got 2")),
-    # --- unknown names, with a suggestion ------------------------------------------------------
-    Case("unknown-model-kind", _model(kind="linear_gausian"), "model.kind",
-         ("unknown", "did you mean 'linear_gaussian'")),
-    Case("unknown-resampler", _filter(resampler="systemtic"), "filter.resampler",
-         ("unknown", "did you mean 'systematic'")),
-    Case("unknown-weighting", _filter(weighting="mahalanobs"), "filter.weighting.kind",
-         ("unknown", "did you mean 'mahalanobis'")),
-    Case("unknown-noise-family", _model(measurement_noise={"family": "gausian"}),
-         "model.measurement_noise.family", ("unknown", "did you mean 'gaussian'")),
-    Case("unknown-figure", _config(outputs={"figures": ["error_over_tim"]}), "outputs.figures[0]",
-         ("unknown", "did you mean 'error_over_time'")),
-    Case("model-without-kind", _config(model={"steps": 5, "transition_matrix": [[1.0]],
-                                              "measurement_matrix": [[1.0]]}),
-         "model.kind", ("missing", "linear_gaussian")),
-    Case("student-t-without-df", _model(measurement_noise={"family": "student_t", "variance": 1.0}),
-         "model.measurement_noise.df", ("df",)),
-    # --- sweeps and arms ---------------------------------------------------------------------------
-    Case("sweep-empty-list", _config(sweep={"filter.particles": []}), "sweep.filter.particles",
-         ("at least 1",)),
-    Case("sweep-bad-key", _config(sweep={"trials": [1, 2]}), "sweep.trials", ("model.", "filter.", "metrics.")),
-    Case("sweep-bad-value", _config(sweep={"filter.particles": [10, -1]}), "sweep.filter.particles[1]",
-         ("greater than or equal to 1",), run=True),
-    Case("arm-bad-value", _config(arms={"fast": {"particles": 10}, "broken": {"resampler": "systemtic"}}),
-         "arms.broken.resampler", ("unknown", "did you mean 'systematic'")),
-    Case("arm-bad-name", _config(arms={"bad name": {"particles": 10}}), "arms.bad name", ("match",)),
-    # --- command-line overrides ------------------------------------------------------------------
-    Case("set-without-equals", _config(), None, ("--set", "key.path=value"),
-         extra_args=("--set", "filter.particles")),
-    Case("set-unknown-key", _config(), "filter.particels", ("unknown key", "did you mean 'particles'"),
-         extra_args=("--set", "filter.particels=50"), run=True),
+def load_corpus() -> list[Entry]:
+    """Every corpus entry with its expectation; fails loudly on an entry without one."""
+    table = yaml.safe_load((CORPUS / "EXPECTATIONS.yaml").read_text())
+    entries = []
+    for path in sorted(CORPUS.iterdir()):
+        if not re.match(r"\d\d-", path.name):
+            continue
+        lines = path.read_bytes().decode("latin-1").splitlines()
+        if path.name in table:
+            spec = table.pop(path.name)
+            entries.append(Entry(path.stem, path.name, spec.get("key"), tuple(spec["reason"]),
+                                 xfail=spec.get("xfail")))
+            continue
+        key, location, reasons = _parse_expect(path.name, lines[0] if lines else "")
+        xfail = lines[1][len("# xfail: "):] if len(lines) > 1 and lines[1].startswith("# xfail: ") else None
+        entries.append(Entry(path.stem, path.name, key, reasons, location, xfail=xfail))
+    for name, spec in table.items():                 # the entries the test creates
+        assert "make" in spec, f"EXPECTATIONS.yaml: {name} is neither in the corpus nor made by the test"
+        entries.append(Entry(name.split("/")[0].rsplit(".", 1)[0], name, spec.get("key"),
+                             tuple(spec["reason"]), make=spec["make"], xfail=spec.get("xfail")))
+    return entries
+
+
+def _tiny_yaml() -> str:
+    return yaml.safe_dump(tiny_config_dict(), sort_keys=False)
+
+
+# Command-line mistakes: not config files, so not in the corpus.
+COMMAND_LINE = [
+    Entry("set-without-equals", "exp.yaml", None, ("--set", "key.path=value"),
+          extra_args=("--set", "filter.particles"), content=_tiny_yaml()),
+    Entry("set-unknown-key", "exp.yaml", "filter.particels", ("unknown key", "did you mean 'particles'"),
+          extra_args=("--set", "filter.particels=50"), content=_tiny_yaml()),
 ]
+RUN_SUBSET.add("set-unknown-key")
 
-MODES = [(case, mode) for case in CASES for mode in (("validate", "run") if case.run else ("validate",))]
-GOOD = "good.yaml"      # `pfx run` gets a valid config first: it must not run either (all are checked first)
+ENTRIES = load_corpus() + COMMAND_LINE
+MODES = [(entry, mode) for entry in ENTRIES
+         for mode in (("validate", "run") if entry.short in RUN_SUBSET or entry.id in RUN_SUBSET else ("validate",))]
 
 
-def _prepare(folder: Path, case: Case, mode: str) -> None:
+def _make(folder: Path, entry: Entry) -> None:
+    target = folder / entry.target
+    if entry.make == "missing":
+        return
+    if entry.make == "directory":
+        target.mkdir()
+        (target / "config.yaml").write_text(_tiny_yaml())
+    elif entry.make == "through-a-file":
+        target.parent.write_text(_tiny_yaml())          # config.yaml is a file: config.yaml/x cannot exist
+    elif entry.make == "socket":
+        server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            server.bind(str(target))                    # the socket file stays after close
+        finally:
+            server.close()
+    elif entry.make == "large":
+        text = _tiny_yaml() + "# padding\n" * (MAX_FILE_BYTES // 10 + 1)
+        target.write_text(text)
+        assert target.stat().st_size > MAX_FILE_BYTES
+    else:
+        raise AssertionError(f"unknown make: {entry.make}")
+
+
+def _prepare(folder: Path, entry: Entry, mode: str) -> None:
     folder.mkdir(parents=True)
-    if case.content is not None:
-        write_config_file(folder, case.content, FILE)
-    if case.target == "a-folder":
-        (folder / "a-folder").mkdir()
-    if mode == "run" and not case.extra_args:
-        write_config_file(folder, tiny_config_dict(), GOOD)
+    if entry.make:
+        _make(folder, entry)
+    elif entry.content is not None:
+        write_config_file(folder, entry.content, entry.target)
+    else:
+        shutil.copyfile(CORPUS / entry.target, folder / entry.target)
+    if mode == "run" and not entry.extra_args:
+        write_config_file(folder, tiny_config_dict(name="good"), GOOD)
 
 
-def _arguments(case: Case, mode: str) -> list[str]:
+def _arguments(entry: Entry, mode: str) -> list[str]:
     if mode == "validate":
-        return ["validate", case.target, *case.extra_args]
-    configs = [case.target] if case.extra_args else [GOOD, case.target]
-    return ["run", *configs, "--out", "out", *case.extra_args]
+        return ["validate", entry.target, *entry.extra_args]
+    configs = [entry.target] if entry.extra_args else [GOOD, entry.target]
+    return ["run", *configs, "--out", "out", *entry.extra_args]
+
+
+def _listing(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory, run_pfx):
-    """Run every (case, mode) once, concurrently; {(case id, mode): (folder, result, files before)}."""
+    """Run every (entry, mode) once, concurrently; {(id, mode): (folder, files before, result)}."""
     root = tmp_path_factory.mktemp("config-errors")
-    jobs, folders = {}, {}
-    for case, mode in MODES:
-        folder = root / f"{case.id}-{mode}"
-        _prepare(folder, case, mode)
-        folders[(case.id, mode)] = (folder, sorted(p.name for p in folder.iterdir()))
-        jobs[(case.id, mode)] = (_arguments(case, mode), folder)
-    results = run_pfx.many(jobs, timeout=120)     # the timeout is a safety net (alias bomb), not a check
-    return {key: (*folders[key], results[key]) for key in jobs}
+    jobs, before = {}, {}
+    for index, (entry, mode) in enumerate(MODES):
+        folder = root / f"{index:03d}-{mode}"           # short: a socket path must stay < 108 bytes
+        _prepare(folder, entry, mode)
+        before[(entry.id, mode)] = (folder, _listing(folder))
+        jobs[(entry.id, mode)] = (_arguments(entry, mode), folder)
+    results = run_pfx.many(jobs, timeout=120)   # a safety net (alias bomb, socket), not a timing check
+    return {key: (*before[key], results[key]) for key in jobs}
 
 
-PARAMS = [pytest.param(case, mode, id=f"{case.id}-{mode}",
-                       marks=[pytest.mark.xfail(reason=case.xfail, strict=True)] if case.xfail else [])
-          for case, mode in MODES]
+def test_corpus_is_complete():
+    """The corpus holds >= 50 malformed files (not counting the entries the test makes), every
+    expectation names a reason, and the run subset names existing entries."""
+    stored = [e for e in ENTRIES if not e.make and e.content is None]
+    assert len(stored) >= 50, len(stored)
+    assert len({e.id for e in ENTRIES}) == len(ENTRIES), "duplicate corpus ids"
+    shorts = {e.short for e in ENTRIES} | {e.id for e in ENTRIES}
+    assert RUN_SUBSET <= shorts, RUN_SUBSET - shorts
 
 
-@pytest.mark.parametrize("case, mode", PARAMS)
-def test_config_error_is_one_clear_line(case: Case, mode: str, outcomes):
-    folder, files_before, result = outcomes[(case.id, mode)]
-    assert "Traceback" not in result.output
+PARAMS = [pytest.param(entry, mode, id=f"{entry.id}-{mode}",
+                       marks=[pytest.mark.xfail(reason=entry.xfail, strict=True)] if entry.xfail else [])
+          for entry, mode in MODES]
+
+
+@pytest.mark.parametrize("entry, mode", PARAMS)
+def test_config_error_is_one_clear_line(entry: Entry, mode: str, outcomes):
+    """Exit 2; stderr is one 'pfx: error: FILE[:L:C]: [KEY: ]REASON' line naming the file, the key
+    path and the reason; no traceback or pydantic text; nothing written; no code executed."""
+    folder, files_before, result = outcomes[(entry.id, mode)]
+    assert "Traceback" not in result.output, result.output
     assert result.returncode == 2, result.output
     lines = result.stderr.splitlines()
     assert len(lines) == 1, f"expected one line on stderr, got:\n{result.stderr}"
     line = lines[0]
-    assert line.startswith("pfx: error: "), line
-    message = line[len("pfx: error: "):]
-    assert message.startswith(case.target + ":"), f"the message must start with the file name: {line}"
-    if case.location:
-        assert re.match(case.location, message), f"expected position {case.location!r}: {line}"
-    if case.key:
-        assert f": {case.key}: " in message, f"key path {case.key!r} not named: {line}"
-    for fragment in case.reason:
+    assert line.startswith(PREFIX), line
+    message = line[len(PREFIX):]
+    assert message.startswith(entry.target + ":"), f"the message must start with the file name: {line}"
+    if entry.location:
+        assert message.startswith(f"{entry.target}:{entry.location}: "), \
+            f"expected position {entry.location}: {line}"
+    if entry.key:
+        assert f": {entry.key}: " in message, f"key path {entry.key!r} not named: {line}"
+    for fragment in entry.reason:
         assert fragment.lower() in message.lower(), f"reason lacks {fragment!r}: {line}"
     assert message.rstrip().rsplit(": ", 1)[-1].strip(), f"no reason: {line}"
-    assert sorted(p.name for p in folder.iterdir()) == files_before, "the command wrote something"
+    for internal in ("pydantic", "[type=", "validation error for"):
+        assert internal not in message, f"internal text {internal!r} leaked: {line}"
+    assert not re.search(r"\b[A-Z]\w*(Error|Exception)\b", message), f"a Python exception leaked: {line}"
+    assert _listing(folder) == files_before, "the command wrote something"
+    assert not (folder / "pwned.txt").exists(), "a YAML tag ran code"
     if mode == "run":
         assert result.stdout == ""
-    if case.check:
-        case.check(folder, result)
+        assert not (folder / "out").exists()

@@ -1,0 +1,94 @@
+"""Memory: estimate what a cell needs, size batches of trials to fit, refuse what cannot.
+
+The engine holds, per trial, a handful of particle-sized arrays (the state, its prediction and
+the model's temporaries, log-weights, weights, the weighting's innovations) and the per-step
+traces. :func:`trial_bytes` estimates that peak as
+
+    8 bytes x [N (8 d + 4 m + 12) + T (3 d + m + 8)]
+
+for N particles, d state and m measurement components and T steps: about 1.3 to 2 times the
+peak that tracemalloc measures on the bundled models (``tests/test_memory.py`` checks that it
+is never below). Trials are run in batches that fit the budget (by default half the memory
+available when the run starts, shared by the worker processes); a cell of which even one
+trial does not fit is refused before anything runs, with the estimate.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from typing import Optional
+
+from pfx.errors import ConfigError
+
+_UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
+
+
+def parse_size(text: str) -> int:
+    """'512M', '4G', '1.5G' or a number of bytes -> bytes."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([KMGT]?)i?B?\s*", str(text), re.IGNORECASE)
+    if not match:
+        raise ConfigError(f"--max-memory: cannot read {text!r} (use e.g. 512M or 4G)")
+    return int(float(match.group(1)) * _UNITS[match.group(2).upper()])
+
+
+def format_size(size: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if size < 1024 or unit == "TiB":
+            return f"{size:.1f} {unit}" if unit != "B" else f"{int(size)} B"
+        size /= 1024
+    return f"{size:.1f} TiB"
+
+
+def available_memory() -> int:
+    """Bytes of memory available now (MemAvailable on Linux; physical memory elsewhere)."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 4 * 1024**3
+
+
+def default_budget() -> int:
+    return available_memory() // 2
+
+
+def trial_bytes(particles: int, state_dimension: int, measurement_dimension: int, steps: int) -> int:
+    """Estimated peak bytes of one trial in the engine (see the module docstring)."""
+    d, m = state_dimension, measurement_dimension
+    return 8 * (particles * (8 * d + 4 * m + 12) + steps * (3 * d + m + 8))
+
+
+def cell_trial_bytes(cell) -> int:
+    model = cell.filter_model
+    return trial_bytes(cell.filter.particles, model.state_dimension, model.measurement_dimension, model.steps)
+
+
+def check_fits(plan, budget: int) -> None:
+    """Refuse the plan if one trial of some cell does not fit the budget."""
+    for cell in plan.cells:
+        need = cell_trial_bytes(cell)
+        if need > budget:
+            raise ConfigError(
+                f"one trial of cell '{cell.labels['arm']}' ({cell.filter.particles} particles x "
+                f"{cell.filter_model.state_dimension} state components) needs about {format_size(need)}, "
+                f"more than the memory limit of {format_size(budget)} (half the available memory "
+                "unless --max-memory says otherwise); use fewer particles",
+                file=plan.file, key="filter.particles")
+
+
+def trials_per_batch(cell, trials: int, budget: int, workers: int = 1) -> int:
+    """Trials run together: fits the budget (shared by the workers), ~10 batches for progress."""
+    by_memory = max(1, budget // max(1, workers) // cell_trial_bytes(cell))
+    for_progress = -(-trials // 10) if trials >= 20 else trials
+    return int(max(1, min(trials, by_memory, for_progress)))
+
+
+def budget_from_option(option: Optional[str]) -> int:
+    return parse_size(option) if option else default_budget()
