@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
 
 from pfx.registry import Registry, kind_shorthand
 from pfx.seeding import TrialStreams
@@ -26,6 +26,9 @@ class _Diffusion(BaseModel):
 
     def apply(self, particles: np.ndarray, random: TrialStreams) -> np.ndarray:
         raise NotImplementedError
+
+    def check(self, dimension: int) -> None:
+        """Raise ValueError('@key: reason') if the parameters do not fit the state dimension."""
 
 
 class NoDiffusion(_Diffusion):
@@ -41,12 +44,15 @@ class GaussianDiffusion(_Diffusion):
     """Add N(0, std^2) to every component after resampling."""
 
     kind: Literal["gaussian"] = "gaussian"
-    std: Union[float, list[float]] = Field(description="standard deviation (one, or one per component)")
+    std: Union[Annotated[StrictFloat, Field(ge=0)], list[Annotated[StrictFloat, Field(ge=0)]]] = Field(
+        description="standard deviation (one, or one per component)")
+
+    def check(self, dimension):
+        if isinstance(self.std, list) and len(self.std) != dimension:
+            raise ValueError(f"@std: give one value or one per state component ({dimension}), got {len(self.std)}")
 
     def apply(self, particles, random):
         std = np.asarray(self.std, dtype=float)
-        if std.ndim and std.shape[0] != particles.shape[-1]:
-            raise ValueError(f"diffusion.std has {std.shape[0]} values for {particles.shape[-1]} components")
         return particles + std * random.standard_normal(particles.shape[1:])
 
 
@@ -54,7 +60,7 @@ class Roughening(_Diffusion):
     """Roughening: std_j = factor * range_j * N^(-1/d) (Gordon et al. 1993)."""
 
     kind: Literal["roughening"] = "roughening"
-    factor: float = Field(0.2, gt=0, description="K in K * E_j * N^(-1/d)")
+    factor: StrictFloat = Field(0.2, gt=0, description="K in K * E_j * N^(-1/d)")
 
     def apply(self, particles, random):
         n, d = particles.shape[-2], particles.shape[-1]

@@ -199,9 +199,10 @@ def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]
     measurements = np.empty((trials, model.steps, model.measurement_dimension))
     states[:, 0] = state
     for k in range(1, model.steps + 1):
-        state = model.transition(state, k, random)
-        states[:, k] = state
-        measurements[:, k - 1] = model.simulate_measurement(state, random)
+        with np.errstate(over="ignore", invalid="ignore"):   # reported just below
+            state = model.transition(state, k, random)
+            states[:, k] = state
+            measurements[:, k - 1] = model.simulate_measurement(state, random)
         if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):
             raise ModelNumericalError(f"model {model.kind} produced NaN or infinite values at step {k} of the truth")
     return states, measurements

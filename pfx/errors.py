@@ -28,6 +28,9 @@ class ConfigError(Exception):
                            line=self.line, column=self.column)
 
     def __str__(self) -> str:
+        return " ".join(self._text().splitlines())       # always one line, whatever a key holds
+
+    def _text(self) -> str:
         where = self.file or "<config>"
         if self.line is not None:
             where += f":{self.line}"

@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator, StrictFloat
 
 from pfx.noise import Noise, Variance
 from pfx.seeding import TrialStreams
@@ -46,7 +46,7 @@ class PointLaw(_InitialLaw):
     """A known initial state (a point mass)."""
 
     kind: Literal["point"] = "point"
-    state: list[float] = Field(description="the initial state")
+    state: list[StrictFloat] = Field(description="the initial state")
 
     def bind(self, dimension):
         _check_length(self.state, dimension, "state")
@@ -67,15 +67,24 @@ class GaussianLaw(_InitialLaw):
     """A normal distribution with the given mean and covariance."""
 
     kind: Literal["gaussian"] = "gaussian"
-    mean: list[float] = Field(description="mean vector")
+    mean: list[StrictFloat] = Field(description="mean vector")
     covariance: Variance = Field(description="variance(s) or covariance matrix")
 
     _noise: Optional[Noise] = PrivateAttr(None)
 
+    @model_validator(mode="after")
+    def _valid_covariance(self):
+        try:
+            self._noise = Noise(family="gaussian", variance=self.covariance)
+        except ValidationError as error:
+            reason = error.errors()[0]["msg"].removeprefix("Value error, ").removeprefix("@variance: ")
+            raise ValueError(f"@covariance: {reason}") from None
+        return self
+
     def bind(self, dimension):
         _check_length(self.mean, dimension, "mean")
         try:
-            self._noise = Noise(family="gaussian", variance=self.covariance).bind(dimension)
+            self._noise.bind(dimension)
         except ValueError as error:
             raise ValueError(str(error).replace("@variance", "@covariance")) from None
         return self
@@ -94,8 +103,8 @@ class UniformLaw(_InitialLaw):
     """Independent uniform components on the box [low, high]."""
 
     kind: Literal["uniform"] = "uniform"
-    low: list[float] = Field(description="lower corner of the box")
-    high: list[float] = Field(description="upper corner of the box")
+    low: list[StrictFloat] = Field(description="lower corner of the box")
+    high: list[StrictFloat] = Field(description="upper corner of the box")
 
     @model_validator(mode="after")
     def _ordered(self):

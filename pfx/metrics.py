@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from typing import Callable, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.registry import Registry
 
@@ -42,8 +42,8 @@ class ConvergenceCriterion(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     criterion: Literal["spread", "truth"] = Field("spread", description="spread (particle cloud) or truth (error) based")
-    radius: float = Field(1.0, gt=0, description="radius in position units")
-    fraction: float = Field(0.9, gt=0, le=1, description="spread: share of particles required inside the radius")
+    radius: StrictFloat = Field(1.0, gt=0, description="radius in position units")
+    fraction: StrictFloat = Field(0.9, gt=0, le=1, description="spread: share of particles required inside the radius")
     weighted: bool = Field(False, description="spread: weight particles (and the mean) by their weights")
     hold: int = Field(1, ge=1, description="truth: steps the error must stay below the radius")
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from typing import Callable, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator, StrictFloat
 from scipy.special import gammaln
 
 from pfx.registry import Registry
@@ -44,8 +44,8 @@ from pfx.seeding import TrialStreams
 class NoiseFamily:
     """A zero-mean, unit-variance distribution: how to draw it and its log-density."""
 
-    sample_standard: Callable[[TrialStreams, tuple, Optional[float]], np.ndarray]
-    log_density_standard: Callable[[np.ndarray, Optional[float]], np.ndarray]
+    sample_standard: Callable[[TrialStreams, tuple, Optional[StrictFloat]], np.ndarray]
+    log_density_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]
     description: str
 
 
@@ -113,7 +113,7 @@ for _name, _family in {
 
 NoiseFamilyName = Literal[NOISE_FAMILIES.names()]  # type: ignore[valid-type]
 
-Variance = Union[float, list[float], list[list[float]]]
+Variance = Union[StrictFloat, list[StrictFloat], list[list[StrictFloat]]]
 
 
 class Noise(BaseModel):
@@ -126,7 +126,7 @@ class Noise(BaseModel):
         1.0,
         description="variance: a number for every component, a list with one per component, "
                     "or a full covariance matrix")
-    df: Optional[float] = Field(
+    df: Optional[StrictFloat] = Field(
         None, gt=2.0, description="degrees of freedom (student_t only; > 2 for a finite variance)")
 
     _scale: Optional[np.ndarray] = PrivateAttr(None)       # per-component std (diagonal case)

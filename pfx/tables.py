@@ -13,8 +13,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-from scipy import stats
 
 SUMMARY_STATISTICS = ("n", "mean", "std", "sem", "ci95_low", "ci95_high", "median")
 # trials.csv columns that are identifiers or settings, not metrics to summarise
@@ -56,6 +54,8 @@ def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:
     Only finite values count (``n`` says how many): a never-converged trial has no
     convergence step. The interval is mean +- t_{0.975, n-1} * sem; empty when n < 2.
     """
+    import pandas as pd
+
     keys = ["cell"] + [c for c in label_columns if c != "cell"]
     metrics = [c for c in trials.columns if c not in NON_METRIC_COLUMNS and c not in keys
                and (pd.api.types.is_numeric_dtype(trials[c]) or pd.api.types.is_bool_dtype(trials[c]))]
@@ -80,6 +80,8 @@ def _statistics(values: np.ndarray) -> dict[str, float]:
     result["mean"] = float(values.mean())
     result["median"] = float(np.median(values))
     if n >= 2:
+        from scipy import stats
+
         std = float(values.std(ddof=1))
         sem = std / np.sqrt(n)
         half = float(stats.t.ppf(0.975, n - 1)) * sem

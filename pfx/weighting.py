@@ -29,7 +29,7 @@ from __future__ import annotations
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
 
 from pfx.registry import Registry, kind_shorthand
 
@@ -68,7 +68,7 @@ class EuclideanWeighting(_Weighting):
     """Gaussian kernel of the Euclidean (L2) innovation distance, isotropic."""
 
     kind: Literal["euclidean"] = "euclidean"
-    scale: Optional[float] = Field(None, gt=0, description="kernel std s (default: sqrt of mean diag R)")
+    scale: Optional[StrictFloat] = Field(None, gt=0, description="kernel std s (default: sqrt of mean diag R)")
 
     def log_weights(self, model, measurement, particles, weights):
         innovation = measurement - model.measurement_mean(particles)
@@ -80,7 +80,7 @@ class ManhattanWeighting(_Weighting):
     """Laplace kernel of the Manhattan (L1) innovation distance."""
 
     kind: Literal["manhattan"] = "manhattan"
-    scale: Optional[float] = Field(None, gt=0, description="kernel scale b (default: sqrt(mean diag R / 2))")
+    scale: Optional[StrictFloat] = Field(None, gt=0, description="kernel scale b (default: sqrt(mean diag R / 2))")
 
     def log_weights(self, model, measurement, particles, weights):
         innovation = measurement - model.measurement_mean(particles)

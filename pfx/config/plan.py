@@ -95,7 +95,10 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
     if arm_raw:
         cell_raw["filter"] = deep_merge(cell_raw.get("filter") or {}, arm_raw)
     for dotted, value in combination.items():
-        set_path(cell_raw, dotted, copy.deepcopy(value))
+        try:
+            set_path(cell_raw, dotted, copy.deepcopy(value))
+        except ConfigError as error:
+            raise ConfigError(error.reason, file=file, key=prefix or f"sweep.{dotted}") from None
 
     def locate(error: ConfigError) -> ConfigError:
         if not prefix:
@@ -112,6 +115,11 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
                 (truth.state_dimension, truth.measurement_dimension):
             raise ConfigError("the filter's model must have the true model's state and measurement sizes",
                               file=file, key="filter.model")
+        try:
+            settings.diffusion.check(filter_model.state_dimension)
+        except ValueError as error:
+            sub, _, reason = str(error).lstrip("@").partition(": ")
+            raise ConfigError(reason, file=file, key=f"filter.diffusion.{sub}") from None
         prior = settings.initial or filter_model.default_prior()
         try:
             bind_law(prior, filter_model.state_dimension, "initial")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictFloat
 
 from pfx.diffusion import Diffusion, NoDiffusion
 from pfx.figures import FIGURES
@@ -36,7 +36,7 @@ class FilterConfig(BaseModel):
         "particle", description="particle (SIR with the ESS rule) or sis (never resample)")
     particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
     resampler: ResamplerName = Field("systematic", description="resampling scheme (`pfx list resamplers`)")
-    ess_threshold: float = Field(
+    ess_threshold: StrictFloat = Field(
         1.0, ge=0.0, le=1.0,
         description="resample when ESS < ess_threshold * N; 1 = every step, 0 = never")
     weighting: Weighting = Field(default_factory=GaussianWeighting,

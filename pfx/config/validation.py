@@ -171,7 +171,12 @@ def to_config_error(error: ValidationError, root: type[BaseModel], *, file=None,
     return ConfigError(reason, file=file, key=key or None)
 
 
+_TYPE_TAG = re.compile(r"^(float|int|str|bool|none|constrained-\w+|(list|dict|tuple|set|literal)\[.*\])$",
+                       re.IGNORECASE)
+
+
 def _is_internal(part) -> bool:
-    # pydantic adds markers such as 'function-before[...]' for wrapped validators
+    # pydantic adds markers: 'function-before[...]' for wrapped validators, '[key]' for dict keys,
+    # and the member type ('float', 'list[float]') of a plain union
     return isinstance(part, str) and (part == "[key]" or "[" in part and "(" in part
-                                      or part.startswith("function-"))
+                                      or part.startswith("function-") or bool(_TYPE_TAG.match(part)))

@@ -1,6 +1,6 @@
 """Safe YAML reading for configs, and dotted ``--set`` overrides.
 
-Only YAML's plain data types are constructed (``yaml.SafeLoader``): tags that would build
+Only YAML's plain data types are constructed (``yaml.SafeLoader``, reading YAML 1.2 floats): tags that would build
 Python objects are errors. Duplicate keys are errors (plain PyYAML keeps the last one
 silently). Aliases are allowed, but a document whose expansion would exceed
 :data:`MAX_EXPANDED_NODES` nodes ("billion laughs") is refused before it is expanded.
@@ -9,6 +9,7 @@ silently). Aliases are allowed, but a document whose expansion would exceed
 from __future__ import annotations
 
 import copy
+import re
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,22 @@ import yaml
 from pfx.errors import ConfigError
 
 MAX_EXPANDED_NODES = 100_000
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """SafeLoader that also reads YAML 1.2 floats such as ``1e-3`` and ``3.0e5``.
+
+    PyYAML follows YAML 1.1, where an exponent needs a dot and a sign (``1.0e+5``); otherwise
+    ``1e-3`` would silently be the string '1e-3'.
+    """
+
+
+ConfigLoader.yaml_implicit_resolvers = {key: list(value) for key, value in
+                                        yaml.SafeLoader.yaml_implicit_resolvers.items()}
+ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
 MAX_FILE_BYTES = 10 * 1024 * 1024
 
 
@@ -62,7 +79,7 @@ def _check_tree(node: yaml.Node, file: str) -> None:
 
 def parse_yaml(text: str, file: str) -> Any:
     """Parse one YAML document safely; errors carry file, line and column."""
-    loader = yaml.SafeLoader(text)
+    loader = ConfigLoader(text)
     try:
         if not loader.check_node():
             raise ConfigError("file is empty (expected a YAML mapping)", file=file)
@@ -96,6 +113,8 @@ def load_config_file(path: str | Path) -> dict:
         raise ConfigError("no such file", file=file)
     if path.is_dir():
         raise ConfigError("is a directory, not a config file", file=file)
+    if not path.is_file():
+        raise ConfigError("not a regular file (a pipe, socket or device?)", file=file)
     try:
         with path.open("rb") as handle:
             data = handle.read(MAX_FILE_BYTES + 1)

@@ -9,8 +9,6 @@ from functools import cached_property
 from pathlib import Path
 from typing import Callable, Optional
 
-import pandas as pd
-
 from pfx.registry import Registry
 from pfx.tables import FILE_MODE
 
@@ -24,6 +22,8 @@ class ResultFolder:
         self.path = Path(path)
 
     def table(self, name: str) -> pd.DataFrame:
+        import pandas as pd
+
         try:
             return pd.read_csv(self.path / f"{name}.csv")
         except pd.errors.EmptyDataError:

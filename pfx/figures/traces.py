@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import pandas as pd
-
 from pfx.figures.registry import FIGURES, ResultFolder
 
 
-def _over_time(result: ResultFolder, values: pd.Series, ylabel: str, title: str, band: bool):
+def _over_time(result: ResultFolder, values, ylabel: str, title: str, band: bool):
     """One line per cell: the mean of ``values`` over the traced trials at each time."""
     import matplotlib.pyplot as plt
 
@@ -15,7 +13,7 @@ def _over_time(result: ResultFolder, values: pd.Series, ylabel: str, title: str,
     unit = result.units.get("time", "s")
     x_column, x_label = ("time", f"time [{unit}]") if unit != "step" else ("step", "step")
     frame = steps.assign(_cell=result.cell_names(steps), _value=values)
-    figure, axes = plt.subplots(figsize=(7.5, 4.5))
+    figure, axes = plt.subplots(figsize=(7.5, 4.5), layout="constrained")
     for name, group in frame.groupby("_cell", sort=False):
         by_time = group.groupby(x_column)["_value"]
         mean = by_time.mean()
@@ -33,7 +31,6 @@ def _over_time(result: ResultFolder, values: pd.Series, ylabel: str, title: str,
         axes.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     else:
         axes.legend(fontsize=8)
-    figure.tight_layout()
     return figure, axes
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import Any, ClassVar, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator, StrictFloat
 
 from pfx.initial_laws import InitialLaw
 from pfx.noise import Noise
@@ -40,7 +40,7 @@ class Model(BaseModel):
 
     kind: str
     steps: Optional[StrictInt] = Field(None, ge=1, le=1_000_000, description="number of filter steps T")
-    dt: Optional[float] = Field(None, gt=0, description="time between steps (seconds unless stated)")
+    dt: Optional[StrictFloat] = Field(None, gt=0, description="time between steps (seconds unless stated)")
     process_noise: Optional[Noise] = Field(None, description="process noise w_k (family, variance)")
     measurement_noise: Optional[Noise] = Field(None, description="measurement noise v_k (family, variance)")
     initial: Optional[InitialLaw] = Field(None, description="initial law of the true state x_0")

@@ -36,7 +36,7 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field, PrivateAttr, StrictInt
+from pydantic import Field, PrivateAttr, StrictInt, StrictFloat
 
 from pfx.initial_laws import GaussianLaw, PointLaw
 from pfx.models.base import Model
@@ -70,11 +70,11 @@ class FallingBody(Model):
     kind: Literal["falling_body"] = "falling_body"
     variant: Literal["jud", "simon"] = Field("simon", description="parameterisation: jud (Athans/Julier) or simon")
     units: Literal["ft", "si"] = Field("ft", description="feet, or SI (variant simon only)")
-    radar_distance: Optional[float] = Field(None, gt=0, description="horizontal distance M of the radar")
-    radar_altitude: Optional[float] = Field(None, ge=0, description="altitude H of the radar")
-    air_density: Optional[float] = Field(None, gt=0, description="rho_0 (2 in the feet forms, so rho_0/2 = 1)")
-    scale_height: Optional[float] = Field(None, gt=0, description="k in exp(-x1/k) (1/gamma for jud)")
-    gravity: Optional[float] = Field(None, ge=0, description="g (0 for jud)")
+    radar_distance: Optional[StrictFloat] = Field(None, gt=0, description="horizontal distance M of the radar")
+    radar_altitude: Optional[StrictFloat] = Field(None, ge=0, description="altitude H of the radar")
+    air_density: Optional[StrictFloat] = Field(None, gt=0, description="rho_0 (2 in the feet forms, so rho_0/2 = 1)")
+    scale_height: Optional[StrictFloat] = Field(None, gt=0, description="k in exp(-x1/k) (1/gamma for jud)")
+    gravity: Optional[StrictFloat] = Field(None, ge=0, description="g (0 for jud)")
     integrator: Literal["rk4", "euler"] = Field("rk4", description="integration scheme between measurements")
     substeps: Optional[StrictInt] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
 

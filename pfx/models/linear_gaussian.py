@@ -14,13 +14,13 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field, PrivateAttr
+from pydantic import Field, PrivateAttr, StrictFloat
 
 from pfx.initial_laws import GaussianLaw
 from pfx.models.base import Model
 from pfx.noise import Noise
 
-Matrix = list[list[float]]
+Matrix = list[list[StrictFloat]]
 
 
 class LinearGaussian(Model):
@@ -30,7 +30,7 @@ class LinearGaussian(Model):
     transition_matrix: Matrix = Field(description="A (d x d)")
     measurement_matrix: Matrix = Field(description="H (m x d)")
     control_matrix: Optional[Matrix] = Field(None, description="B (d x c); needs controls")
-    controls: Optional[list[list[float]]] = Field(
+    controls: Optional[list[list[StrictFloat]]] = Field(
         None, description="control inputs u_k: one vector (used at every step) or T vectors")
     names: Optional[list[str]] = Field(None, description="state component names (default x1..xd)")
     position: Optional[list[int]] = Field(
@@ -51,6 +51,10 @@ class LinearGaussian(Model):
         }
 
     def check(self):
+        for key in ("transition_matrix", "measurement_matrix", "control_matrix", "controls"):
+            rows = getattr(self, key)
+            if rows is not None and len({len(row) for row in rows}) > 1:
+                raise ValueError(f"@{key}: every row must have the same length")
         A = np.asarray(self.transition_matrix, dtype=float)
         if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
             raise ValueError("@transition_matrix: must be a non-empty square matrix (list of rows)")

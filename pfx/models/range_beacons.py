@@ -23,13 +23,13 @@ from __future__ import annotations
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat
 
 from pfx.initial_laws import PointLaw, UniformLaw
 from pfx.models.base import Model
 from pfx.noise import Noise
 
-Point = tuple[float, float]
+Point = tuple[StrictFloat, StrictFloat]
 
 
 class LissajousPath(BaseModel):
@@ -41,7 +41,7 @@ class LissajousPath(BaseModel):
     amplitude: Point = (1.0, 1.0)
     frequency: Point = (1.0, 2.0)
     phase: Point = (np.pi / 2, 0.0)
-    turns: float = Field(1.0, gt=0)
+    turns: StrictFloat = Field(1.0, gt=0)
 
     def points(self, steps: int) -> np.ndarray:
         t = 2 * np.pi * self.turns * np.arange(steps + 1)[:, None] / steps
