@@ -22,7 +22,7 @@ from pfx.errors import ConfigError, ModelNumericalError
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="pfx: run, compare and reproduce particle-filter experiments from YAML configs.")
 
-LISTABLE = ("models", "resamplers", "weightings", "noises", "diffusions", "metrics", "figures")
+LISTABLE = ("models", "filters", "resamplers", "weightings", "noises", "diffusions", "metrics", "figures")
 
 
 def _fail(message: str, status: int = 2) -> None:
@@ -149,13 +149,14 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
 def _registries():
     from pfx.diffusion import DIFFUSIONS
     from pfx.figures import FIGURES
+    from pfx.filters import FILTERS
     from pfx.metrics import METRICS
     from pfx.models import MODELS
     from pfx.noise import NOISE_FAMILIES
     from pfx.resampling import RESAMPLERS
     from pfx.weighting import WEIGHTINGS
 
-    return {"models": MODELS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
+    return {"models": MODELS, "filters": FILTERS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
             "noises": NOISE_FAMILIES, "diffusions": DIFFUSIONS, "metrics": METRICS, "figures": FIGURES}
 
 

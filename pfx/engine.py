@@ -31,6 +31,7 @@ from typing import Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError
+from pfx.trace import FilterTrace
 from pfx.seeding import TrialStreams
 
 
@@ -40,20 +41,6 @@ class SpreadCriterion:
 
     radius: float
     weighted: bool
-
-
-@dataclass
-class FilterTrace:
-    """What a filter run leaves behind, per trial and step (steps 1..T)."""
-
-    estimates: np.ndarray            # (R, T, d) weighted mean before resampling
-    ess: np.ndarray                  # (R, T) effective sample size before resampling
-    resampled: np.ndarray            # (R, T) bool
-    degenerate: np.ndarray           # (R, T) bool: every weight underflowed
-    spread: np.ndarray               # (R, T) weighted RMS distance of position from its mean
-    log_likelihood: np.ndarray       # (R,) sum of the log normalisers
-    lost_particles: np.ndarray       # (R,) particles whose state became non-finite
-    within_radius: Optional[np.ndarray] = None  # (R, T) share of particles within the radius
 
 
 def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,8 +73,13 @@ def weighted_mean(weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
 
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
-                        spread_criterion: Optional[SpreadCriterion] = None) -> FilterTrace:
-    """Run the filter on measurements of shape (R, T, m); see the module docstring."""
+                        spread_criterion: Optional[SpreadCriterion] = None,
+                        consistency: bool = False) -> FilterTrace:
+    """Run the filter on measurements of shape (R, T, m); see the module docstring.
+
+    With ``consistency``, also record the weighted posterior covariance (before resampling) and
+    the normalised innovation squared of the predicted cloud, for NEES and NIS.
+    """
     trials, steps, _ = measurements.shape
     n = particles
     position = list(model.position_components)
@@ -104,6 +96,9 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     within = np.empty((trials, steps)) if spread_criterion else None
     log_likelihood = np.zeros(trials)
     lost_particles = np.zeros(trials, dtype=np.int64)
+    dimension = state.shape[-1]
+    covariances = np.empty((trials, steps, dimension, dimension)) if consistency else None
+    nis = np.empty((trials, steps)) if consistency else None
 
     for k in range(1, steps + 1):
         t = k - 1
@@ -120,6 +115,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             state[lost] = 0.0
             log_weights[lost] = -np.inf
             weights[lost] = 0.0
+        if consistency:
+            nis[:, t] = _innovation_squared(model, measurements[:, t], state, weights)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             increment = weighting.log_weights(model, measurements[:, t, None, :], state, weights)
         if lost is not None:
@@ -149,6 +146,9 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
         if not np.isfinite(estimates[:, t]).all():
             raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
                                       "of the filter (check the prior and the noise)")
+        if consistency:
+            centred = state - estimates[:, t, None, :]
+            covariances[:, t] = np.einsum("rn,rnd,rne->rde", weights, centred, centred)
 
         if ess_threshold >= 1.0:
             rows = np.arange(trials)
@@ -172,7 +172,19 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
 
     return FilterTrace(estimates=estimates, ess=ess, resampled=resampled, degenerate=degenerate,
                        spread=spread, log_likelihood=log_likelihood, lost_particles=lost_particles,
-                       within_radius=within)
+                       within_radius=within, covariances=covariances, nis=nis)
+
+
+def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        predicted = model.measurement_mean(state)
+        mean = np.einsum("rn,rnm->rm", weights, predicted)
+        centred = predicted - mean[:, None, :]
+        innovation_covariance = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
+            + model.measurement_noise.covariance()
+        innovation = measurement - mean
+        return np.einsum("rm,rm->r", innovation, np.linalg.solve(innovation_covariance, innovation[..., None])[..., 0])
 
 
 def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:

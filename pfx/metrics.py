@@ -18,6 +18,9 @@ transition + measurement, i.e. the k-th action in kim-mcl's counting).
 
   Error distance at convergence is :math:`e_k` at that step; never converging leaves both
   empty and ``converged`` false.
+* **Consistency**: NEES :math:`(\hat x_k - x_k)^\top P_k^{-1} (\hat x_k - x_k)` (chi-square with d
+  degrees of freedom for a consistent filter) and NIS :math:`\nu_k^\top S_k^{-1} \nu_k` (m degrees),
+  averaged over the steps.
 * **Mean ESS**, **resample count**, **degenerate-step count** (every weight underflowed; the
   weights are reset to uniform), **lost particles** (states that became non-finite), and the filter's **log-likelihood** estimate
   :math:`\sum_k \log \sum_i w_{k-1,i}\, \ell_k(x_{k,i})` (the marginal likelihood when the
@@ -53,6 +56,9 @@ class MetricsConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     convergence: ConvergenceCriterion = Field(default_factory=ConvergenceCriterion)
+    consistency: bool = Field(
+        False, description="NEES and NIS for particle filters too (records a weighted covariance "
+                           "per step; Gaussian filters always report them)")
 
 
 # -- pure functions ---------------------------------------------------------------------------
@@ -140,7 +146,9 @@ def convergence_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Convergence step (spread or truth criterion), converged flag, error distance then."""
     criterion = inputs.config.convergence
     distance = _distance(inputs)
-    if criterion.criterion == "spread":
+    if criterion.criterion == "spread" and inputs.trace.within_radius is None:
+        step = np.full(distance.shape[0], NEVER)      # no particle cloud (Gaussian filters)
+    elif criterion.criterion == "spread":
         step = spread_convergence_step(inputs.trace.within_radius, criterion.fraction)
     else:
         step = truth_convergence_step(distance, criterion.radius, criterion.hold)
@@ -173,6 +181,34 @@ def degeneracy_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 def lost_particle_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Particles whose state became NaN or infinite (given weight zero), summed over steps."""
     return {"lost_particles": inputs.trace.lost_particles}
+
+
+def normalised_squares(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """e' P^-1 e for every leading index: (..., d), (..., d, d) -> (...).
+
+    A singular covariance (a collapsed particle cloud) gives inf where the error leaves its
+    range, via the pseudo-inverse.
+    """
+    try:
+        solved = np.linalg.solve(covariances, errors[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        solved = np.einsum("...de,...e->...d", np.linalg.pinv(covariances), errors)
+    return np.einsum("...d,...d->...", errors, solved)
+
+
+@METRICS.register("consistency")
+def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Mean NEES (e' P^-1 e, expected d) and NIS (expected m) over the steps, when recorded."""
+    trace = inputs.trace
+    trials = inputs.truth.shape[0]
+    nees = np.full(trials, np.nan)
+    nis = np.full(trials, np.nan)
+    if trace.covariances is not None:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            nees = normalised_squares(trace.estimates - inputs.truth, trace.covariances).mean(axis=1)
+    if trace.nis is not None:
+        nis = trace.nis.mean(axis=1)
+    return {"nees_mean": nees, "nis_mean": nis}
 
 
 @METRICS.register("log_likelihood")

@@ -32,12 +32,12 @@ import yaml
 
 import pfx
 from pfx.config.plan import Cell, Plan
-from pfx.engine import SpreadCriterion, run_particle_filter, simulate_truth
+from pfx.engine import SpreadCriterion, simulate_truth
+from pfx.filters import FILTERS
 from pfx.errors import ConfigError
 from pfx.figures import render_figures
 from pfx.memory import check_fits, default_budget, trials_per_batch
 from pfx.metrics import MetricInputs, compute_metrics
-from pfx.resampling import RESAMPLERS
 from pfx.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
@@ -61,11 +61,9 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> Ba
     criterion = cell.metrics.convergence
     spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
     started = time.perf_counter()
-    trace = run_particle_filter(
-        cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), prior=cell.prior,
-        particles=cell.filter.particles, resampler=RESAMPLERS[cell.filter.resampler],
-        ess_threshold=cell.filter.effective_threshold(), weighting=cell.filter.weighting,
-        diffusion=cell.filter.diffusion, spread_criterion=spread)
+    trace = FILTERS[cell.filter.kind](
+        cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
+        prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency)
     elapsed = time.perf_counter() - started
     truth = states[:, 1:]
     with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors

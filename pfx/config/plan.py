@@ -132,15 +132,16 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
     settings_dump = settings.model_dump(mode="json", exclude={"model", "initial"})
     identity = {"arm": arm, "truth": truth.model_dump(mode="json"), "filter": settings_dump,
                 "filter_model": filter_model.model_dump(mode="json"), "prior": prior.model_dump(mode="json")}
+    particles = settings.uses_particles      # other kinds leave the particle columns empty
     labels: dict[str, Any] = {
         "arm": arm,
         "model": truth.kind,
         "filter": settings.kind,
-        "n_particles": settings.particles,
-        "resampler": settings.resampler,
-        "ess_threshold": settings.effective_threshold(),
-        "weighting": settings.weighting.label(),
-        "diffusion": settings.diffusion.kind,
+        "n_particles": settings.particles if particles else None,
+        "resampler": settings.resampler if particles else None,
+        "ess_threshold": settings.effective_threshold() if particles else None,
+        "weighting": settings.weighting.label() if particles else None,
+        "diffusion": settings.diffusion.kind if particles else None,
     }
     for dotted, value in combination.items():
         column = sweep_column(dotted)

@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictFloat
 
 from pfx.diffusion import Diffusion, NoDiffusion
 from pfx.figures import FIGURES
+from pfx.filters import FILTERS, PARTICLE_KINDS
 from pfx.initial_laws import InitialLaw
 from pfx.metrics import MetricsConfig
 from pfx.models import MODELS
@@ -22,6 +23,7 @@ from pfx.resampling import RESAMPLERS
 from pfx.weighting import GaussianWeighting, Weighting
 
 ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
+FilterKind = Literal[FILTERS.names()]  # type: ignore[valid-type]
 FigureName = Literal[FIGURES.names()]  # type: ignore[valid-type]
 ModelConfig = Annotated[Union[tuple(MODELS[name] for name in MODELS)], Field(discriminator="kind")]
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
@@ -32,8 +34,9 @@ class FilterConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    kind: Literal["particle", "sis"] = Field(
-        "particle", description="particle (SIR with the ESS rule) or sis (never resample)")
+    kind: FilterKind = Field(  # type: ignore[valid-type]
+        "particle", description="filter kind (`pfx list filters`): particle (SIR with the ESS rule), "
+                                "sis (never resample), ...")
     particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
     resampler: ResamplerName = Field("systematic", description="resampling scheme (`pfx list resamplers`)")
     ess_threshold: StrictFloat = Field(
@@ -48,6 +51,10 @@ class FilterConfig(BaseModel):
         default_factory=dict,
         description="model parameters the filter assumes where they differ from the truth "
                     "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")
+
+    @property
+    def uses_particles(self) -> bool:
+        return self.kind in PARTICLE_KINDS
 
     def effective_threshold(self) -> float:
         return 0.0 if self.kind == "sis" else self.ess_threshold

@@ -1,0 +1,19 @@
+"""Filter kinds: every way pfx estimates the state, on the same models, metrics and CSV.
+
+A filter kind is a function registered under the name a config gives as ``filter.kind``::
+
+    run(model, measurements, random, *, settings, prior, spread_criterion) -> FilterTrace
+
+``model`` is the model the filter assumes, ``measurements`` has shape (trials, T, m),
+``random`` is a :class:`~pfx.seeding.TrialStreams` (one stream per trial), ``settings`` the
+cell's :class:`~pfx.config.schema.FilterConfig`, ``prior`` the bound initial law.
+To add a kind: write the function in a module of this package and register it below.
+"""
+
+from pfx.filters.registry import FILTERS
+from pfx.filters import particle  # noqa: F401  (registers particle, sis)
+
+# kinds that carry particles (their cells have a particle count, resampler and weighting)
+PARTICLE_KINDS = frozenset({"particle", "sis"})
+
+__all__ = ["FILTERS", "PARTICLE_KINDS"]

@@ -1,0 +1,33 @@
+"""The particle filter kinds: ``particle`` (SIR with the ESS rule) and ``sis`` (never resample).
+
+Both run :func:`pfx.engine.run_particle_filter`; ``sis`` forces the ESS threshold to 0.
+"""
+
+from __future__ import annotations
+
+from pfx.engine import run_particle_filter
+from pfx.filters.registry import FILTERS
+from pfx.resampling import RESAMPLERS
+
+
+def _run(model, measurements, random, *, settings, prior, spread_criterion, consistency=False):
+    return run_particle_filter(
+        model, measurements, random, prior=prior, particles=settings.particles,
+        resampler=RESAMPLERS[settings.resampler], ess_threshold=settings.effective_threshold(),
+        weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
+        consistency=consistency)
+
+
+@FILTERS.register("particle")
+def particle(model, measurements, random, *, settings, prior, spread_criterion, consistency=False):
+    """Particle filter: resample when ESS < ess_threshold * N."""
+    return _run(model, measurements, random, settings=settings, prior=prior,
+                spread_criterion=spread_criterion, consistency=consistency)
+
+
+@FILTERS.register("sis")
+def sequential_importance_sampling(model, measurements, random, *, settings, prior, spread_criterion,
+                                   consistency=False):
+    """Sequential importance sampling: a particle filter that never resamples."""
+    return _run(model, measurements, random, settings=settings, prior=prior,
+                spread_criterion=spread_criterion, consistency=consistency)

@@ -1,0 +1,40 @@
+"""What every filter kind returns: per-trial, per-step estimates and diagnostics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+
+@dataclass
+class FilterTrace:
+    """A filter run over R trials and steps 1..T.
+
+    Fields that do not apply to a filter kind (ESS for a Kalman filter) hold NaN, and become
+    empty fields in the CSV; ``covariances`` and ``nis`` are None where not computed.
+    """
+
+    estimates: np.ndarray            # (R, T, d) posterior mean (PF: weighted mean before resampling)
+    ess: np.ndarray                  # (R, T) effective sample size before resampling
+    resampled: np.ndarray            # (R, T) bool
+    degenerate: np.ndarray           # (R, T) bool: every weight underflowed
+    spread: np.ndarray               # (R, T) RMS distance of the position from its mean
+    log_likelihood: np.ndarray       # (R,) estimate of log p(z_1:T)
+    lost_particles: np.ndarray       # (R,) particles whose state became non-finite
+    within_radius: Optional[np.ndarray] = None  # (R, T) share of particles within the radius
+    covariances: Optional[np.ndarray] = None    # (R, T, d, d) posterior covariance
+    nis: Optional[np.ndarray] = None            # (R, T) normalised innovation squared
+
+    @classmethod
+    def for_gaussian_filter(cls, estimates, covariances, nis, log_likelihood, position) -> "FilterTrace":
+        """A trace for filters that carry a mean and a covariance (KF, EKF, UKF, grid)."""
+        trials, steps = estimates.shape[:2]
+        position_covariance = covariances[..., position, :][..., :, position]
+        return cls(estimates=estimates, ess=np.full((trials, steps), np.nan),
+                   resampled=np.zeros((trials, steps), dtype=bool),
+                   degenerate=np.zeros((trials, steps), dtype=bool),
+                   spread=np.sqrt(np.trace(position_covariance, axis1=-2, axis2=-1)),
+                   log_likelihood=log_likelihood, lost_particles=np.zeros(trials, dtype=np.int64),
+                   covariances=covariances, nis=nis)
