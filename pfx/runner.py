@@ -37,7 +37,7 @@ from pfx.filters import FILTERS
 from pfx.errors import ConfigError
 from pfx.figures import render_figures
 from pfx.memory import check_fits, default_budget, trials_per_batch
-from pfx.metrics import MetricInputs, compute_metrics
+from pfx.metrics import MetricInputs, compute_metrics, normalised_squares
 from pfx.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
@@ -84,7 +84,7 @@ def steps_columns(cell: Cell) -> list[str]:
     states = cell.truth_model.state_names
     columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
                                                                for kind in ("truth", "estimate")],
-               "error_distance", "ess", "resampled", "degenerate", "spread"]
+               "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis"]
     return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
 
 
@@ -107,6 +107,9 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         columns["resampled"] = trace.resampled[i]
         columns["degenerate"] = trace.degenerate[i]
         columns["spread"] = trace.spread[i]
+        columns["nees"] = (normalised_squares(trace.estimates[i] - truth[i], trace.covariances[i])
+                           if trace.covariances is not None else np.nan)
+        columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
         if trace.within_radius is not None:
             columns["within_radius"] = trace.within_radius[i]
         frames.append(pd.DataFrame(columns))

@@ -46,6 +46,21 @@ def error_over_time(result: ResultFolder):
     return figure
 
 
+@FIGURES.register("nees_over_time")
+def nees_over_time(result: ResultFolder):
+    """Mean NEES over time per cell (log scale) against its expected value d, the state dimension."""
+    steps = result.steps
+    if steps.empty or steps["nees"].isna().all():
+        return None
+    dimension = sum(1 for column in steps.columns if column.startswith("truth_"))
+    figure, axes = _over_time(result, steps["nees"], "NEES (mean over traced trials)",
+                              "normalised estimation error squared", band=False)
+    axes.axhline(dimension, color="black", linestyle="--", linewidth=1, label=f"expected: d = {dimension}")
+    axes.set_yscale("log")
+    axes.legend(fontsize=8)
+    return figure
+
+
 @FIGURES.register("ess_over_time")
 def ess_over_time(result: ResultFolder):
     """Mean effective sample size (as a share of N) over time per cell, before resampling."""
