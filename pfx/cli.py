@@ -207,13 +207,48 @@ def reproduce(
 
 
 @app.command()
+@_guarded
 def compare(
-    result_dir: Path = typer.Argument(..., help="a result folder"),
-    metric: str = typer.Option(..., "--metric", help="metric column of trials.csv"),
-    by: str = typer.Option("arm", "--by", help="column whose values are compared"),
+    result_dir: Path = typer.Argument(..., help="a result folder written by pfx run"),
+    metric: str = typer.Option(..., "--metric", help="metric column of trials.csv (e.g. rmse_position)"),
+    by: str = typer.Option("arm", "--by", help="label column whose values are compared"),
+    baseline: Optional[str] = typer.Option(None, "--baseline",
+                                           help="the value the others are compared with (default: the first)"),
+    higher_is_better: bool = typer.Option(False, "--higher-is-better",
+                                          help="a win is a higher metric value (default: lower)"),
+    bootstrap: Optional[int] = typer.Option(None, "--bootstrap", min=100, metavar="B",
+                                            help="percentile-bootstrap interval from B resamples "
+                                                 "(default: t-interval)"),
 ):
-    """Paired differences between arms, with confidence intervals (not available yet)."""
-    _fail("'pfx compare' is not available yet in this version")
+    """Paired differences between arms (or any label column), trial by trial, with 95% intervals."""
+    from pfx.compare import format_table, output_name, paired_comparison
+    from pfx.figures.registry import ResultFolder
+    from pfx.tables import write_csv
+
+    folder = ResultFolder(result_dir)
+    try:
+        finished = json.loads((result_dir / "manifest.json").read_text()).get("complete") is True
+    except (OSError, ValueError, AttributeError):
+        finished = False
+    if not finished or not (result_dir / "trials.csv").is_file():
+        raise ConfigError("not a finished pfx result folder (no complete manifest.json and trials.csv)",
+                          file=str(result_dir))
+    try:
+        trials = folder.trials
+    except (ValueError, UnicodeDecodeError, OSError) as error:     # pandas' ParserError is a ValueError
+        raise ConfigError(f"unreadable trials.csv: {error}", file=str(result_dir)) from None
+    try:
+        table = paired_comparison(trials, metric, by, baseline, folder.label_columns,
+                                  higher_is_better=higher_is_better, bootstrap=bootstrap)
+    except ConfigError as error:
+        raise error.located(file=str(result_dir / "trials.csv")) from None
+    target = result_dir / output_name(metric, by)
+    try:
+        write_csv(table, target)
+    except OSError as error:
+        raise ConfigError(f"cannot write {target.name}: {error.strerror or error}", file=str(result_dir)) from None
+    typer.echo(format_table(table, by))
+    typer.echo(f"wrote {target}", err=True)
 
 
 @app.command()

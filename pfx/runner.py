@@ -110,8 +110,8 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         columns["nees"] = (normalised_squares(trace.estimates[i] - truth[i], trace.covariances[i])
                            if trace.covariances is not None else np.nan)
         columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
-        if trace.within_radius is not None:
-            columns["within_radius"] = trace.within_radius[i]
+        if cell.metrics.convergence.criterion == "spread":
+            columns["within_radius"] = trace.within_radius[i] if trace.within_radius is not None else np.nan
         frames.append(pd.DataFrame(columns))
     return pd.concat(frames, ignore_index=True)[steps_columns(cell)]
 

@@ -372,11 +372,16 @@ def test_figures_of_a_folder_that_is_no_result_is_an_error(followups):
     assert list(folder.iterdir()) == []
 
 
-@pytest.mark.parametrize("command", ["compare", "bench"])
-def test_unfinished_commands_say_not_available_yet(cli, command):
-    result = cli[command]
+def test_bench_says_not_available_yet(cli):
+    result = cli["bench"]
     assert result.returncode == 2
     assert "not available yet" in _one_error_line(result)
+
+
+def test_compare_on_a_missing_folder_is_one_error_line(cli):
+    result = cli["compare"]
+    assert result.returncode == 2
+    assert "not a finished pfx result folder" in _one_error_line(result)
 
 
 def test_reproduce_with_no_paper_configs_does_nothing(cli):

@@ -1,0 +1,363 @@
+"""Paired comparisons between arms (or the values of any label column), trial by trial.
+
+``pfx compare RESULT_DIR --metric M --by FIELD [--baseline VALUE]`` reads ``trials.csv`` and
+compares every value of the column ``FIELD`` (default ``arm``) with a baseline value. It
+prints the table on stdout and writes it atomically (:func:`pfx.tables.write_csv`) to
+``RESULT_DIR/compare_<M>_by_<FIELD>.csv``, named on stderr. Options: ``--baseline VALUE``,
+``--higher-is-better``, ``--bootstrap B`` (B >= 100).
+
+**Pairing.** Trial t of every cell sees the same true trajectory and measurements (the truth
+stream depends only on the root seed and t), so the metric of trial t under value v and under
+the baseline form a pair, and the difference removes the trial-to-trial variation of the truth
+(common random numbers). Pairs are matched on ``trial`` and on the *grouping columns*: every
+label column of the manifest except ``FIELD`` itself, ``cell``, columns with one value in the
+whole table (nothing to match) and columns that are a function of ``FIELD`` (each value of
+``FIELD`` has one value of them: ``n_particles`` when arm ``small`` sets 5 particles and arm
+``big`` 50 is part of what the arms differ in, not something to match). So a sweep over
+particle counts yields one comparison per particle count. A grouping column that is empty in
+every row of one side (the particle count of a Kalman filter) is a setting that side does not
+use: that side's trial t is paired with trial t of every group of the other side (a KF
+baseline against the particle filter at each swept particle count); rows that no label tells
+apart (the KF cells of such a sweep: same labels, same trial) count once, the first in the
+table. Each value of ``FIELD`` other than the baseline (default: the first value of ``FIELD``
+in the table's order, i.e. the first arm of the config) is compared with the baseline, in
+each group holding both; rows come value by value, groups in the table's order.
+
+**One row per (group, value)**, columns: the grouping columns, ``FIELD`` (the compared value),
+``baseline`` (the baseline value), ``metric``, ``n_pairs``, ``excluded_pairs``,
+``baseline_mean`` and ``mean`` (the metric's mean over the *used* pairs, so that
+``mean - baseline_mean == mean_difference``), ``mean_difference`` (value - baseline, mean over
+pairs), ``relative_change`` (``mean_difference / baseline_mean``, a fraction; empty when the
+baseline mean is 0), ``ci95_low``, ``ci95_high``, ``ci_method``, ``p_value``, ``better``,
+``wins``, ``losses``, ``ties``.
+
+* **Exclusions.** A pair is used only when both values are finite: a missing value (a trial
+  that never converged has no ``convergence_step``) or an infinite one (a diverged filter's
+  error is written as ``inf``) in either arm excludes the pair, and ``excluded_pairs`` counts
+  them (as well as any trial present on one side only). Mind that this can favour an arm
+  that diverges or fails to converge more often: look at ``excluded_pairs``, and compare
+  ``converged`` (True = 1) itself.
+* **Interval.** ``ci_method`` ``t``: the 95% t-interval of the mean paired difference,
+  ``mean +- t(0.975, n - 1) * sd / sqrt(n)`` (sd with n - 1); ``bootstrap-B``
+  (``--bootstrap B``): the 2.5 and 97.5 percentiles of the means of B resamples (with
+  replacement) of the paired differences, drawn from ``numpy.random.default_rng(BOOTSTRAP_SEED)``
+  afresh for each row, so a row's interval depends only on its own pairs and the same table
+  always gives the same intervals (with few pairs, a dozen or less, the percentile bootstrap
+  is too narrow: prefer the t-interval there). Empty with fewer than 2 pairs.
+* **p-value.** Two-sided paired t-test (the one-sample t-test of the differences against 0,
+  identical to ``scipy.stats.ttest_rel``), whatever the interval method. When all differences
+  are equal (sd = 0) the interval is [mean, mean] and the p-value its limit: 1 if the
+  differences are all 0, else 0.
+* **Wins.** ``wins`` counts the pairs in which the compared value did better than the
+  baseline: a *lower* metric value, unless ``--higher-is-better`` (``better`` says which);
+  ``losses`` the opposite, ``ties`` exactly equal values.
+
+``paired_comparison`` is pure (a DataFrame in, a DataFrame out) and raises
+:class:`~pfx.errors.ConfigError` for the user's mistakes (unknown metric or column, unknown
+baseline, a column with one value, no pairs); ``format_table`` renders the result as plain
+aligned text (readable in CI logs; an empty label shows as ``(empty)``, a missing number as ``-``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable, Optional
+
+import numpy as np
+
+from pfx.errors import ConfigError
+from pfx.registry import closest_name
+from pfx.tables import NON_METRIC_COLUMNS
+
+BOOTSTRAP_SEED = 20240611          # the fixed seed of every bootstrap interval
+BOOTSTRAP_CHUNK = 1000             # resamples drawn at once (bounds memory; same result whatever the count)
+MISSING_LABEL = "(empty)"           # an empty label field in the printed table (a Kalman filter's particle count)
+RESULT_COLUMNS = ("baseline", "metric", "n_pairs", "excluded_pairs", "baseline_mean", "mean",
+                  "mean_difference", "relative_change", "ci95_low", "ci95_high", "ci_method", "p_value",
+                  "better", "wins", "losses", "ties")
+
+
+def metric_columns(trials: pd.DataFrame, label_columns: Iterable[str]) -> list[str]:
+    """The columns of trials.csv that ``--metric`` may name: numeric or boolean, not labels."""
+    import pandas as pd
+
+    labels = set(label_columns) | {"cell"}
+    return [c for c in trials.columns if c not in NON_METRIC_COLUMNS and c not in labels
+            and (pd.api.types.is_numeric_dtype(trials[c]) or pd.api.types.is_bool_dtype(trials[c]))]
+
+
+def output_name(metric: str, by: str) -> str:
+    """The file the command writes into the result folder."""
+    return f"compare_{metric}_by_{by}.csv"
+
+
+def paired_comparison(trials: pd.DataFrame, metric: str, by: str = "arm", baseline: Optional[str] = None,
+                      label_columns: Optional[list[str]] = None, *, higher_is_better: bool = False,
+                      bootstrap: Optional[int] = None, bootstrap_seed: int = BOOTSTRAP_SEED) -> pd.DataFrame:
+    """Compare each value of ``by`` with ``baseline`` on ``metric``, pairing trials (module docstring).
+
+    ``label_columns`` are the manifest's (default: ``[by]``); ``baseline`` may be given as
+    text (``"50"`` names the ``n_particles`` value 50); ``bootstrap`` = B resamples for a
+    percentile-bootstrap interval instead of the t-interval.
+    """
+    import pandas as pd
+
+    if trials.empty:
+        raise ConfigError("trials.csv has no rows", key="--metric")
+    label_columns = list(label_columns) if label_columns is not None else [by]
+    if by not in label_columns:
+        label_columns.append(by)
+    _check_metric(trials, metric, label_columns)
+    _check_by(trials, by, label_columns)
+    values = _unique(trials[by])
+    if len(values) < 2:
+        raise ConfigError(f"column {by!r} has a single value ({_text(values[0])!r}) in trials.csv: "
+                          "nothing to compare", key="--by")
+    base = values[0] if baseline is None else _find_value(values, baseline, by)
+    groups = grouping_columns(trials, by, label_columns)
+    if bootstrap is not None and bootstrap < 1:
+        raise ConfigError("the number of bootstrap resamples must be at least 1", key="--bootstrap")
+
+    keys = groups + [by, "trial"]
+    frame = trials[keys].copy()
+    frame["_value"] = trials[metric].to_numpy(dtype=float)
+    frame["_order"] = np.arange(len(frame))
+    frame = frame.drop_duplicates(keys, keep="first")     # cells told apart only by settings their filter ignores
+    reference = frame[_matches(frame[by], base)]
+    reference_unused = _unused(reference, groups)
+    rows = []
+    for value in values:
+        if _same(value, base):
+            continue
+        other = frame[_matches(frame[by], value)]
+        other_unused = _unused(other, groups)
+        matched = [c for c in groups if c not in reference_unused and c not in other_unused] + ["trial"]
+        merged = reference[[c for c in groups if c not in reference_unused] + ["trial", "_value", "_order"]].merge(
+            other[[c for c in groups if c not in other_unused] + ["trial", "_value", "_order"]],
+            on=matched, how="outer", suffixes=("_base", "_other"), indicator=True)
+        for column in groups:
+            if column not in merged:                  # empty on both sides
+                merged[column] = np.nan
+        merged = merged.assign(_first=merged[["_order_base", "_order_other"]].min(axis=1))
+        merged = merged.sort_values("_first", kind="stable")      # groups in the table's order
+        for group_key, group in (merged.groupby(groups, sort=False, dropna=False) if groups else [((), merged)]):
+            if not (group["_merge"] == "both").any():
+                continue                              # the baseline or the value is absent from this group
+            group_key = group_key if isinstance(group_key, tuple) else (group_key,)
+            row: dict[str, Any] = dict(zip(groups, group_key))
+            row[by] = value
+            row.update(_statistics(group["_value_base"].to_numpy(dtype=float),
+                                   group["_value_other"].to_numpy(dtype=float),
+                                   higher_is_better, bootstrap, bootstrap_seed))
+            row["baseline"] = base
+            row["metric"] = metric
+            rows.append(row)
+    if not rows or sum(row["n_pairs"] for row in rows) == 0:
+        reason = ("no trial has a finite value of the metric in both the baseline and another value"
+                  if rows else f"no group of trials holds both the baseline {_text(base)!r} and another value "
+                               f"of {by!r} (pairs are matched on trial"
+                               + (f" and {', '.join(groups)})" if groups else ")"))
+        raise ConfigError(f"no pairs to compare on {metric!r}: {reason}", key="--metric" if rows else "--by")
+    return pd.DataFrame(rows, columns=groups + [by] + list(RESULT_COLUMNS))
+
+
+def _unused(side: pd.DataFrame, groups: list[str]) -> list[str]:
+    """Grouping columns empty in every row of one side: settings its filter does not use."""
+    return [c for c in groups if side[c].isna().all()]
+
+
+def grouping_columns(trials: pd.DataFrame, by: str, label_columns: Iterable[str]) -> list[str]:
+    """The label columns pairs are matched on, besides ``trial`` (see the module docstring)."""
+    columns = []
+    for column in label_columns:
+        if column in (by, "cell", "trial") or column not in trials:
+            continue
+        if trials[column].nunique(dropna=False) <= 1:
+            continue                                  # one value everywhere: nothing to match
+        per_value = trials.groupby(by, sort=False, dropna=False)[column].nunique(dropna=False)
+        if (per_value <= 1).all():
+            continue                                  # a function of `by`: part of what is compared
+        columns.append(column)
+    return columns
+
+
+def _statistics(base: np.ndarray, value: np.ndarray, higher_is_better: bool,
+                bootstrap: Optional[int], seed: int) -> dict[str, Any]:
+    """Statistics of the pairs (base[i], value[i]); a missing (NaN) or infinite value excludes a pair."""
+    usable = np.isfinite(base) & np.isfinite(value)
+    base, value = base[usable], value[usable]
+    differences = value - base
+    n = differences.size
+    result: dict[str, Any] = {
+        "n_pairs": n, "excluded_pairs": int((~usable).sum()), "baseline_mean": np.nan, "mean": np.nan,
+        "mean_difference": np.nan, "relative_change": np.nan, "ci95_low": np.nan, "ci95_high": np.nan,
+        "ci_method": "t" if bootstrap is None else f"bootstrap-{bootstrap}", "p_value": np.nan,
+        "better": "higher" if higher_is_better else "lower"}
+    better = differences > 0 if higher_is_better else differences < 0
+    worse = differences < 0 if higher_is_better else differences > 0
+    result.update(wins=int(better.sum()), losses=int(worse.sum()), ties=int((differences == 0).sum()))
+    if n == 0:
+        return result
+    mean_difference = float(differences.mean())
+    baseline_mean = float(base.mean())
+    result.update(baseline_mean=baseline_mean, mean=float(value.mean()), mean_difference=mean_difference,
+                  relative_change=mean_difference / baseline_mean if baseline_mean != 0 else np.nan)
+    if n < 2:
+        return result
+    from scipy import stats
+
+    sd = float(differences.std(ddof=1))
+    if sd == 0 or not np.isfinite(sd):
+        low = high = mean_difference
+        p_value = 1.0 if mean_difference == 0 else 0.0
+    else:
+        sem = sd / math.sqrt(n)
+        half = float(stats.t.ppf(0.975, n - 1)) * sem
+        low, high = mean_difference - half, mean_difference + half
+        p_value = float(2 * stats.t.sf(abs(mean_difference / sem), n - 1))
+    if bootstrap is not None:
+        low, high = _bootstrap_interval(differences, bootstrap, seed)
+    result.update(ci95_low=low, ci95_high=high, p_value=p_value)
+    return result
+
+
+def _bootstrap_interval(differences: np.ndarray, resamples: int, seed: int) -> tuple[float, float]:
+    """Percentile bootstrap: the 2.5 and 97.5 percentiles of the resampled means."""
+    rng = np.random.default_rng(seed)
+    n = differences.size
+    means = np.empty(resamples)
+    for start in range(0, resamples, BOOTSTRAP_CHUNK):
+        count = min(BOOTSTRAP_CHUNK, resamples - start)
+        means[start:start + count] = differences[rng.integers(0, n, size=(count, n))].mean(axis=1)
+    low, high = np.percentile(means, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def _check_metric(trials: pd.DataFrame, metric: str, label_columns: list[str]) -> None:
+    metrics = metric_columns(trials, label_columns)
+    if metric in metrics:
+        return
+    if metric in trials.columns:
+        raise ConfigError(f"column {metric!r} of trials.csv is not a metric (choose from {', '.join(metrics)})",
+                          key="--metric")
+    hint = closest_name(metric, metrics)
+    raise ConfigError(f"no metric {metric!r} in trials.csv"
+                      + (f" (did you mean {hint!r}?)" if hint else f"; choose from {', '.join(metrics)}"),
+                      key="--metric")
+
+
+def _check_by(trials: pd.DataFrame, by: str, label_columns: list[str]) -> None:
+    if "trial" not in trials.columns:
+        raise ConfigError("trials.csv has no 'trial' column", key="--by")
+    candidates = [c for c in label_columns if c in trials.columns and c != "cell"]
+    if by in candidates:
+        return
+    hint = closest_name(by, candidates)
+    raise ConfigError(f"no label column {by!r} in trials.csv"
+                      + (f" (did you mean {hint!r}?)" if hint else "")
+                      + f"; choose from {', '.join(candidates)}", key="--by")
+
+
+def _unique(column: pd.Series) -> list:
+    """The column's values in order of first appearance (a missing value counts once)."""
+    import pandas as pd
+
+    return list(pd.unique(column))
+
+
+def _is_missing(value) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def _same(a, b) -> bool:
+    return (_is_missing(a) and _is_missing(b)) or (not _is_missing(a) and not _is_missing(b) and a == b)
+
+
+def _matches(column: pd.Series, value) -> pd.Series:
+    return column.isna() if _is_missing(value) else column == value
+
+
+def _text(value) -> str:
+    """A value as text, as it reads in trials.csv ('' for a missing one)."""
+    if _is_missing(value):
+        return ""
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (np.integer, np.floating)):
+        value = value.item()
+    return str(value)
+
+
+def _find_value(values: list, baseline: str, by: str):
+    """The value of ``by`` that ``--baseline`` names: same text, or the same number."""
+    for value in values:
+        if _text(value) == str(baseline):
+            return value
+    try:
+        number = float(baseline)
+    except (TypeError, ValueError):
+        number = None
+    if number is not None:
+        for value in values:
+            if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_)) \
+                    and not _is_missing(value) and float(value) == number:
+                return value
+    names = [_text(v) for v in values]
+    hint = closest_name(str(baseline), names)
+    raise ConfigError(f"column {by!r} has no value {baseline!r}"
+                      + (f" (did you mean {hint!r}?)" if hint else "")
+                      + f"; values: {', '.join(names)}", key="--baseline")
+
+
+# -- the printed table ------------------------------------------------------------------------
+
+def _number(value, digits: int = 4) -> str:
+    if _is_missing(value):
+        return "-"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return f"{float(value):.{digits}g}"
+
+
+def _percent(value) -> str:
+    return "-" if _is_missing(value) or not np.isfinite(value) else f"{100 * float(value):+.1f}%"
+
+
+def _label_texts(column: pd.Series) -> list[str]:
+    """A label column as text; a float column of whole numbers (particle counts beside empty
+    fields) without the '.0'; an empty field as (empty)."""
+    values = column.tolist()
+    present = [v for v in values if not _is_missing(v)]
+    whole = bool(present) and all(isinstance(v, float) and v.is_integer() for v in present)
+    return [MISSING_LABEL if _is_missing(v) else str(int(v)) if whole else _text(v) for v in values]
+
+
+def format_table(result: pd.DataFrame, by: str) -> str:
+    """The comparison as plain aligned text: a heading line, then one line per row."""
+    groups = list(result.columns[:list(result.columns).index(by)])
+    first = result.iloc[0]
+    method = first["ci_method"]
+    interval = ("95% t-interval" if method == "t"
+                else f"95% percentile bootstrap ({method.split('-', 1)[1]} resamples, seed {BOOTSTRAP_SEED})")
+    heading = (f"{first['metric']}: {by} vs baseline {_label_texts(result['baseline'])[0]!r}, paired by trial"
+               + (f" within {', '.join(groups)}" if groups else "")
+               + f"; difference = value - baseline; {interval}; paired t-test p; "
+               + f"win = {first['better']} {first['metric']} than the baseline")
+    header = groups + [by, "pairs", "excluded", "baseline_mean", "mean", "difference", "relative",
+                       "ci95_low", "ci95_high", "p_value", "wins", "losses", "ties"]
+    labels = {c: _label_texts(result[c]) for c in groups + [by]}
+    lines = []
+    for index, (_, row) in enumerate(result.iterrows()):
+        lines.append([labels[c][index] for c in groups + [by]]
+                     + [_number(row["n_pairs"]), _number(row["excluded_pairs"]), _number(row["baseline_mean"]),
+                        _number(row["mean"]), _number(row["mean_difference"]), _percent(row["relative_change"]),
+                        _number(row["ci95_low"]), _number(row["ci95_high"]), _number(row["p_value"], 3),
+                        _number(row["wins"]), _number(row["losses"]), _number(row["ties"])])
+    left = len(groups) + 1                            # labels left-aligned, numbers right-aligned
+    widths = [max(len(header[i]), *(len(line[i]) for line in lines)) for i in range(len(header))]
+
+    def render(cells: list[str]) -> str:
+        return "  ".join(cell.ljust(widths[i]) if i < left else cell.rjust(widths[i])
+                         for i, cell in enumerate(cells)).rstrip()
+
+    return "\n".join([heading, render(header)] + [render(line) for line in lines])
