@@ -21,6 +21,7 @@ from pfx.config.yaml_loading import deep_merge, set_path
 from pfx.errors import ConfigError
 from pfx.metrics import MetricsConfig
 from pfx.models import MODELS
+from pfx.filters import FILTERS
 from pfx.models.base import Model, bind_law
 
 DEFAULT_ARM = "default"
@@ -126,6 +127,15 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         except ValueError as error:
             raise ConfigError(str(error).split(": ", 1)[-1], file=file,
                               key="filter." + str(error).split(":")[0].lstrip("@")) from None
+        check = getattr(FILTERS[settings.kind], "check", None)     # the kind's plan-time check
+        if check is not None:
+            try:
+                check(filter_model, settings, prior)
+            except ValueError as error:
+                sub, _, reason = str(error).lstrip("@").partition(": ")
+                raise ConfigError(reason, file=file, key=f"filter.{sub}") from None
+            except ConfigError as error:
+                raise error.located(file=file) from None
     except ConfigError as error:
         raise locate(error) from None
 

@@ -16,6 +16,8 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictFloat
 from pfx.diffusion import Diffusion, NoDiffusion
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS, PARTICLE_KINDS
+from pfx.filters.histogram import GridParameters
+from pfx.filters.kalman import UnscentedParameters
 from pfx.initial_laws import InitialLaw
 from pfx.metrics import MetricsConfig
 from pfx.models import MODELS
@@ -47,6 +49,10 @@ class FilterConfig(BaseModel):
     diffusion: Diffusion = Field(default_factory=NoDiffusion,
                                  description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
     initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
+    unscented: UnscentedParameters = Field(default_factory=UnscentedParameters,
+                                           description="kind ukf: sigma-point parameters alpha, beta, kappa")
+    grid: GridParameters = Field(default_factory=GridParameters,
+                                 description="kind histogram: the grid (box and cells per axis)")
     model: dict[str, Any] = Field(
         default_factory=dict,
         description="model parameters the filter assumes where they differ from the truth "

@@ -75,6 +75,8 @@ def _walk(root: type[BaseModel], location: tuple) -> tuple[tuple, Any]:
             if chosen:
                 annotation = chosen[0]
                 continue
+            if isinstance(part, str) and _TYPE_TAG.match(part):
+                continue        # pydantic names the member of a plain union ('float', 'list[float]')
             annotation = members[0] if members else None
             if annotation is None:
                 clean.append(part)
@@ -112,7 +114,7 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
     kind = error["type"]
     context = error.get("ctx") or {}
     message = error["msg"]
-    if kind == "extra_forbidden":
+    if kind == "extra_forbidden" and location:
         allowed = _allowed_keys(_walk(root, location[:-1])[1])
         hint = closest_name(location[-1], allowed)
         suggestion = f" (did you mean {hint!r}?)" if hint else (
@@ -179,4 +181,4 @@ def _is_internal(part) -> bool:
     # pydantic adds markers: 'function-before[...]' for wrapped validators, '[key]' for dict keys,
     # and the member type ('float', 'list[float]') of a plain union
     return isinstance(part, str) and (part == "[key]" or "[" in part and "(" in part
-                                      or part.startswith("function-") or bool(_TYPE_TAG.match(part)))
+                                      or part.startswith("function-"))

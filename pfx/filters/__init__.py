@@ -2,7 +2,11 @@
 
 A filter kind is a function registered under the name a config gives as ``filter.kind``::
 
-    run(model, measurements, random, *, settings, prior, spread_criterion) -> FilterTrace
+    run(model, measurements, random, *, settings, prior, spread_criterion, consistency) -> FilterTrace
+
+It may carry a plan-time check, ``run.check(model, settings, prior)``, raising
+``ValueError("@key: reason")`` (key under ``filter``) or a ConfigError when the kind cannot run
+on that model: configs are refused before anything runs.
 
 ``model`` is the model the filter assumes, ``measurements`` has shape (trials, T, m),
 ``random`` is a :class:`~pfx.seeding.TrialStreams` (one stream per trial), ``settings`` the
@@ -12,6 +16,8 @@ To add a kind: write the function in a module of this package and register it be
 
 from pfx.filters.registry import FILTERS
 from pfx.filters import particle  # noqa: F401  (registers particle, sis)
+from pfx.filters import histogram  # noqa: F401  (registers histogram)
+from pfx.filters import kalman  # noqa: F401  (registers kf, ekf, ukf)
 
 # kinds that carry particles (their cells have a particle count, resampler and weighting)
 PARTICLE_KINDS = frozenset({"particle", "sis"})

@@ -6,12 +6,14 @@ To add a model: write ``pfx/models/<name>.py`` with a :class:`pfx.models.base.Mo
 
 from pfx.models.base import Model
 from pfx.models.falling_body import FallingBody
+from pfx.models.growth import GrowthModel
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
 from pfx.registry import Registry
 
 MODELS: Registry[type[Model]] = Registry("model")
 MODELS.add("falling_body", FallingBody)
+MODELS.add("growth", GrowthModel)
 MODELS.add("linear_gaussian", LinearGaussian)
 MODELS.add("range_beacons", RangeBeacons)
 

@@ -12,6 +12,11 @@ for particles):
   :meth:`Model.measure`) and its log-likelihood :math:`\log p(z_k \mid x_k)`
   (:meth:`Model.log_likelihood`).
 
+Optionally, for the extended Kalman filter (:mod:`pfx.filters.kalman`), a model gives the
+Jacobians of its transition and measurement (:meth:`Model.transition_jacobian`,
+:meth:`Model.process_noise_jacobian`, :meth:`Model.measurement_jacobian`); where it returns
+None (the default) the EKF uses central finite differences. Each model's docstring states which.
+
 The same class simulates the truth and runs inside the filter: a filter that assumes a
 different model is simply another instance (other noise, other motion) of the same kind.
 
@@ -112,6 +117,29 @@ class Model(BaseModel):
     def default_prior(self):
         """The prior a filter starts from unless its config names one (default: ``initial``)."""
         return self.initial
+
+    # -- Jacobians for the extended Kalman filter (optional) ------------------------------------
+
+    def transition_jacobian(self, state: np.ndarray, control: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        """F = d f / d x at (state, control, w = 0), shape state.shape[:-1] + (d, d).
+
+        None (the default): not given analytically; the EKF then uses central finite differences.
+        """
+        return None
+
+    def process_noise_jacobian(self, state: np.ndarray, control: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        """L = d f / d w at (state, control, w = 0), shape state.shape[:-1] + (d, process noise dim).
+
+        The identity for noise added to the state. None (the default): finite differences over w.
+        """
+        return None
+
+    def measurement_jacobian(self, state: np.ndarray) -> Optional[np.ndarray]:
+        """H = d h / d x at ``state``, shape state.shape[:-1] + (m, d).
+
+        None (the default): not given analytically; the EKF then uses central finite differences.
+        """
+        return None
 
     # -- composed operations used by the engine and the truth simulator ------------------------
 

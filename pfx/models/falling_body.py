@@ -25,6 +25,11 @@ Both are one equation in pfx: with :math:`s = -1` (jud, downward speed) or :math
 jud is :math:`\rho_0 = 2`, :math:`k = 1/\gamma`, :math:`g = 0`.
 Process noise (default zero, as in both sources) is added after each integration interval.
 
+EKF Jacobians: the measurement's is analytic, :math:`\partial r / \partial x = [(x_1 - H)/r, 0, 0]`
+(:math:`r \ge M > 0`, so it is defined everywhere); the transition's is central finite differences
+(the transition is an RK4 or Euler integration, not a closed form); the process noise is added
+after the integration, so its Jacobian is the identity.
+
 Simon's own reference truth (x_1 = 101026, 38791, 31123 ft at 10, 20, 30 s) was integrated by
 Euler's method at 1 ms: ``integrator: euler, substeps: 500`` reproduces it; the default RK4
 agrees with the exact solution to better than 0.01 ft and differs from the printed values by
@@ -141,3 +146,12 @@ class FallingBody(Model):
     def measurement_mean(self, state):
         offset = state[..., 0:1] - self.radar_altitude
         return np.sqrt(self.radar_distance ** 2 + offset * offset)
+
+    def process_noise_jacobian(self, state, control):
+        return np.broadcast_to(np.eye(3), state.shape[:-1] + (3, 3))
+
+    def measurement_jacobian(self, state):
+        offset = state[..., 0] - self.radar_altitude
+        jacobian = np.zeros(state.shape[:-1] + (1, 3))
+        jacobian[..., 0, 0] = offset / np.sqrt(self.radar_distance ** 2 + offset * offset)
+        return jacobian

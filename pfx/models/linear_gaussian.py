@@ -7,6 +7,8 @@ r"""Linear state-space model of any dimension.
 with :math:`w_k` and :math:`v_k` from the configured noise families (gaussian by default,
 when the Kalman filter is the exact posterior). Matrices are given in the config as lists of
 rows; ``controls`` is one input vector for every step or a list of T vectors.
+
+EKF Jacobians: analytic (F = A, L = I, H = H), so the EKF on this model is the Kalman filter.
 """
 
 from __future__ import annotations
@@ -114,3 +116,12 @@ class LinearGaussian(Model):
 
     def measurement_mean(self, state):
         return state @ self._H.T
+
+    def transition_jacobian(self, state, control):
+        return np.broadcast_to(self._A, state.shape[:-1] + self._A.shape)
+
+    def process_noise_jacobian(self, state, control):
+        return np.broadcast_to(np.eye(self.state_dimension), state.shape[:-1] + (self.state_dimension,) * 2)
+
+    def measurement_jacobian(self, state):
+        return np.broadcast_to(self._H, state.shape[:-1] + self._H.shape)

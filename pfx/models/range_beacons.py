@@ -16,6 +16,10 @@ Motion, chosen by ``motion``:
 The path is a Lissajous curve ``c(t) = centre + amplitude * sin(frequency * t + phase)`` with
 ``t = 2 pi * turns * k / T``, or a polyline through ``waypoints`` sampled at equal arc length.
 ``region`` is the box the filter's default prior is uniform over.
+
+EKF Jacobians: analytic. The transition's (state and noise) is the identity; the measurement's
+row j is the unit vector :math:`(x - b_j)^\top / \lVert x - b_j \rVert` (zero at the beacon itself,
+where the range is not differentiable).
 """
 
 from __future__ import annotations
@@ -142,3 +146,15 @@ class RangeBeacons(Model):
     def measurement_mean(self, state):
         difference = state[..., None, :] - self._beacon_array
         return np.sqrt(np.sum(difference * difference, axis=-1))
+
+    def transition_jacobian(self, state, control):
+        return np.broadcast_to(np.eye(2), state.shape[:-1] + (2, 2))
+
+    def process_noise_jacobian(self, state, control):
+        return np.broadcast_to(np.eye(2), state.shape[:-1] + (2, 2))
+
+    def measurement_jacobian(self, state):
+        difference = state[..., None, :] - self._beacon_array          # (..., m, 2)
+        distance = np.sqrt(np.sum(difference * difference, axis=-1, keepdims=True))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(distance > 0, difference / distance, 0.0)
