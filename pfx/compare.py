@@ -320,7 +320,10 @@ def _number(value, digits: int = 4) -> str:
 
 
 def _percent(value) -> str:
-    return "-" if _is_missing(value) or not np.isfinite(value) else f"{100 * float(value):+.1f}%"
+    if _is_missing(value) or not np.isfinite(value):
+        return "-"
+    percent = 100 * float(value)
+    return f"{percent:+.1f}%" if abs(percent) < 1e5 else f"{percent:+.3g}%"
 
 
 def _label_texts(column: pd.Series) -> list[str]:

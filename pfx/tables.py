@@ -82,7 +82,8 @@ def _statistics(values: np.ndarray) -> dict[str, float]:
     if n >= 2:
         from scipy import stats
 
-        std = float(values.std(ddof=1))
+        with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter: std is inf
+            std = float(values.std(ddof=1))
         sem = std / np.sqrt(n)
         half = float(stats.t.ppf(0.975, n - 1)) * sem
         result.update(std=std, sem=sem, ci95_low=result["mean"] - half, ci95_high=result["mean"] + half)
