@@ -156,3 +156,18 @@ def test_batched_trials_equal_trials_run_one_by_one(batch_plan, arm):
     if arm != "sis":
         # the ESS rule really split the batch: not every trial resampled at the same steps
         assert batched.trials["resample_count"].nunique() > 1 or batched.steps["resampled"].nunique() > 1
+
+
+def test_cell_identity_leaves_out_defaults_but_keeps_every_kind():
+    """Cell keys (and so the filter streams) hash only settings that differ from their declared
+    defaults, so a new option with a default leaves existing results unchanged; every `kind`
+    is kept, so two weightings at their own defaults still differ."""
+    from pfx.config.plan import identity_dump
+    from pfx.config.schema import FilterConfig
+
+    assert identity_dump(FilterConfig()) == {"kind": "particle"}
+    assert identity_dump(FilterConfig(particles=7)) == {"kind": "particle", "particles": 7}
+    mahalanobis = identity_dump(FilterConfig(weighting={"kind": "mahalanobis"}))
+    euclidean = identity_dump(FilterConfig(weighting={"kind": "euclidean"}))
+    assert mahalanobis != euclidean
+    assert mahalanobis["weighting"] == {"kind": "mahalanobis"}

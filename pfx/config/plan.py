@@ -15,6 +15,9 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+from pydantic import BaseModel
+from pydantic_core import PydanticUndefined
+
 from pfx.config.schema import Experiment, FilterConfig
 from pfx.config.validation import validate
 from pfx.config.yaml_loading import deep_merge, set_path
@@ -75,6 +78,28 @@ class Plan:
 def canonical_hash(data: Any, length: int = 16) -> str:
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:length]
+
+
+def identity_dump(value: Any) -> Any:
+    """The settings that define a cell, for its key: fields at their declared default are left
+    out (but every ``kind`` is kept), so an option added to pfx later with a default changes
+    neither the cell keys nor the random streams, hence the results, of existing configs."""
+    if isinstance(value, BaseModel):
+        out = {}
+        for name, field in type(value).model_fields.items():
+            item = getattr(value, name)
+            if name != "kind":
+                if field.default is not PydanticUndefined and item == field.default:
+                    continue
+                if field.default_factory is not None and item == field.default_factory():
+                    continue
+            out[field.alias or name] = identity_dump(item)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [identity_dump(item) for item in value]
+    if isinstance(value, dict):
+        return {key: identity_dump(item) for key, item in value.items()}
+    return value
 
 
 def sweep_column(key: str) -> str:
@@ -139,9 +164,11 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
     except ConfigError as error:
         raise locate(error) from None
 
-    settings_dump = settings.model_dump(mode="json", exclude={"model", "initial"})
-    identity = {"arm": arm, "truth": truth.model_dump(mode="json"), "filter": settings_dump,
-                "filter_model": filter_model.model_dump(mode="json"), "prior": prior.model_dump(mode="json")}
+    settings_dump = identity_dump(settings)
+    settings_dump.pop("model", None)
+    settings_dump.pop("initial", None)
+    identity = {"arm": arm, "truth": identity_dump(truth), "filter": settings_dump,
+                "filter_model": identity_dump(filter_model), "prior": identity_dump(prior)}
     particles = settings.uses_particles      # other kinds leave the particle columns empty
     labels: dict[str, Any] = {
         "arm": arm,
