@@ -41,5 +41,17 @@ class ConfigError(Exception):
         return f"{where}: {self.reason}"
 
 
+def located_value_error(error: ValueError, *, prefix: str, file: str | None = None) -> ConfigError:
+    """The ConfigError for a component check's ``ValueError("@sub.key: reason")`` under ``prefix``.
+
+    Components (noises, laws, diffusions, filter kinds) locate their own errors this way.
+    """
+    text = str(error)
+    sub, reason = ("", text)
+    if text.startswith("@"):
+        sub, _, reason = text[1:].partition(": ")
+    return ConfigError(reason, file=file, key=f"{prefix}.{sub}" if sub else prefix)
+
+
 class ModelNumericalError(RuntimeError):
     """A model produced NaN or infinity; the message names the model and the step."""

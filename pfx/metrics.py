@@ -113,7 +113,6 @@ class MetricInputs:
     truth: np.ndarray              # (trials, T, d)
     trace: "object"                # pfx.engine.FilterTrace
     model: "object"                # the truth model (names, position components)
-    particles: int
     config: MetricsConfig
 
 

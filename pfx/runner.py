@@ -68,7 +68,7 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> Ba
     truth = states[:, 1:]
     with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
         metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
-                                           particles=cell.filter.particles, config=cell.metrics))
+                                               config=cell.metrics))
     model = cell.truth_model
     rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
                          "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,

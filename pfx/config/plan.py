@@ -21,7 +21,7 @@ from pydantic_core import PydanticUndefined
 from pfx.config.schema import Experiment, FilterConfig
 from pfx.config.validation import validate
 from pfx.config.yaml_loading import deep_merge, set_path
-from pfx.errors import ConfigError
+from pfx.errors import ConfigError, located_value_error
 from pfx.metrics import MetricsConfig
 from pfx.models import MODELS
 from pfx.filters import FILTERS
@@ -144,21 +144,18 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         try:
             settings.diffusion.check(filter_model.state_dimension)
         except ValueError as error:
-            sub, _, reason = str(error).lstrip("@").partition(": ")
-            raise ConfigError(reason, file=file, key=f"filter.diffusion.{sub}") from None
+            raise located_value_error(error, prefix="filter.diffusion", file=file) from None
         prior = settings.initial or filter_model.default_prior()
         try:
             bind_law(prior, filter_model.state_dimension, "initial")
         except ValueError as error:
-            raise ConfigError(str(error).split(": ", 1)[-1], file=file,
-                              key="filter." + str(error).split(":")[0].lstrip("@")) from None
+            raise located_value_error(error, prefix="filter", file=file) from None
         check = getattr(FILTERS[settings.kind], "check", None)     # the kind's plan-time check
         if check is not None:
             try:
                 check(filter_model, settings, prior)
             except ValueError as error:
-                sub, _, reason = str(error).lstrip("@").partition(": ")
-                raise ConfigError(reason, file=file, key=f"filter.{sub}") from None
+                raise located_value_error(error, prefix="filter", file=file) from None
             except ConfigError as error:
                 raise error.located(file=file) from None
     except ConfigError as error:

@@ -131,7 +131,7 @@ from typing import Callable, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
-from pfx.errors import ConfigError, ModelNumericalError
+from pfx.errors import ConfigError, ModelNumericalError, located_value_error
 from pfx.filters.registry import FILTERS
 from pfx.trace import FilterTrace
 
@@ -209,8 +209,7 @@ def _checked(check: Callable, model, settings, prior) -> None:
     try:
         check(model, settings, prior)
     except ValueError as error:
-        key, _, reason = str(error).lstrip("@").partition(": ")
-        raise ConfigError(reason, key=f"filter.{key}") from None
+        raise located_value_error(error, prefix="filter") from None
 
 
 def _unscented_parameters(settings) -> UnscentedParameters:

@@ -91,10 +91,6 @@ class GrowthModel(Model):
     def measurement_dimension(self):
         return 1
 
-    @property
-    def position_components(self):
-        return (0,)
-
     def control(self, step):
         """The forcing term u_k = [c cos(omega (k - k0))] applied between steps k-1 and k."""
         return np.array([self.c * np.cos(self.omega * (step - self.forcing_offset))])
