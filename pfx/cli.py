@@ -88,10 +88,11 @@ def run(
                                              help="memory for particle arrays, e.g. 4G (default: half the available)"),
 ):
     """Run every cell and trial of the config(s); write CSV tables and figures."""
-    from pfx.memory import budget_from_option, check_fits
+    from pfx.memory import budget_from_option, check_fits, keep_freed_memory
     from pfx.runner import run_plan
 
     signal.signal(signal.SIGTERM, _raise_interrupted)
+    keep_freed_memory()
     budget = budget_from_option(max_memory)
     from pfx.runner import check_folder
 
@@ -199,9 +200,11 @@ def reproduce(
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ):
     """Regenerate the papers' tables and figures (what `make reproduce-papers` runs)."""
+    from pfx.memory import keep_freed_memory
     from pfx.reproduce import reproduce_papers
 
     signal.signal(signal.SIGTERM, _raise_interrupted)
+    keep_freed_memory()
     reproduce_papers(papers or [], configs_dir, out, fresh=not resume,
                      report=lambda message: typer.echo(message, err=True), progress=_show_progress(quiet))
 
@@ -257,8 +260,19 @@ def bench():
     _fail("'pfx bench' is not available yet in this version")
 
 
+def _one_thread_per_process() -> None:
+    """One BLAS/OpenMP thread per process unless the user chose otherwise.
+
+    pfx runs in parallel by processes (``--workers``); BLAS threads would compete with them
+    for the same cores, and OpenBLAS's idle threads spin. Must run before numpy is imported.
+    """
+    for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(variable, "1")
+
+
 def main() -> None:
     """Entry point: command-line usage errors, too, are one line and exit status 2."""
+    _one_thread_per_process()
     try:
         result = app(prog_name="pfx", standalone_mode=False)
     except Exception as error:  # typer's (or click's) UsageError family, whichever package provides it

@@ -11,6 +11,12 @@ peak that tracemalloc measures on the bundled models (``tests/test_memory.py`` c
 is never below). Trials are run in batches that fit the budget (by default half the memory
 available when the run starts, shared by the worker processes); a cell of which even one
 trial does not fit is refused before anything runs, with the estimate.
+
+:func:`keep_freed_memory` tunes the C allocator for the engine's pattern of allocation: every
+step creates and frees particle-sized temporaries (megabytes each). By default glibc hands
+such blocks back to the system when they are freed and maps fresh pages for the next one,
+and each first touch of a fresh page costs a page fault: on the virtual machines pfx is
+benchmarked on that doubled the cost of a particle-step at N = 1e5 (``pfx bench``).
 """
 
 from __future__ import annotations
@@ -88,6 +94,32 @@ def trials_per_batch(cell, trials: int, budget: int, workers: int = 1) -> int:
     by_memory = max(1, budget // max(1, workers) // cell_trial_bytes(cell))
     for_progress = -(-trials // 10) if trials >= 20 else trials
     return int(max(1, min(trials, by_memory, for_progress)))
+
+
+# mallopt parameters (glibc malloc.h)
+_M_TRIM_THRESHOLD = -1
+_M_MMAP_THRESHOLD = -3
+_MMAP_THRESHOLD_MAX = 32 * 1024**2           # the largest glibc accepts on 64-bit systems
+
+
+def keep_freed_memory() -> bool:
+    """Ask glibc to serve blocks below 32 MiB from its heap and keep freed memory for reuse.
+
+    The process then holds on to its peak heap until it exits (which the memory budget
+    already assumes). Returns whether the allocator accepted (False off glibc: nothing done).
+    Commands that run filters call it once (``pfx run``, ``pfx reproduce``, ``pfx bench``);
+    worker processes forked from them inherit it.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    return bool(mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) and mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
 
 
 def budget_from_option(option: Optional[str]) -> int:

@@ -44,7 +44,7 @@ from pfx.seeding import TrialStreams
 class NoiseFamily:
     """A zero-mean, unit-variance distribution: how to draw it and its log-density."""
 
-    sample_standard: Callable[[TrialStreams, tuple, Optional[StrictFloat]], np.ndarray]
+    sample_standard: Callable[[TrialStreams, tuple, Optional[StrictFloat]], np.ndarray]   # a new array
     log_density_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]
     description: str
 
@@ -213,7 +213,11 @@ class Noise(BaseModel):
             return np.zeros((len(random),) + full_shape)
         standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape, self.df)
         if self._scale is not None:
-            return standard * self._scale
+            # x_j = s_j z_j in place, one component at a time: broadcasting the short last
+            # axis would make NumPy's inner loop run over k = 1..3 elements, several times slower.
+            for component, scale in enumerate(self._scale):
+                standard[..., component] *= scale
+            return standard
         return standard @ self._factor.T
 
     def log_density(self, value: np.ndarray) -> np.ndarray:

@@ -34,26 +34,57 @@ from typing import Callable
 
 import numpy as np
 
+from pfx.compiled import compiled
 from pfx.registry import Registry
 from pfx.seeding import TrialStreams
 
 
 def inverse_cdf(weights: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Indices j with C_{j-1} <= u < C_j for each sorted point u, row by row.
+    """Indices j with C_{j-1} <= u < C_j for each point u, row by row.
+
+    The points of every resampler are sorted, so one merged pass over the cumulative weights
+    and the points finds them all: O(N) per row instead of a binary search per point
+    (:func:`inverse_cdf_walk`). Unsorted points are still handled exactly (the walk restarts
+    where a point is smaller than the one before).
 
     Round-off guard: the cumulative weights are set to exactly 1 from the last particle with
     positive weight onward, so a point just below 1 never falls past the end nor onto a
     trailing zero-weight particle; zero-weight particles are never selected.
     """
-    cumulative = np.cumsum(weights, axis=-1)
-    n = weights.shape[-1]
-    last_positive = n - 1 - np.argmax(weights[..., ::-1] > 0, axis=-1)
-    cumulative[np.arange(n) >= last_positive[..., None]] = 1.0
+    weights = np.ascontiguousarray(weights, dtype=float)
+    points = np.ascontiguousarray(points, dtype=float)
     indices = np.empty(points.shape, dtype=np.intp)
-    for row in range(points.shape[0]):
-        indices[row] = np.searchsorted(cumulative[row], points[row], side="right")
-    np.minimum(indices, n - 1, out=indices)
+    inverse_cdf_walk(weights, points, indices)
     return indices
+
+
+@compiled
+def inverse_cdf_walk(weights, points, indices):
+    """The loop of :func:`inverse_cdf`: C_j = w_0 + ... + w_j summed left to right (as
+    ``numpy.cumsum``), C_j = 1 from the last positive weight on; index = min{j : C_j > u},
+    or N - 1 if there is none (the result of ``searchsorted(C, u, 'right')`` clipped to N - 1).
+    """
+    rows, n = weights.shape
+    count = points.shape[1]
+    for row in range(rows):
+        last_positive = n - 1
+        while last_positive >= 0 and not weights[row, last_positive] > 0.0:
+            last_positive -= 1
+        if last_positive < 0:            # no positive weight (the engine never resamples such a row)
+            last_positive = n - 1
+        j = 0
+        cumulative = 1.0 if last_positive == 0 else weights[row, 0]
+        previous = -np.inf
+        for i in range(count):
+            u = points[row, i]
+            if u < previous:             # unsorted points: walk again from the start
+                j = 0
+                cumulative = 1.0 if last_positive == 0 else weights[row, 0]
+            previous = u
+            while j < n - 1 and cumulative <= u:
+                j += 1
+                cumulative = 1.0 if j >= last_positive else cumulative + weights[row, j]
+            indices[row, i] = j
 
 
 def sorted_uniforms(random: TrialStreams, count: int) -> np.ndarray:

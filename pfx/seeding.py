@@ -15,11 +15,14 @@ Each stream is reduced to one 63-bit integer (written to ``trials.csv`` as ``tru
 
 Because each trial owns its generator, a batch of trials draws exactly the numbers those trials
 would draw one by one: :class:`TrialStreams` hands each trial's slice of a batched array to that
-trial's own generator.
+trial's own generator. Normal draws are made by pfx's own ziggurat (:mod:`pfx.ziggurat`) from
+each generator's 64-bit words, about three times faster than ``Generator.standard_normal``;
+uniform, exponential and Student t draws are NumPy's.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -53,6 +56,7 @@ class TrialStreams:
 
     def __init__(self, generators: Sequence[np.random.Generator]):
         self.generators = list(generators)
+        self._bit_generators = [generator.bit_generator for generator in self.generators]
 
     @classmethod
     def from_seeds(cls, seeds: Sequence[int]) -> "TrialStreams":
@@ -73,7 +77,12 @@ class TrialStreams:
         return out
 
     def standard_normal(self, shape) -> np.ndarray:
-        return self._fill(shape, "standard_normal")
+        """Standard normal draws (ziggurat method on each trial's own 64-bit words)."""
+        from pfx.ziggurat import standard_normal_rows
+
+        shape = tuple(shape)
+        draws = standard_normal_rows(self._bit_generators, math.prod(shape))
+        return draws.reshape((len(self.generators),) + shape)
 
     def uniform(self, shape) -> np.ndarray:
         """Uniform draws on [0, 1)."""

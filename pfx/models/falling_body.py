@@ -123,8 +123,18 @@ class FallingBody(Model):
         return (0,)
 
     def _derivative(self, altitude, velocity, coefficient):
-        drag = 0.5 * self.air_density * np.exp(-altitude / self.scale_height) * velocity * velocity * coefficient
-        return self._sign * velocity, self._sign * (drag - self.gravity)
+        """(x1', x2') = s (x2, rho0/2 exp(-x1/k) x2^2 x3 - g), s = +1 (simon) or -1 (jud)."""
+        # The product is built in place: one temporary instead of six (this runs for every
+        # particle at every sub-step).
+        acceleration = np.exp(altitude * (-1.0 / self.scale_height))
+        acceleration *= velocity
+        acceleration *= velocity
+        acceleration *= coefficient
+        acceleration *= 0.5 * self.air_density
+        acceleration -= self.gravity
+        if self._sign < 0:
+            return -velocity, np.negative(acceleration, out=acceleration)
+        return velocity, acceleration
 
     def propagate(self, state, control, noise):
         altitude, velocity, coefficient = state[..., 0], state[..., 1], state[..., 2]
@@ -141,7 +151,12 @@ class FallingBody(Model):
             a4, v4 = derivative(altitude + h * a3, velocity + h * v3, coefficient)
             altitude = altitude + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             velocity = velocity + h / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
-        return np.stack([altitude, velocity, coefficient], axis=-1) + noise
+        # x_k = f(x_{k-1}) + w_k, written component by component into one new array (stacking
+        # first and adding after would make two).
+        moved = np.empty(np.broadcast_shapes(state.shape, noise.shape))
+        for component, value in enumerate((altitude, velocity, coefficient)):
+            np.add(value, noise[..., component], out=moved[..., component])
+        return moved
 
     def measurement_mean(self, state):
         offset = state[..., 0:1] - self.radar_altitude

@@ -1,0 +1,76 @@
+"""Compiled loops: numba, imported on first use, compiled once and cached on disk.
+
+A few steps of the engine are loops that NumPy cannot express without extra passes over the
+particles or a Python loop per trial: the merged walk of the inverse CDF
+(:func:`pfx.resampling.inverse_cdf`), the gather of resampled particles
+(:func:`pfx.engine.resample_rows`) and the ziggurat that turns random 64-bit words into
+normal draws (:mod:`pfx.ziggurat`). Each is an ordinary Python function decorated with
+:func:`compiled`; it stays next to the mathematics it implements.
+
+Why numba, and what it costs (measured by ``pfx bench``, see the README's Performance section):
+those three loops took about two thirds of a particle-step before (binary search, NumPy's
+fancy-index gather, NumPy's normal generator). Compiling them costs a few seconds once per
+machine; numba then caches the machine code in ``__pycache__`` (or its user-wide cache
+directory when the package folder is read-only), and a later process loads it in milliseconds.
+
+``import numba`` alone takes about half a second, so it happens on the first call of a
+compiled function, not when pfx is imported: ``pfx validate`` and ``pfx list`` never pay it.
+A compiled function may not call another one (numba sees only the lazy wrapper); each is
+self-contained.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+
+def compiled(function: Callable) -> Callable:
+    """``numba.njit(cache=True)`` of ``function``, applied at its first call."""
+    dispatcher = None
+
+    @functools.wraps(function)
+    def call(*args):
+        nonlocal dispatcher
+        if dispatcher is None:
+            dispatcher = _jit(function)
+        return dispatcher(*args)
+
+    call.dispatcher = lambda: _jit(function) if dispatcher is None else dispatcher
+    return call
+
+
+@functools.lru_cache(maxsize=None)
+def _jit(function: Callable):
+    import numba
+
+    # nogil: a compiled loop releases the GIL, so threads (a Dask worker's, say) can overlap.
+    return numba.njit(cache=True, nogil=True)(function)
+
+
+def warm_up() -> dict:
+    """Compile (or load from the cache) every compiled loop of the engine; report how.
+
+    Returns ``{"seconds": time taken, "compiled": count, "loaded": count}``, for the benchmark
+    to show what numba costs on first use.
+    """
+    import time
+
+    import numpy as np
+
+    from pfx import engine, resampling, ziggurat
+    from pfx.seeding import TrialStreams
+
+    started = time.perf_counter()
+    streams = TrialStreams.from_seeds([0, 1])
+    weights = np.full((2, 4), 0.25)
+    indices = resampling.systematic(weights, streams)
+    engine.resample_rows(np.zeros((2, 4, 3)), np.arange(2), indices)
+    streams.standard_normal((5,))
+    seconds = time.perf_counter() - started
+    counts = {"compiled": 0, "loaded": 0}
+    for function in (resampling.inverse_cdf_walk, engine.gather_particles, ziggurat.normals_from_words):
+        stats = function.dispatcher().stats
+        counts["loaded"] += sum(stats.cache_hits.values())
+        counts["compiled"] += sum(stats.cache_misses.values())
+    return {"seconds": seconds, **counts}
