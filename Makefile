@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install test reproduce-papers clean
+.PHONY: install test reproduce-papers bench clean
 
 $(INSTALLED): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,5 +22,20 @@ test: $(INSTALLED)
 reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce
 
+# The benchmark runs in its own environment: the peer libraries (`particles` needs numpy < 2)
+# would not fit the main one. pfx is installed editable, so `make bench` measures this tree;
+# numba's cache for that environment lives inside it.
+BENCH_VENV := .venv-bench
+BENCH_INSTALLED := $(BENCH_VENV)/.installed
+
+$(BENCH_INSTALLED): pyproject.toml
+	$(PYTHON) -m venv $(BENCH_VENV)
+	$(BENCH_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(BENCH_VENV)/bin/python -m pip install --quiet 'numpy<2' -e . particles filterpy pfilter
+	touch $(BENCH_INSTALLED)
+
+bench: $(BENCH_INSTALLED)
+	NUMBA_CACHE_DIR=$(BENCH_VENV)/numba-cache $(BENCH_VENV)/bin/pfx bench $(BENCH_ARGS)
+
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) $(BENCH_VENV) runs .pytest_cache

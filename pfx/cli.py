@@ -255,9 +255,23 @@ def compare(
 
 
 @app.command()
-def bench():
-    """The performance benchmark against other Python particle-filter libraries (not available yet)."""
-    _fail("'pfx bench' is not available yet in this version")
+@_guarded
+def bench(
+    quick: bool = typer.Option(False, "--quick", help="small sizes only (seconds, for tests)"),
+    repeats: int = typer.Option(3, "--repeats", min=1, help="runs per implementation and case (best counts)"),
+    budget: float = typer.Option(20.0, "--budget", min=0.0,
+                                 help="seconds after which an implementation is not repeated in a case"),
+    peers: bool = typer.Option(True, "--peers/--no-peers", help="time particles, filterpy, pfilter if installed"),
+    workers: bool = typer.Option(True, "--workers/--no-workers", help="measure --workers 2 against 1"),
+    memory: bool = typer.Option(True, "--memory/--no-memory", help="measure memory per particle"),
+):
+    """Benchmark: ns per particle-step of pfx, a plain NumPy filter and the Python peers."""
+    from pfx.bench import run_bench
+
+    progress = _show_progress(False)
+    run_bench(quick=quick, repeats=repeats, budget=budget, peers=peers, workers=workers, memory=memory,
+              echo=typer.echo,
+              progress=(lambda message: typer.echo(f"  ... {message}", err=True)) if progress else (lambda m: None))
 
 
 def _one_thread_per_process() -> None:

@@ -64,17 +64,15 @@ def normalise_weights(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     """
     peak = np.max(log_weights, axis=-1, keepdims=True)
     finite_peak = np.where(np.isfinite(peak), peak, 0.0)
-    with np.errstate(under="ignore", over="ignore", invalid="ignore"):
+    with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
         shifted = log_weights - finite_peak
         weights = np.exp(shifted)
         total = np.sum(weights, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore"):
         log_total = np.log(total)
-    usable = np.isfinite(log_total)
-    # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
-    # rounding when |peak| > ~1e16.
-    shifted -= np.where(usable, log_total, 0.0)
-    with np.errstate(invalid="ignore"):
+        usable = np.isfinite(log_total)
+        # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
+        # rounding when |peak| > ~1e16.
+        shifted -= np.where(usable, log_total, 0.0)
         weights /= np.where(usable, total, 1.0)
     return shifted, weights, (log_total + finite_peak)[..., 0]
 
@@ -99,8 +97,10 @@ def resample_rows(state: np.ndarray, rows: np.ndarray, indices: np.ndarray) -> n
     One compiled pass (:func:`gather_particles`): NumPy's ``take_along_axis`` on (R, N, d)
     costs several times more.
     """
-    out = np.empty((len(rows),) + state.shape[1:])
-    gather_particles(np.ascontiguousarray(state), np.asarray(rows, dtype=np.intp), indices, out)
+    # Every trial resampled: the same memory layout as the state (models may keep each state
+    # component contiguous, see Noise.sample).
+    out = np.empty_like(state) if len(rows) == len(state) else np.empty((len(rows),) + state.shape[1:])
+    gather_particles(state, np.asarray(rows, dtype=np.intp), indices, out)
     return out
 
 
@@ -110,10 +110,9 @@ def gather_particles(state, rows, indices, out):
     dimension = state.shape[2]
     for r in range(rows.size):
         source = rows[r]
-        for i in range(indices.shape[1]):
-            chosen = indices[r, i]
-            for c in range(dimension):
-                out[r, i, c] = state[source, chosen, c]
+        for c in range(dimension):           # component by component: contiguous writes when
+            for i in range(indices.shape[1]):    # the state keeps its components contiguous
+                out[r, i, c] = state[source, indices[r, i], c]
 
 
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
@@ -128,6 +127,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     trials, steps, _ = measurements.shape
     n = particles
     position = list(model.position_components)
+    if position == list(range(position[0], position[-1] + 1)):
+        position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
     state = prior.sample(random, (n,))
     uniform_log_weight = -np.log(n)
     log_weights = np.full((trials, n), uniform_log_weight)
@@ -170,22 +171,22 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             increment[lost] = -np.inf
         updated = log_weights + increment
         normalised, new_weights, normaliser = normalise_weights(updated)
-        if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
-            # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
-            # (-inf + NaN would be NaN); only if that does not help is it the model's error.
-            updated = np.where(np.isneginf(log_weights), -np.inf, updated)
-            normalised, new_weights, normaliser = normalise_weights(updated)
-        log_weights = normalised
-        if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
-            bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
-            raise ModelNumericalError(
-                f"model {model.kind} gave {bad} log-likelihood at step {k} of the filter "
-                "(did particles leave the model's domain? check the prior and the noise)")
-        underflow = np.isneginf(normaliser)
-        if underflow.any():
+        if not np.isfinite(normaliser).all():          # rare: one check in the common case
+            if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
+                # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
+                # (-inf + NaN would be NaN); only if that does not help is it the model's error.
+                updated = np.where(np.isneginf(log_weights), -np.inf, updated)
+                normalised, new_weights, normaliser = normalise_weights(updated)
+            if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
+                bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
+                raise ModelNumericalError(
+                    f"model {model.kind} gave {bad} log-likelihood at step {k} of the filter "
+                    "(did particles leave the model's domain? check the prior and the noise)")
+            underflow = np.isneginf(normaliser)
             degenerate[underflow, t] = True
-            log_weights[underflow] = uniform_log_weight
+            normalised[underflow] = uniform_log_weight
             new_weights[underflow] = 1.0 / n
+        log_weights = normalised
         log_likelihood += normaliser
 
         weights = new_weights

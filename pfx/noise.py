@@ -208,25 +208,36 @@ class Noise(BaseModel):
 
     def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
         """Draws of shape ``(trials, *shape, k)``; no random numbers are used for zero noise."""
-        full_shape = tuple(shape) + (self.dimension,)
-        if self.is_zero:
+        # One read of pydantic's private-attribute dict: each `self._x` costs microseconds
+        # (it goes through BaseModel.__getattr__), and this runs at every step of a filter.
+        private = self.__pydantic_private__
+        if private["_dimension"] is None:
+            raise RuntimeError("Noise.bind(dimension) must be called first")
+        full_shape = tuple(shape) + (private["_dimension"],)
+        scale, factor = private["_scale"], private["_factor"]
+        if not np.any(scale if scale is not None else factor):
             return np.zeros((len(random),) + full_shape)
-        standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape, self.df)
-        if self._scale is not None:
+        # Drawn component-major, (trials, k, *shape), and returned as a (trials, *shape, k) view:
+        # each component is then contiguous, which NumPy's element-wise operations on one state
+        # component (what a model's propagate does) run several times faster over.
+        standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape[-1:] + full_shape[:-1], self.df)
+        standard = np.moveaxis(standard, 1, -1)
+        if scale is not None:
             # x_j = s_j z_j in place, one component at a time: broadcasting the short last
             # axis would make NumPy's inner loop run over k = 1..3 elements, several times slower.
-            for component, scale in enumerate(self._scale):
-                standard[..., component] *= scale
+            for component, component_scale in enumerate(scale):
+                standard[..., component] *= component_scale
             return standard
-        return standard @ self._factor.T
+        return standard @ factor.T
 
     def log_density(self, value: np.ndarray) -> np.ndarray:
         """log p(value) for ``value`` of shape (..., k); returns shape (...)."""
-        if not self._definite:
+        private = self.__pydantic_private__            # see sample()
+        if not private["_definite"]:
             raise RuntimeError("log_density of a degenerate noise")
-        if self._scale is not None:
-            standard = value / self._scale
+        if private["_scale"] is not None:
+            standard = value / private["_scale"]
         else:
-            standard = value @ self._inverse_factor.T
+            standard = value @ private["_inverse_factor"].T
         log_f = NOISE_FAMILIES[self.family].log_density_standard(standard, self.df)
-        return np.sum(log_f, axis=-1) - self._log_det_factor
+        return np.sum(log_f, axis=-1) - private["_log_det_factor"]

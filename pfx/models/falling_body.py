@@ -41,7 +41,7 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field, PrivateAttr, StrictInt, StrictFloat
+from pydantic import Field, StrictInt, StrictFloat
 
 from pfx.initial_laws import GaussianLaw, PointLaw
 from pfx.models.base import Model
@@ -83,8 +83,6 @@ class FallingBody(Model):
     integrator: Literal["rk4", "euler"] = Field("rk4", description="integration scheme between measurements")
     substeps: Optional[StrictInt] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
 
-    _sign: float = PrivateAttr(1.0)
-
     def presets(self):
         if (self.variant, self.units) not in _PRESETS:
             raise ValueError("@units: the SI form exists for variant simon only")
@@ -100,9 +98,6 @@ class FallingBody(Model):
     def default_prior(self):
         preset = _PRESETS[(self.variant, self.units)]
         return GaussianLaw(mean=preset["prior_mean"], covariance=preset["prior_variance"])
-
-    def setup(self):
-        self._sign = -1.0 if self.variant == "jud" else 1.0
 
     @property
     def state_names(self):
@@ -132,7 +127,7 @@ class FallingBody(Model):
         acceleration *= coefficient
         acceleration *= 0.5 * self.air_density
         acceleration -= self.gravity
-        if self._sign < 0:
+        if self.variant == "jud":                 # s = -1: x2 is the downward speed
             return -velocity, np.negative(acceleration, out=acceleration)
         return velocity, acceleration
 
@@ -153,7 +148,8 @@ class FallingBody(Model):
             velocity = velocity + h / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
         # x_k = f(x_{k-1}) + w_k, written component by component into one new array (stacking
         # first and adding after would make two).
-        moved = np.empty(np.broadcast_shapes(state.shape, noise.shape))
+        shape = np.broadcast_shapes(state.shape, noise.shape)
+        moved = np.empty_like(noise) if noise.shape == shape else np.empty(shape)   # keeps the noise's layout
         for component, value in enumerate((altitude, velocity, coefficient)):
             np.add(value, noise[..., component], out=moved[..., component])
         return moved

@@ -1,0 +1,83 @@
+"""``pfx bench``: pfx against a plain NumPy filter and the Python particle-filter libraries.
+
+The problem (:mod:`pfx.bench.problem`) is the falling-body bootstrap filter with systematic
+resampling at every step, T = 100, on measurements simulated once per trial and shared by
+every implementation. :mod:`pfx.bench.timing` times pfx, the reference filter
+(:mod:`pfx.bench.reference`) and each importable peer (:mod:`pfx.bench.peers`) in this one
+process, interleaved, best of several repeats, and reports nanoseconds per particle-step
+(wall time / (trials x N x T)) with the altitude RMSE that shows equal work;
+:mod:`pfx.bench.scaling` measures ``--workers 2`` against 1 and the memory per particle;
+:mod:`pfx.bench.report` prints it all with the machine line and the targets as ratios.
+
+Speed is measured here and only here: no test asserts a timing.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from pfx.bench.peers import PEERS, peer_version
+
+FULL_CASES = [(1_000, 1), (10_000, 1), (100_000, 1), (1_000_000, 1), (100, 1000), (1_000, 100)]
+QUICK_CASES = [(100, 1), (1_000, 1), (50, 20)]
+
+
+def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, peers: bool = True,
+              workers: bool = True, memory: bool = True, echo: Callable[[str], None] = print,
+              progress: Callable[[str], None] = lambda message: None) -> None:
+    from pfx.bench import report, scaling
+    from pfx.bench.problem import STEPS, make_case
+    from pfx.bench.timing import run_pfx, time_case
+    from pfx.compiled import warm_up
+    from pfx.memory import keep_freed_memory
+
+    allocator = keep_freed_memory()       # the same allocator for every implementation timed here
+    echo(f"pfx bench: falling body (Simon, feet, Euler dt = 0.1 s), bootstrap filter, systematic "
+         f"resampling every step, T = {STEPS}{' (--quick sizes)' if quick else ''}")
+    echo(report.machine_line())
+    ready = warm_up()
+    started = time.perf_counter()
+    run_pfx(None, make_case(20, 2))       # compiles (or loads) what the engine calls, before any timing
+    ready["seconds"] += time.perf_counter() - started
+    echo(f"numba: compiled loops ready in {ready['seconds']:.2f} s ({ready['loaded']} loaded from the cache, "
+         f"{ready['compiled']} compiled); allocator: "
+         f"{'glibc keeps freed memory (mallopt)' if allocator else 'default'}")
+    implementations = ["pfx", "numpy"]
+    versions = {name: peer_version(name) for name in PEERS} if peers else {}
+    implementations += [name for name, version in versions.items() if version]
+    if peers:
+        echo("peers: " + ", ".join(f"{name} {version}" if version else f"{name} (not installed)"
+                                   for name, version in versions.items()))
+    else:
+        echo("peers: not run (--no-peers)")
+    echo("")
+
+    timings = []
+    for particles, trials in (QUICK_CASES if quick else FULL_CASES):
+        case = make_case(particles, trials)
+        timings += time_case(case, implementations, repeats, budget, progress)
+    echo(report.format_table(timings))
+    echo("")
+
+    memory_result = None
+    if memory:
+        particles = 10_000 if quick else 1_000_000
+        progress(f"memory: N={particles}")
+        per_particle = scaling.bytes_per_particle(particles)
+        rss = scaling.peak_rss(particles)
+        memory_result = {"particles": particles, "bytes_per_particle": per_particle, "peak_rss": rss}
+        echo(f"memory, N={particles}, 1 trial: {per_particle:.0f} bytes per particle (tracemalloc peak of the "
+             f"engine's arrays); peak resident memory of the process {rss / 1024**2:.0f} MiB")
+    workers_result = None
+    if workers:
+        particles, trials = (50, 2) if quick else (2_000, 24)
+        progress("workers: --workers 1 and 2")
+        workers_result = scaling.workers_speedup(particles, trials)
+        echo(f"workers, sweep of {workers_result['cells']} cells x {trials} trials (N = {particles}..): "
+             f"1 worker {workers_result['one']:.2f} s, 2 workers {workers_result['two']:.2f} s, "
+             f"speed-up {workers_result['speedup']:.2f}")
+    echo("")
+    echo(report.format_targets(timings, workers_result, memory_result))
+    echo("Wall times; on a machine shared with other work they vary from run to run (best of "
+         f"up to {repeats} runs, interleaved).")

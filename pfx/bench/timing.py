@@ -1,0 +1,81 @@
+"""Timing: every implementation on the same case, interleaved, best of several repeats.
+
+Implementations: ``pfx`` (the engine, exactly as ``pfx run`` calls it for a batch of trials),
+``numpy`` (the reference filter of :mod:`pfx.bench.reference`, looped over the trials) and
+the peers of :mod:`pfx.bench.peers` that can be imported. Within a repeat each runs once, in
+an order that rotates from repeat to repeat, so that a slow phase of a shared machine does
+not fall on one implementation only; the best time counts. An implementation whose runs
+have taken ``budget`` seconds in a case is not repeated there (the slow peers at N = 1e6).
+The estimates of the last run give its altitude RMSE, which shows that all did the same work.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+
+from pfx.bench.peers import ADAPTERS
+from pfx.bench.problem import Case, FallingBodyProblem
+from pfx.bench.reference import reference_filter
+from pfx.filters import FILTERS
+from pfx.seeding import TrialStreams
+
+
+def run_pfx(problem: FallingBodyProblem, case: Case) -> np.ndarray:
+    cell = case.cell
+    trace = FILTERS[cell.filter.kind](cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
+                                      settings=cell.filter, prior=cell.prior, spread_criterion=None)
+    return trace.estimates
+
+
+def run_numpy(problem: FallingBodyProblem, case: Case) -> np.ndarray:
+    return np.stack([reference_filter(problem, case.measurements[r], case.particles,
+                                      np.random.default_rng(case.filter_seeds[r])) for r in range(case.trials)])
+
+
+RUNNERS: dict[str, Callable[[FallingBodyProblem, Case], np.ndarray]] = {"pfx": run_pfx, "numpy": run_numpy, **ADAPTERS}
+
+
+@dataclass
+class Timing:
+    case: Case
+    implementation: str
+    seconds: float = float("inf")     # best run
+    runs: int = 0
+    spent: float = 0.0
+    rmse: float = float("nan")
+    error: Optional[str] = None
+
+    @property
+    def ns_per_particle_step(self) -> float:
+        return self.seconds * 1e9 / self.case.particle_steps
+
+
+def time_case(case: Case, implementations: list[str], repeats: int, budget: float,
+              progress: Callable[[str], None] = lambda message: None) -> list[Timing]:
+    """Best-of-``repeats`` wall time of each implementation on ``case`` (see the module docstring)."""
+    problem = FallingBodyProblem.from_cell(case.cell)
+    timings = {name: Timing(case, name) for name in implementations}
+    for repeat in range(repeats):
+        shift = repeat % len(implementations)
+        for name in implementations[shift:] + implementations[:shift]:
+            timing = timings[name]
+            if timing.error or (timing.runs and timing.spent >= budget):
+                continue
+            progress(f"{case.label}: {name} (run {timing.runs + 1})")
+            started = time.perf_counter()
+            try:
+                with np.errstate(all="ignore"):      # a peer's underflowing weights are its own business
+                    estimates = RUNNERS[name](problem, case)
+            except Exception as error:               # a peer that breaks is reported, not fatal
+                timing.error = f"{type(error).__name__}: {error}".splitlines()[0][:80]
+                continue
+            elapsed = time.perf_counter() - started
+            timing.runs += 1
+            timing.spent += elapsed
+            timing.seconds = min(timing.seconds, elapsed)
+            timing.rmse = case.altitude_rmse(estimates)
+    return [timings[name] for name in implementations]

@@ -1,0 +1,128 @@
+"""The compiled loops (numba) give exactly what their NumPy definitions give.
+
+* pfx.ziggurat: TrialStreams.standard_normal is, draw for draw, each trial's
+  ``Generator.standard_normal``, and leaves every generator where NumPy would have left it
+  (including the fallbacks: a margin of words that runs out, generators other than PCG64).
+* pfx.resampling.inverse_cdf (one merged pass) equals the binary search it replaced,
+  ``searchsorted(guarded cumsum, u, 'right')`` clipped to N - 1, index for index.
+* pfx.engine.resample_rows equals ``take_along_axis``, whatever the memory layout.
+* pfx.engine.normalise_weights: weights are exp(log-weights), rows sum to 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pfx import ziggurat
+from pfx.engine import log_normalise, normalise_weights, resample_rows
+from pfx.resampling import inverse_cdf
+from pfx.seeding import TrialStreams
+
+
+@pytest.mark.parametrize("count", [1, 2, 7, 300, 50_000])
+def test_normal_draws_are_numpys_word_for_word(count):
+    seeds = [0, 1, 2024, 2**62 + 5]
+    streams = TrialStreams.from_seeds(seeds)
+    draws = streams.standard_normal((count,))
+    then = [generator.random() for generator in streams.generators]
+    for row, seed in enumerate(seeds):
+        generator = np.random.default_rng(seed)
+        np.testing.assert_array_equal(draws[row], generator.standard_normal(count))
+        assert then[row] == generator.random(), "the generator must end where NumPy leaves it"
+
+
+def test_normal_draws_keep_their_shape_and_mix_with_other_draws():
+    streams = TrialStreams.from_seeds([5, 6])
+    first = streams.standard_normal((4, 3))
+    uniform = streams.uniform((2,))
+    second = streams.standard_normal((5,))
+    for row, seed in enumerate([5, 6]):
+        generator = np.random.default_rng(seed)
+        np.testing.assert_array_equal(first[row], generator.standard_normal((4, 3)))
+        np.testing.assert_array_equal(uniform[row], generator.random(2))
+        np.testing.assert_array_equal(second[row], generator.standard_normal(5))
+
+
+def test_the_tails_and_wedges_are_numpys_too():
+    """4e6 draws reach every slow path (tail beyond r: ~1000 draws, wedges: ~1 %)."""
+    streams = TrialStreams.from_seeds([77])
+    draws = streams.standard_normal((4_000_000,))[0]
+    assert np.sum(np.abs(draws) > 3.6541528853610088) > 500
+    np.testing.assert_array_equal(draws, np.random.default_rng(77).standard_normal(4_000_000))
+
+
+def test_a_margin_that_runs_out_falls_back_to_numpy(monkeypatch):
+    monkeypatch.setattr(ziggurat, "_words_for", lambda count: count)      # no margin at all
+    streams = TrialStreams.from_seeds(range(20))
+    draws = streams.standard_normal((400,))
+    for row in range(20):
+        generator = np.random.default_rng(row)
+        np.testing.assert_array_equal(draws[row], generator.standard_normal(400))
+        assert streams.generators[row].random() == generator.random()
+
+
+def test_other_bit_generators_use_numpys_loop():
+    generators = [np.random.Generator(np.random.MT19937(3)), np.random.Generator(np.random.Philox(4))]
+    draws = TrialStreams(generators).standard_normal((10,))
+    np.testing.assert_array_equal(draws[0], np.random.Generator(np.random.MT19937(3)).standard_normal(10))
+    np.testing.assert_array_equal(draws[1], np.random.Generator(np.random.Philox(4)).standard_normal(10))
+
+
+def _binary_search(weights, points):
+    """The inverse CDF by cumsum and binary search (pfx's implementation before the merged pass)."""
+    cumulative = np.cumsum(weights, axis=-1)
+    n = weights.shape[-1]
+    last_positive = n - 1 - np.argmax(weights[..., ::-1] > 0, axis=-1)
+    cumulative[np.arange(n) >= last_positive[..., None]] = 1.0
+    indices = np.stack([np.searchsorted(cumulative[row], points[row], side="right")
+                        for row in range(points.shape[0])])
+    return np.minimum(indices, n - 1)
+
+
+def test_inverse_cdf_merged_pass_equals_binary_search():
+    rng = np.random.default_rng(1)
+    for _ in range(2000):
+        n, m = int(rng.integers(1, 40)), int(rng.integers(1, 50))
+        weights = rng.random((3, n)) ** rng.integers(1, 8)
+        weights[rng.random((3, n)) < 0.3] = 0.0                       # zero weights, some trailing
+        if rng.random() < 0.3:
+            weights[:, -int(rng.integers(1, n + 1)):] = 0.0
+        totals = weights.sum(axis=1, keepdims=True)
+        weights = np.divide(weights, totals, out=np.zeros_like(weights), where=totals > 0)  # all-zero rows too
+        points = rng.random((3, m))
+        if rng.random() < 0.7:
+            points.sort(axis=1)                                        # resamplers' points are sorted
+        if rng.random() < 0.2:
+            points[:, -1] = np.nextafter(1.0, 0.0)
+        np.testing.assert_array_equal(inverse_cdf(weights, points), _binary_search(weights, points))
+
+
+@pytest.mark.parametrize("layout", ["rows", "components"])
+def test_resample_rows_equals_take_along_axis(layout):
+    rng = np.random.default_rng(2)
+    trials, n, d = 5, 17, 3
+    state = rng.random((trials, n, d))
+    if layout == "components":                 # each component contiguous (see Noise.sample)
+        state = np.ascontiguousarray(state.transpose(0, 2, 1)).transpose(0, 2, 1)
+    for rows in (np.arange(trials), np.array([0, 3, 4]), np.array([2])):
+        indices = rng.integers(0, n, (len(rows), n))
+        expected = np.take_along_axis(state[rows], indices[..., None], axis=1)
+        np.testing.assert_array_equal(resample_rows(state, rows, indices), expected)
+
+
+def test_normalise_weights():
+    rng = np.random.default_rng(3)
+    log_weights = rng.normal(0.0, 30.0, (4, 50))
+    log_weights[1] = -np.inf
+    log_weights[2, :10] = -np.inf
+    log_weights[3] += 1e17                    # huge shift: log-sum-exp must not lose it
+    normalised, weights, normaliser = normalise_weights(log_weights)
+    finite = np.isfinite(normaliser)
+    assert list(finite) == [True, False, True, True]
+    np.testing.assert_allclose(weights[finite], np.exp(normalised[finite]), rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(weights[finite].sum(axis=1), 1.0, rtol=1e-12)
+    assert np.all(weights[1] == 0.0) and np.all(np.isneginf(normalised[1]))
+    legacy, legacy_normaliser = log_normalise(log_weights)
+    np.testing.assert_array_equal(legacy, normalised)
+    np.testing.assert_array_equal(legacy_normaliser, normaliser)
