@@ -29,6 +29,10 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 import numpy as np
+# NumPy's ziggurat tables, as numba ships them (this module is imported on a first normal draw,
+# when numba is needed anyway).
+from numba.np.random._constants import (fi_double as _FI, ki_double as _KI, wi_double as _WI,
+                                        ziggurat_nor_inv_r as _INVERSE_R, ziggurat_nor_r as _R)
 
 from pfx.compiled import compiled
 
@@ -40,19 +44,14 @@ _DOUBLE_SHIFT = np.uint64(11)
 _DOUBLE_SCALE = 1.0 / 9007199254740992.0          # 2^-53: PCG64's next_double
 
 
-def _tables():
-    from numba.np.random import _constants as numpy_tables
-
-    return (numpy_tables.ki_double, numpy_tables.wi_double, numpy_tables.fi_double,
-            float(numpy_tables.ziggurat_nor_r), float(numpy_tables.ziggurat_nor_inv_r))
-
-
 @compiled
-def normals_from_words(words, out, used, ki, wi, fi, r, inverse_r):
+def normals_from_words(words, out, used):
     """out[row, :] = NumPy's standard normal draws from words[row]; used[row] = words taken.
 
-    ``used[row]`` is -1 if the row's words ran out before ``out[row]`` was full.
+    ``used[row]`` is -1 if the row's words ran out before ``out[row]`` was full. (The tables
+    are module constants, frozen into the compiled code.)
     """
+    ki, wi, fi, r, inverse_r = _KI, _WI, _FI, _R, _INVERSE_R
     rows, available = words.shape
     count = out.shape[1]
     for row in range(rows):
@@ -131,7 +130,7 @@ def standard_normal_rows(generators: Sequence[np.random.Generator],
         for row, bit_generator in enumerate(pcg64):
             words[row] = bit_generator.random_raw(available)
     used = np.empty(rows, dtype=np.intp)
-    normals_from_words(words, out, used, *_TABLES)
+    normals_from_words(words, out, used)
     for row, bit_generator in enumerate(pcg64):
         if used[row] < 0:                # the margin ran out: NumPy's own loop, from the same state
             bit_generator.advance(-available)
@@ -140,5 +139,3 @@ def standard_normal_rows(generators: Sequence[np.random.Generator],
             bit_generator.advance(int(used[row]) - available)
     return out
 
-
-_TABLES = _tables()
