@@ -75,7 +75,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
         progress("workers: --workers 1 and 2")
         workers_result = scaling.workers_speedup(particles, trials)
         echo(f"workers, sweep of {workers_result['cells']} cells x {trials} trials (N = {particles}..): "
-             f"1 worker {workers_result['one']:.2f} s, 2 workers {workers_result['two']:.2f} s, "
+             f"1 worker {workers_result['one']:.2f} s ({workers_result['cpu_one']:.2f} s CPU), 2 workers "
+             f"{workers_result['two']:.2f} s ({workers_result['cpu_two']:.2f} s CPU), "
              f"speed-up {workers_result['speedup']:.2f}")
     echo("")
     echo(report.format_targets(timings, workers_result, memory_result))

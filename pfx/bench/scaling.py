@@ -3,7 +3,9 @@
 * :func:`workers_speedup`: the same sweep of 8 cells run by :func:`pfx.runner.run_plan` into
   a temporary folder with ``workers=1`` and ``workers=2`` (best of ``repeats`` each,
   interleaved); the speed-up is the ratio of the wall times, CSV writing included (figures
-  off, so that the serial rendering at the end does not hide the parallel part).
+  off, so that the serial rendering at the end does not hide the parallel part). The CPU
+  time of each run (this process and its workers) is reported beside it: equal CPU times
+  with a poor speed-up mean that the machine's cores were busy with other work.
 * :func:`bytes_per_particle`: tracemalloc's peak over one trial of the engine, per particle
   (NumPy's allocations: the particle arrays and their temporaries).
 * :func:`peak_rss`: the peak resident memory of a fresh process that runs one trial of N
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -43,14 +46,23 @@ def workers_speedup(particles: int, trials: int, repeats: int = 2) -> dict:
 
     plan = build_plan(sweep_config(particles, trials), "<pfx bench>")
     best = {1: float("inf"), 2: float("inf")}
+    cpu = {1: float("inf"), 2: float("inf")}
     with tempfile.TemporaryDirectory(prefix="pfx-bench-") as folder:
         for repeat in range(repeats):
             for workers in ((1, 2) if repeat % 2 == 0 else (2, 1)):
-                started = time.perf_counter()
+                started, cpu_started = time.perf_counter(), _cpu_seconds()
                 run_plan(plan, Path(folder) / f"workers-{workers}-{repeat}", workers=workers, fresh=True)
-                best[workers] = min(best[workers], time.perf_counter() - started)
+                elapsed = time.perf_counter() - started
+                if elapsed < best[workers]:
+                    best[workers], cpu[workers] = elapsed, _cpu_seconds() - cpu_started
     return {"cells": len(plan.cells), "trials": trials, "one": best[1], "two": best[2],
-            "speedup": best[1] / best[2]}
+            "cpu_one": cpu[1], "cpu_two": cpu[2], "speedup": best[1] / best[2]}
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process and of its finished children (the worker processes)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def bytes_per_particle(particles: int) -> float:

@@ -12,6 +12,7 @@ The estimates of the last run give its altitude RMSE, which shows that all did t
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -68,7 +69,9 @@ def time_case(case: Case, implementations: list[str], repeats: int, budget: floa
             progress(f"{case.label}: {name} (run {timing.runs + 1})")
             started = time.perf_counter()
             try:
-                with np.errstate(all="ignore"):      # a peer's underflowing weights are its own business
+                # A peer's underflowing weights (and NumPy's warnings about them) are its own business.
+                with np.errstate(all="ignore"), warnings.catch_warnings():
+                    warnings.simplefilter("ignore", RuntimeWarning)
                     estimates = RUNNERS[name](problem, case)
             except Exception as error:               # a peer that breaks is reported, not fatal
                 timing.error = f"{type(error).__name__}: {error}".splitlines()[0][:80]
