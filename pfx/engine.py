@@ -10,8 +10,9 @@ Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..
    extreme log-weights never overflow). :math:`\sum_k L_k` estimates :math:`\log p(z_{1:T})`.
    If every weight of a trial underflows (:math:`L_k = -\infty`), the step is *degenerate*:
    the policy is to reset that trial's weights to uniform and go on (counted per trial).
-4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling),
-   and :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
+4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling;
+   a model's angular components by the circular mean, :mod:`pfx.angles`), and
+   :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
 5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
 
@@ -30,6 +31,7 @@ from typing import Optional
 
 import numpy as np
 
+from pfx.angles import circular_mean
 from pfx.errors import ModelNumericalError
 from pfx.trace import FilterTrace
 from pfx.seeding import TrialStreams
@@ -69,6 +71,16 @@ def effective_sample_size(weights: np.ndarray) -> np.ndarray:
 def weighted_mean(weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
     """sum_i w_i x_i per trial: (R, N), (R, N, d) -> (R, d)."""
     return np.einsum("rn,rnd->rd", weights, particles)
+
+
+def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
+    """The estimate: the weighted mean, with the model's angular components (if any) averaged
+    on the circle (:func:`pfx.angles.circular_mean`)."""
+    mean = weighted_mean(weights, particles)
+    angular = list(model.angular_components)
+    if angular:
+        mean[:, angular] = circular_mean(weights, particles[..., angular], model.full_turn)
+    return mean
 
 
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
@@ -142,7 +154,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
 
         weights = np.exp(log_weights)
         ess[:, t] = effective_sample_size(weights)
-        estimates[:, t] = weighted_mean(weights, state)
+        estimates[:, t] = posterior_mean(model, weights, state)
         if not np.isfinite(estimates[:, t]).all():
             raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
                                       "of the filter (check the prior and the noise)")

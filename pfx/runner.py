@@ -37,7 +37,7 @@ from pfx.filters import FILTERS
 from pfx.errors import ConfigError
 from pfx.figures import render_figures
 from pfx.memory import check_fits, default_budget, trials_per_batch
-from pfx.metrics import MetricInputs, compute_metrics, normalised_squares
+from pfx.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
 from pfx.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
@@ -107,7 +107,8 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         columns["resampled"] = trace.resampled[i]
         columns["degenerate"] = trace.degenerate[i]
         columns["spread"] = trace.spread[i]
-        columns["nees"] = (normalised_squares(trace.estimates[i] - truth[i], trace.covariances[i])
+        columns["nees"] = (normalised_squares(state_error(truth[i], trace.estimates[i], model),
+                                              trace.covariances[i])
                            if trace.covariances is not None else np.nan)
         columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
         if cell.metrics.convergence.criterion == "spread":

@@ -28,6 +28,7 @@ Cross-field checks raise ``ValueError("@key.path: reason")`` so errors point at 
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, Optional
 
 import numpy as np
@@ -91,6 +92,19 @@ class Model(BaseModel):
     def position_unit(self) -> str:
         units = {self.state_units[i] for i in self.position_components}
         return units.pop() if len(units) == 1 else ""
+
+    @property
+    def angular_components(self) -> tuple[int, ...]:
+        """Indices of the state components that are angles, in units of :attr:`full_turn`.
+
+        The estimate averages them on the circle and errors are wrapped (:mod:`pfx.angles`).
+        """
+        return ()
+
+    @property
+    def full_turn(self) -> float:
+        """One full turn in the unit of the angular components (2 pi: radians)."""
+        return 2.0 * math.pi
 
     time_unit: ClassVar[str] = "s"
 
