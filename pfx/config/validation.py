@@ -152,9 +152,13 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
 
 
 def validate(model_class: type[BaseModel], data: Any, *, file: str | None = None, prefix: str = ""):
-    """Validate ``data`` as ``model_class``; raise ConfigError located at the first problem."""
+    """Validate ``data`` as ``model_class``; raise ConfigError located at the first problem.
+
+    Validators find the config file's name in the validation context (``config_file``), to
+    read files the config names relative to its folder.
+    """
     try:
-        return model_class.model_validate(data)
+        return model_class.model_validate(data, context={"config_file": file})
     except ValidationError as error:
         raise to_config_error(error, model_class, file=file, prefix=prefix) from None
 
