@@ -9,6 +9,7 @@ from pfx.models.falling_body import FallingBody
 from pfx.models.growth import GrowthModel
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
+from pfx.models.sonar_mcl import SonarMCL
 from pfx.registry import Registry
 
 MODELS: Registry[type[Model]] = Registry("model")
@@ -16,5 +17,6 @@ MODELS.add("falling_body", FallingBody)
 MODELS.add("growth", GrowthModel)
 MODELS.add("linear_gaussian", LinearGaussian)
 MODELS.add("range_beacons", RangeBeacons)
+MODELS.add("sonar_mcl", SonarMCL)
 
 __all__ = ["MODELS", "Model"]
