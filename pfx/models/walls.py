@@ -52,7 +52,8 @@ class WallMap:
         self.walls = walls
         self.start_x, self.start_y = walls[:, 0], walls[:, 1]
         self.edge_x, self.edge_y = walls[:, 2] - walls[:, 0], walls[:, 3] - walls[:, 1]
-        self._start_cross_edge = cross(self.start_x, self.start_y, self.edge_x, self.edge_y)
+        with np.errstate(over="ignore", invalid="ignore"):     # absurd coordinates: caught where used
+            self._start_cross_edge = cross(self.start_x, self.start_y, self.edge_x, self.edge_y)
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -70,10 +71,12 @@ class WallMap:
         shape = x.shape
         point = np.stack([x.ravel(), y.ravel()], axis=-1)             # (P, 2)
         direction = np.stack([dx.ravel(), dy.ravel()], axis=-1)
-        # u x e = u @ [e_y, -e_x] and u x d = -(d x u): bilinear forms, one matrix product per term
+        # Every point-by-wall cross product is a matrix product: u x e = u @ [e_y, -e_x] and
+        # a x d = d @ [-a_y, a_x], so (a - p) x e = a x e - p @ [e_y, -e_x] and
+        # (a - p) x d = d @ [-a_y, a_x] - p x d.
         normal = np.stack([self.edge_y, -self.edge_x])                   # (2, W)
-        start_normal = np.stack([-self.start_y, self.start_x])          # a x d = d @ [-a_y, a_x]
-        denominator = direction @ normal                                 # d x e
+        start_normal = np.stack([-self.start_y, self.start_x])
+        denominator = direction @ normal                                 # d x e, (P, W)
         along_ray = self._start_cross_edge - point @ normal              # (a - p) x e
         along_wall = direction @ start_normal - cross(point[:, :1], point[:, 1:], direction[:, :1],
                                                       direction[:, 1:])  # (a - p) x d
