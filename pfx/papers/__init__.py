@@ -1,0 +1,10 @@
+"""Reports of the source documents, one module per paper (see :mod:`pfx.gallery`).
+
+A report reads ``results/<paper>/`` (CSV, figure files, ``paper.yaml``) and returns the
+paper's gallery :class:`~pfx.gallery.Section`. To add one: write ``pfx/papers/<name>.py`` with
+a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
+"""
+
+from pfx.gallery import REPORTS
+
+__all__ = ["REPORTS"]
