@@ -43,7 +43,8 @@ from pfx.seeding import TrialStreams, filter_seed, study_generator, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
 LOCK_FILE = ".pfx.lock"
-OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "particles.csv", "config.yaml", "manifest.json")
+OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "particles.csv", "scene.csv", "config.yaml",
+                "manifest.json")
 
 
 @dataclass
@@ -390,6 +391,7 @@ def _manifest(plan: Plan, started: str) -> dict:
         "legend_columns": plan.legend_columns,
         "units": {"time": model.time_unit, "position": model.position_unit,
                   **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
+        "position_states": [model.state_names[i] for i in model.position_components],
         "cells": [{"cell": c.key, **c.labels} for c in plan.cells],
     }
 
@@ -403,6 +405,9 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     write_csv(trials, out / "trials.csv")
     write_csv(steps, out / "steps.csv")
     write_csv(summarize(trials, plan.label_columns), out / "summary.csv")
+    scene = plan.cells[0].truth_model.scene()
+    if scene:
+        write_csv(pd.DataFrame(scene), out / "scene.csv")
     particle_files = [out / "cells" / f"{key}.particles.csv" for key in order]
     if any(path.exists() for path in particle_files):
         write_csv(pd.concat([pd.read_csv(path) for path in particle_files if path.exists()], ignore_index=True),

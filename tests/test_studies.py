@@ -92,3 +92,23 @@ def test_markdown_table_and_number_format():
     assert text.splitlines()[0] == "| name | value | small |"
     assert "1.23e+06" in text and "2.00e-05" in text
     assert format_number(float("inf")) == "∞" and format_number(12.3456) == "12.3"
+
+
+def test_map_figures_and_the_scene_come_from_csv(tmp_path):
+    config = {
+        "name": "map", "seed": 2, "trials": 2,
+        "model": {"kind": "range_beacons", "beacons": [[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]], "steps": 6,
+                  "path": {"kind": "lissajous", "center": [2.0, 2.0]}},
+        "filter": {"particles": 30},
+        "outputs": {"figures": ["trajectory_map", "particle_snapshots", "particle_animation"],
+                    "particles": {"steps": "all", "trials": 1}},
+    }
+    out = run_plan(build_plan(config, "map.yaml"), tmp_path / "run")
+    scene = pd.read_csv(out / "scene.csv")
+    assert (scene["element"] == "beacon").sum() == 3 and (scene["element"] == "path").sum() == 7
+    assert sorted(p.name for p in (out / "figures").iterdir()) == [
+        "particle_animation.gif", "particle_snapshots.png", "trajectory_map.png"]
+    with open(out / "figures" / "particle_animation.gif", "rb") as handle:
+        assert handle.read(6) == b"GIF89a"
+    particles = pd.read_csv(out / "particles.csv")
+    assert sorted(particles["step"].unique()) == list(range(7))

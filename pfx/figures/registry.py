@@ -50,11 +50,22 @@ class ResultFolder:
     @cached_property
     def particles(self) -> pd.DataFrame:
         """particles.csv: the kept particle clouds (empty if the config kept none)."""
-        if not (self.path / "particles.csv").exists():
-            import pandas as pd
+        return self.optional_table("particles")
 
-            return pd.DataFrame()
-        return self.table("particles")
+    @cached_property
+    def scene(self) -> pd.DataFrame:
+        """scene.csv: the model's fixed world (beacons, walls, path; empty if it has none)."""
+        return self.optional_table("scene")
+
+    def optional_table(self, name: str) -> pd.DataFrame:
+        import pandas as pd
+
+        return self.table(name) if (self.path / f"{name}.csv").exists() else pd.DataFrame()
+
+    @property
+    def position_states(self) -> list[str]:
+        """The state columns that form the position (the first two are drawn on maps)."""
+        return self.manifest.get("position_states", [])
 
     @cached_property
     def manifest(self) -> dict:

@@ -135,6 +135,16 @@ class RangeBeacons(Model):
             return UniformLaw(low=low.tolist(), high=high.tolist())
         return UniformLaw(low=list(self.region.low), high=list(self.region.high))
 
+    def scene(self):
+        elements = [{"element": "beacon", "x": x, "y": y, "label": f"tag {j + 1}"}
+                    for j, (x, y) in enumerate(self.beacons)]
+        if self.motion == "odometry":
+            elements += [{"element": "path", "x": x, "y": y} for x, y in self._path_points]
+        if self.region is not None:
+            elements.append({"element": "region", "x": self.region.low[0], "y": self.region.low[1],
+                             "x_end": self.region.high[0], "y_end": self.region.high[1]})
+        return elements
+
     def control(self, step):
         if self.motion == "random_walk":
             return None
