@@ -112,3 +112,13 @@ def test_map_figures_and_the_scene_come_from_csv(tmp_path):
         assert handle.read(6) == b"GIF89a"
     particles = pd.read_csv(out / "particles.csv")
     assert sorted(particles["step"].unique()) == list(range(7))
+
+
+def test_sweep_figures_render_from_summary(tmp_path, tiny_config_dict):
+    config = tiny_config_dict()
+    config["sweep"] = {"filter.particles": [10, 20], "filter.resampler": ["multinomial", "systematic"]}
+    config["outputs"]["figures"] = ["rmse_vs_particles", "convergence_vs_particles",
+                                    "error_at_convergence_vs_particles", "final_error_vs_particles"]
+    out = run_plan(build_plan(config, "tiny.yaml"), tmp_path / "run")
+    assert sorted(p.name for p in (out / "figures").iterdir()) == sorted(
+        f"{name}.png" for name in config["outputs"]["figures"])
