@@ -23,6 +23,8 @@ from pfx.weighting import WEIGHTINGS
 def _type_name(annotation: Any) -> str:
     annotation = _unwrap(annotation)
     origin = typing.get_origin(annotation)
+    if origin is typing.Literal and len(typing.get_args(annotation)) > 8:
+        return "name"              # long registries (figures): the description says where to look
     if origin is typing.Literal:
         return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
     if origin in (typing.Union, types.UnionType):
