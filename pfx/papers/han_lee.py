@@ -375,9 +375,11 @@ def report(results: PaperResults) -> Section:
                             "exactly as its expectation (crosses) predicts."))
         items.append(Table("Algorithm IV's offspring counts against the unbiased target N w_j",
                            markdown_table(offspring_table(offspring), digits=4),
-                           "Counts are copies per resampling of N = 5 particles (no unit); SE = standard error "
+                           f"Counts are copies per resampling of N = {offspring['particle'].nunique()} particles "
+                           "(no unit); SE = standard error "
                            "over the draws; z = (observed − N w_j) / SE. The document gives no counts: the target "
-                           "is what a resampler must do, the exact E[N_j] is REFERENCE section 3's formula."))
+                           "is what a resampler must do, the exact E[N_j] of Algorithm IV is "
+                           "(N+1) w_j − (C_j^(N+1) − C_(j−1)^(N+1)), C_j the cumulative weights."))
         verdicts.append(bias_verdict(offspring))
 
     if results.has("degeneracy"):
@@ -399,6 +401,11 @@ def report(results: PaperResults) -> Section:
                            markdown_table(degeneracy_table(folder.steps, folder.summary, unit)),
                            "N_eff = 1 / Σ w² before resampling, medians over the traced trials; RMSE over all trials."))
         verdicts.append(degeneracy_verdict(folder.steps, folder.trials, folder.label_columns))
+
+    notes = [f"- Algorithm {key} ({entry.get('name', '')}): {entry['note']}."
+             for key, entry in numbers.get("algorithms", {}).items() if isinstance(entry, dict) and entry.get("note")]
+    if notes:
+        items.append(Text("**The printed algorithms, as read for pfx** (from `paper.yaml`):\n\n" + "\n".join(notes)))
 
     summary = (
         f"{numbers.get('title', 'Han & Lee')} — {', '.join(numbers.get('authors', []))} ({numbers.get('year', '')}). "
