@@ -8,3 +8,5 @@ a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
 from pfx.gallery import REPORTS
 
 __all__ = ["REPORTS"]
+
+from pfx.papers import prob_robotics  # noqa: E402,F401  (registers the report)
