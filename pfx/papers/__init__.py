@@ -9,3 +9,5 @@ from pfx.gallery import REPORTS
 from pfx.papers import han_lee  # noqa: E402,F401  (registers the report)
 
 __all__ = ["REPORTS"]
+
+from pfx.papers import prob_robotics  # noqa: E402,F401  (registers the report)
