@@ -7,6 +7,6 @@ folder's config asks for.
 """
 
 from pfx.figures.registry import FIGURES, render_figures
-from pfx.figures import resampling, traces  # noqa: F401  (registers the figures)
+from pfx.figures import mahalanobis, resampling, state_errors, traces  # noqa: F401  (registers the figures)
 
 __all__ = ["FIGURES", "render_figures"]

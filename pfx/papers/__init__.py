@@ -6,5 +6,6 @@ a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
 """
 
 from pfx.gallery import REPORTS
+from pfx.papers import park_mpf  # noqa: E402,F401  (registers the report)
 
 __all__ = ["REPORTS"]

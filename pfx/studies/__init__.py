@@ -35,3 +35,6 @@ __all__ = ["STUDIES", "Study"]
 from pfx.studies.offspring_counts import OffspringCounts  # noqa: E402
 
 STUDIES.add("offspring_counts", OffspringCounts)
+from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
+
+STUDIES.add("mahalanobis_distances", MahalanobisDistances)
