@@ -18,7 +18,7 @@ def _ellipse(centre: np.ndarray, covariance: np.ndarray, radius: float, points: 
 
 @FIGURES.register("mahalanobis_scatter")
 def mahalanobis_scatter(result: ResultFolder):
-    """Fig. 1: the sample, the test points coloured by squared Mahalanobis distance, 1-3 sigma ellipses."""
+    """The sample, the test points coloured by squared Mahalanobis distance, 1-3 sigma ellipses (park-mpf Fig. 1)."""
     import matplotlib.pyplot as plt
 
     samples, distances = result.table("samples"), result.table("distances")
