@@ -6,8 +6,10 @@ a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
 """
 
 from pfx.gallery import REPORTS
-from pfx.papers import han_lee  # noqa: E402,F401  (registers the report)
+
+# One import per paper (each registers its report).
+from pfx.papers import han_lee  # noqa: E402,F401
+from pfx.papers import park_mpf  # noqa: E402,F401
+from pfx.papers import prob_robotics  # noqa: E402,F401
 
 __all__ = ["REPORTS"]
-
-from pfx.papers import prob_robotics  # noqa: E402,F401  (registers the report)

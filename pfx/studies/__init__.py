@@ -42,3 +42,6 @@ from pfx.studies.nonlinear_transform import NonlinearTransform  # noqa: E402
 STUDIES.add("kalman_1d_steps", KalmanSteps)
 STUDIES.add("importance_sampling", ImportanceSampling)
 STUDIES.add("nonlinear_transform", NonlinearTransform)
+from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
+
+STUDIES.add("mahalanobis_distances", MahalanobisDistances)
