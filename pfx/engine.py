@@ -26,7 +26,7 @@ it is counted per trial (``lost_particles``). A trial that loses every particle,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -35,6 +35,27 @@ from pfx.angles import circular_mean
 from pfx.errors import ModelNumericalError
 from pfx.trace import FilterTrace
 from pfx.seeding import TrialStreams
+
+
+@dataclass
+class SnapshotRequest:
+    """Which particle clouds to keep: trials (rows of the batch), steps, stages.
+
+    Stages: ``prior`` (step 0), ``predicted`` (after the transition, with the previous
+    weights), ``weighted`` (after the weight update, before resampling) and ``resampled``
+    (after resampling and diffusion). Each kept cloud is appended to ``clouds`` as a dict with
+    keys stage, step, rows, state (len(rows), N, d) and weights (len(rows), N).
+    """
+
+    rows: np.ndarray
+    steps: object                 # a collection of steps, or "all"
+    stages: frozenset
+    clouds: list = field(default_factory=list)
+
+    def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
+        if (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps):
+            self.clouds.append({"stage": stage, "step": step, "rows": self.rows,
+                                "state": state[self.rows].copy(), "weights": weights[self.rows].copy()})
 
 
 @dataclass
@@ -86,11 +107,12 @@ def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndar
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
-                        consistency: bool = False) -> FilterTrace:
+                        consistency: bool = False, snapshot: Optional[SnapshotRequest] = None) -> FilterTrace:
     """Run the filter on measurements of shape (R, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
-    the normalised innovation squared of the predicted cloud, for NEES and NIS.
+    the normalised innovation squared of the predicted cloud, for NEES and NIS. With
+    ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``).
     """
     trials, steps, _ = measurements.shape
     n = particles
@@ -111,6 +133,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     dimension = state.shape[-1]
     covariances = np.empty((trials, steps, dimension, dimension)) if consistency else None
     nis = np.empty((trials, steps)) if consistency else None
+    if snapshot is not None:
+        snapshot.keep("prior", 0, state, weights)
 
     for k in range(1, steps + 1):
         t = k - 1
@@ -127,6 +151,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             state[lost] = 0.0
             log_weights[lost] = -np.inf
             weights[lost] = 0.0
+        if snapshot is not None:
+            snapshot.keep("predicted", k, state, weights)
         if consistency:
             nis[:, t] = _innovation_squared(model, measurements[:, t], state, weights)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -154,6 +180,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
 
         weights = np.exp(log_weights)
         ess[:, t] = effective_sample_size(weights)
+        if snapshot is not None:
+            snapshot.keep("weighted", k, state, weights)
         estimates[:, t] = posterior_mean(model, weights, state)
         if not np.isfinite(estimates[:, t]).all():
             raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
@@ -176,6 +204,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             log_weights[rows] = uniform_log_weight
             weights[rows] = 1.0 / n
             resampled[rows, t] = True
+        if snapshot is not None:
+            snapshot.keep("resampled", k, state, weights)
 
         with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
             spread[:, t] = _spread(weights, state[..., position])

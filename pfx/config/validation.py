@@ -81,6 +81,9 @@ def _walk(root: type[BaseModel], location: tuple) -> tuple[tuple, Any]:
             if annotation is None:
                 clean.append(part)
                 continue
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel) and part == _kind_of(annotation) \
+                and part not in annotation.model_fields:
+            continue            # the tag of a one-member discriminated union
         clean.append(part)
         if isinstance(annotation, type) and issubclass(annotation, BaseModel):
             fields = {f.alias or name: f for name, f in annotation.model_fields.items()}

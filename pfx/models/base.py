@@ -132,6 +132,15 @@ class Model(BaseModel):
         """The prior a filter starts from unless its config names one (default: ``initial``)."""
         return self.initial
 
+    def scene(self) -> list[dict[str, Any]]:
+        """The fixed things of the model's world, for map figures (written to scene.csv).
+
+        One dict per element with keys ``element`` (``beacon``, ``wall``, ``path``, ``region``,
+        ...), ``x``, ``y`` and, for segments and boxes, ``x_end``, ``y_end``; ``label`` optional.
+        A ``path`` is the polyline through its rows in order. Default: nothing.
+        """
+        return []
+
     # -- Jacobians for the extended Kalman filter (optional) ------------------------------------
 
     def transition_jacobian(self, state: np.ndarray, control: Optional[np.ndarray]) -> Optional[np.ndarray]:
