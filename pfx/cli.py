@@ -112,8 +112,7 @@ def run(
         run_plan(plan, target, workers=workers, fresh=not resume, report=report,
                  progress=_show_progress(quiet), memory_budget=budget)
         if not quiet:
-            typer.echo(f"{plan.experiment.name}: {len(plan.cells)} cell(s) x {plan.experiment.trials} "
-                       f"trial(s) -> {target}")
+            typer.echo(f"{plan.experiment.name}: {plan.size_text} -> {target}")
 
 
 @app.command()
@@ -125,7 +124,7 @@ def validate(
     """Check configs and print each fully resolved config (exit 0, or 2 on the first error)."""
     plans = [_load_plan(path, assignments, None) for path in configs]
     for plan in plans:
-        typer.echo(f"# {plan.file}: valid; {len(plan.cells)} cell(s) x {plan.experiment.trials} trial(s); "
+        typer.echo(f"# {plan.file}: valid; {plan.size_text}; "
                    f"config hash {plan.config_hash}")
         typer.echo(yaml.safe_dump(plan.resolved, sort_keys=False).rstrip())
 
@@ -143,8 +142,10 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
                                                    f"; choose from {', '.join(LISTABLE)}"))
     for name in [what] if what else LISTABLE:
         typer.echo(f"{name}:")
-        for item, description in registries[name].describe().items():
-            typer.echo(f"  {item:<18} {description}")
+        descriptions = registries[name].describe()
+        width = max([18, *(len(item) for item in descriptions)])     # names aligned, however long
+        for item, description in descriptions.items():
+            typer.echo(f"  {item:<{width}} {description}")
 
 
 def _registries():
@@ -155,9 +156,10 @@ def _registries():
     from pfx.models import MODELS
     from pfx.noise import NOISE_FAMILIES
     from pfx.resampling import RESAMPLERS
+    from pfx.studies import STUDIES
     from pfx.weighting import WEIGHTINGS
 
-    return {"models": MODELS, "filters": FILTERS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
+    return {"models": MODELS, "studies": STUDIES, "filters": FILTERS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
             "noises": NOISE_FAMILIES, "diffusions": DIFFUSIONS, "metrics": METRICS, "figures": FIGURES}
 
 
@@ -183,9 +185,12 @@ def figures(result_dir: Path = typer.Argument(..., help="a result folder written
     """Re-render a result folder's figures from its CSV files alone."""
     from pfx.figures import render_figures
 
-    if not (result_dir / "manifest.json").is_file() or not (result_dir / "steps.csv").is_file():
-        raise ConfigError("not a finished pfx result folder (no manifest.json / steps.csv)", file=str(result_dir))
-    manifest = json.loads((result_dir / "manifest.json").read_text())
+    try:
+        manifest = json.loads((result_dir / "manifest.json").read_text())
+    except (OSError, ValueError):
+        manifest = {}
+    if not isinstance(manifest, dict) or manifest.get("complete") is not True:
+        raise ConfigError("not a finished pfx result folder (no complete manifest.json)", file=str(result_dir))
     for path in render_figures(result_dir, None, tuple(manifest.get("formats", ["png"]))):
         typer.echo(str(path))
 

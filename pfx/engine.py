@@ -10,8 +10,9 @@ Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..
    extreme log-weights never overflow). :math:`\sum_k L_k` estimates :math:`\log p(z_{1:T})`.
    If every weight of a trial underflows (:math:`L_k = -\infty`), the step is *degenerate*:
    the policy is to reset that trial's weights to uniform and go on (counted per trial).
-4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling),
-   and :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
+4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling;
+   a model's angular components by the circular mean, :mod:`pfx.angles`), and
+   :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
 5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
 
@@ -25,15 +26,37 @@ it is counted per trial (``lost_particles``). A trial that loses every particle,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
+from pfx.angles import circular_mean
 from pfx.compiled import compiled
 from pfx.errors import ModelNumericalError
 from pfx.trace import FilterTrace
 from pfx.seeding import TrialStreams
+
+
+@dataclass
+class SnapshotRequest:
+    """Which particle clouds to keep: trials (rows of the batch), steps, stages.
+
+    Stages: ``prior`` (step 0), ``predicted`` (after the transition, with the previous
+    weights), ``weighted`` (after the weight update, before resampling) and ``resampled``
+    (after resampling and diffusion). Each kept cloud is appended to ``clouds`` as a dict with
+    keys stage, step, rows, state (len(rows), N, d) and weights (len(rows), N).
+    """
+
+    rows: np.ndarray
+    steps: object                 # a collection of steps, or "all"
+    stages: frozenset
+    clouds: list = field(default_factory=list)
+
+    def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
+        if (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps):
+            self.clouds.append({"stage": stage, "step": step, "rows": self.rows,
+                                "state": state[self.rows].copy(), "weights": weights[self.rows].copy()})
 
 
 @dataclass
@@ -115,14 +138,25 @@ def gather_particles(state, rows, indices, out):
                 out[r, i, c] = state[source, indices[r, i], c]
 
 
+def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
+    """The estimate: the weighted mean, with the model's angular components (if any) averaged
+    on the circle (:func:`pfx.angles.circular_mean`)."""
+    mean = weighted_mean(weights, particles)
+    angular = list(model.angular_components)
+    if angular:
+        mean[:, angular] = circular_mean(weights, particles[..., angular], model.full_turn)
+    return mean
+
+
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
-                        consistency: bool = False) -> FilterTrace:
+                        consistency: bool = False, snapshot: Optional[SnapshotRequest] = None) -> FilterTrace:
     """Run the filter on measurements of shape (R, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
-    the normalised innovation squared of the predicted cloud, for NEES and NIS.
+    the normalised innovation squared of the predicted cloud, for NEES and NIS. With
+    ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``).
     """
     trials, steps, _ = measurements.shape
     n = particles
@@ -145,6 +179,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     dimension = state.shape[-1]
     covariances = np.empty((trials, steps, dimension, dimension)) if consistency else None
     nis = np.empty((trials, steps)) if consistency else None
+    if snapshot is not None:
+        snapshot.keep("prior", 0, state, weights)
 
     for k in range(1, steps + 1):
         t = k - 1
@@ -163,6 +199,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             state[lost] = 0.0
             log_weights[lost] = -np.inf
             weights[lost] = 0.0
+        if snapshot is not None:
+            snapshot.keep("predicted", k, state, weights)
         if consistency:
             nis[:, t] = _innovation_squared(model, measurements[:, t], state, weights)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
@@ -191,7 +229,9 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
 
         weights = new_weights
         ess[:, t] = effective_sample_size(weights)
-        estimates[:, t] = weighted_mean(weights, state)
+        if snapshot is not None:
+            snapshot.keep("weighted", k, state, weights)
+        estimates[:, t] = posterior_mean(model, weights, state)
         if not np.isfinite(estimates[:, t]).all():
             raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
                                       "of the filter (check the prior and the noise)")
@@ -218,6 +258,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
             log_weights[selected] = uniform_log_weight
             weights[selected] = 1.0 / n
             resampled[selected, t] = True
+        if snapshot is not None:
+            snapshot.keep("resampled", k, state, weights)
 
         with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
             spread[:, t] = _spread(weights, state[..., position])

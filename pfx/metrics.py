@@ -4,7 +4,8 @@ All arrays carry the trial axis first; steps are numbered k = 1..T (step k is th
 transition + measurement, i.e. the k-th action in kim-mcl's counting).
 
 * **RMSE** of component :math:`j`: :math:`\sqrt{\tfrac1T \sum_k (\hat x_{k,j} - x_{k,j})^2}`;
-  of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below.
+  of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below. The error
+  of an angular component (a heading) is wrapped into half a turn either side (:mod:`pfx.angles`).
 * **Error distance** :math:`e_k = \lVert \hat p_k - p_k \rVert_2` over the model's position
   components; reported time-averaged (:math:`\tfrac1T\sum_k e_k`) and final (:math:`e_T`).
 * **Convergence step**, two criteria (the table using it must say which):
@@ -35,6 +36,7 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from pfx.angles import wrap_difference
 from pfx.registry import Registry
 
 NEVER = -1
@@ -63,9 +65,19 @@ class MetricsConfig(BaseModel):
 
 # -- pure functions ---------------------------------------------------------------------------
 
-def component_rmse(truth: np.ndarray, estimate: np.ndarray) -> np.ndarray:
-    """RMSE over time of every state component: (trials, T, d) -> (trials, d)."""
-    return np.sqrt(np.mean((estimate - truth) ** 2, axis=1))
+def state_error(truth: np.ndarray, estimate: np.ndarray, model) -> np.ndarray:
+    """estimate - truth per component, the model's angular components wrapped into
+    (-full turn / 2, full turn / 2] (:mod:`pfx.angles`); other components bit-for-bit as is."""
+    error = estimate - truth
+    angular = list(model.angular_components)
+    if angular:
+        error[..., angular] = wrap_difference(error[..., angular], model.full_turn)
+    return error
+
+
+def component_rmse(error: np.ndarray) -> np.ndarray:
+    """RMSE over time of every state component from the errors: (trials, T, d) -> (trials, d)."""
+    return np.sqrt(np.mean(error ** 2, axis=1))
 
 
 def error_distance(truth: np.ndarray, estimate: np.ndarray, components) -> np.ndarray:
@@ -127,7 +139,7 @@ def _distance(inputs: MetricInputs) -> np.ndarray:
 @METRICS.register("rmse")
 def rmse_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """RMSE over time per state component (rmse_<name>) and of position (rmse_position)."""
-    values = component_rmse(inputs.truth, inputs.trace.estimates)
+    values = component_rmse(state_error(inputs.truth, inputs.trace.estimates, inputs.model))
     columns = {f"rmse_{name}": values[:, j] for j, name in enumerate(inputs.model.state_names)}
     columns["rmse_position"] = np.sqrt(np.mean(_distance(inputs) ** 2, axis=1))
     return columns
@@ -204,7 +216,8 @@ def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     nis = np.full(trials, np.nan)
     if trace.covariances is not None:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            nees = normalised_squares(trace.estimates - inputs.truth, trace.covariances).mean(axis=1)
+            errors = state_error(inputs.truth, trace.estimates, inputs.model)
+            nees = normalised_squares(errors, trace.covariances).mean(axis=1)
     if trace.nis is not None:
         nis = trace.nis.mean(axis=1)
     return {"nees_mean": nees, "nis_mean": nis}

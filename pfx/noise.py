@@ -20,6 +20,10 @@ student_t      t_nu scaled by s = sqrt((nu - 2)/nu), nu > 2           t_nu(z/s) 
 The triangular density is Probabilistic Robotics' ``prob_triangular(a, b)`` (Table 5.2,
 corrected printing) at variance ``b = 1``.
 
+Each family also gives its tail probability :math:`\log P(z > c)` (``Noise.log_tail``): a
+sensor that saturates (a sonar's maximum range) reports the censored value, whose likelihood is
+that tail mass rather than a density.
+
 ``variance`` in a config is a number (the same for every component), a list (one variance per
 component) or a full covariance matrix. Zero variances are allowed for noise that is only
 sampled (process noise); a noise whose density is evaluated (measurement noise) must be
@@ -34,7 +38,7 @@ from typing import Callable, Literal, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator, StrictFloat
-from scipy.special import gammaln
+from scipy.special import gammaln, log_ndtr, stdtr
 
 from pfx.registry import Registry
 from pfx.seeding import TrialStreams
@@ -47,6 +51,7 @@ class NoiseFamily:
     sample_standard: Callable[[TrialStreams, tuple, Optional[StrictFloat]], np.ndarray]   # a new array
     log_density_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]
     description: str
+    log_tail_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]   # log P(z > c)
 
 
 NOISE_FAMILIES: Registry[NoiseFamily] = Registry("noise family")
@@ -60,6 +65,10 @@ def _gaussian_log_density(z, df=None):
     return -0.5 * z * z - 0.5 * math.log(2.0 * math.pi)
 
 
+def _gaussian_log_tail(c, df=None):
+    return log_ndtr(-c)
+
+
 def _uniform_sample(random, shape, df=None):
     return (2.0 * random.uniform(shape) - 1.0) * _SQRT3
 
@@ -67,6 +76,11 @@ def _uniform_sample(random, shape, df=None):
 def _uniform_log_density(z, df=None):
     with np.errstate(divide="ignore"):
         return np.where(np.abs(z) <= _SQRT3, -math.log(2.0 * _SQRT3), -np.inf)
+
+
+def _uniform_log_tail(c, df=None):
+    with np.errstate(divide="ignore"):
+        return np.log(np.clip((_SQRT3 - c) / (2.0 * _SQRT3), 0.0, 1.0))
 
 
 def _triangular_sample(random, shape, df=None):
@@ -78,12 +92,26 @@ def _triangular_log_density(z, df=None):
         return np.log(np.maximum(_SQRT6 - np.abs(z), 0.0)) - math.log(6.0)
 
 
+def _triangular_log_tail(c, df=None):
+    # P(z > c) = (sqrt6 - c)^2 / 12 for c >= 0, by symmetry 1 - (sqrt6 + c)^2 / 12 for c < 0
+    c = np.clip(c, -_SQRT6, _SQRT6)
+    upper = (_SQRT6 - np.abs(c)) ** 2 / 12.0
+    with np.errstate(divide="ignore"):
+        return np.log(np.where(c >= 0, upper, 1.0 - upper))
+
+
 def _laplace_sample(random, shape, df=None):
     return _LAPLACE_SCALE * (random.standard_exponential(shape) - random.standard_exponential(shape))
 
 
 def _laplace_log_density(z, df=None):
     return -np.abs(z) / _LAPLACE_SCALE - math.log(2.0 * _LAPLACE_SCALE)
+
+
+def _laplace_log_tail(c, df=None):
+    # P(z > c) = exp(-c/b) / 2 for c >= 0, 1 - exp(c/b) / 2 for c < 0
+    half_tail = np.exp(-np.abs(c) / _LAPLACE_SCALE) / 2.0
+    return np.where(c >= 0, -np.abs(c) / _LAPLACE_SCALE - math.log(2.0), np.log1p(-half_tail))
 
 
 def _student_t_sample(random, shape, df):
@@ -97,17 +125,22 @@ def _student_t_log_density(z, df):
             - (df + 1.0) / 2.0 * np.log1p(t * t / df) - math.log(scale))
 
 
+def _student_t_log_tail(c, df):
+    with np.errstate(divide="ignore"):
+        return np.log(stdtr(df, -c / math.sqrt((df - 2.0) / df)))
+
+
 for _name, _family in {
     "gaussian": NoiseFamily(lambda r, s, df=None: r.standard_normal(s), _gaussian_log_density,
-                            "normal distribution"),
+                            "normal distribution", _gaussian_log_tail),
     "uniform": NoiseFamily(_uniform_sample, _uniform_log_density,
-                           "uniform on [-sqrt(3 var), sqrt(3 var)] (bounded support)"),
+                           "uniform on [-sqrt(3 var), sqrt(3 var)] (bounded support)", _uniform_log_tail),
     "triangular": NoiseFamily(_triangular_sample, _triangular_log_density,
-                              "symmetric triangular on [-sqrt(6 var), sqrt(6 var)]"),
+                              "symmetric triangular on [-sqrt(6 var), sqrt(6 var)]", _triangular_log_tail),
     "laplace": NoiseFamily(_laplace_sample, _laplace_log_density,
-                           "double exponential (heavier tails than gaussian)"),
+                           "double exponential (heavier tails than gaussian)", _laplace_log_tail),
     "student_t": NoiseFamily(_student_t_sample, _student_t_log_density,
-                             "Student t with df > 2 degrees of freedom (heavy tails)"),
+                             "Student t with df > 2 degrees of freedom (heavy tails)", _student_t_log_tail),
 }.items():
     NOISE_FAMILIES.add(_name, _family, _family.description)
 
@@ -241,3 +274,14 @@ class Noise(BaseModel):
             standard = value @ private["_inverse_factor"].T
         log_f = NOISE_FAMILIES[self.family].log_density_standard(standard, self.df)
         return np.sum(log_f, axis=-1) - private["_log_det_factor"]
+
+    def log_tail(self, threshold: np.ndarray) -> np.ndarray:
+        """log P(v_j > c_j for every component j), for ``threshold`` c of shape (..., k).
+
+        Defined for independent components (a variance number or list), where it is the sum of
+        the components' log tail probabilities; returns shape (...).
+        """
+        if self._scale is None or not self._definite:
+            raise RuntimeError("log_tail needs independent components with positive variances")
+        log_tail = NOISE_FAMILIES[self.family].log_tail_standard(threshold / self._scale, self.df)
+        return np.sum(log_tail, axis=-1)

@@ -1,13 +1,17 @@
 """``pfx reproduce``: run every paper's configs into ``results/<paper>/<experiment>/``.
 
 Each paper has a folder ``configs/papers/<short-name>/`` of ordinary configs (see
-``../shared/papers/README.md`` for the short names); reproducing a paper is running them.
+``../shared/papers/README.md`` for the short names) and a ``paper.yaml`` holding the
+document's own numbers; reproducing a paper is running its configs, copying ``paper.yaml``
+beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.gallery`).
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+
+import yaml
 from typing import Callable
 
 from pfx.config.plan import build_plan
@@ -15,14 +19,18 @@ from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
 from pfx.registry import closest_name
 from pfx.runner import run_plan
+from pfx.tables import write_text
+
+PAPER_FILE = "paper.yaml"      # the document's own numbers, not an experiment
 
 
 def paper_configs(configs_dir: Path) -> dict[str, list[Path]]:
-    """Paper short name -> its config files, sorted."""
+    """Paper short name -> its experiment config files, sorted."""
     if not configs_dir.is_dir():
         return {}
-    return {folder.name: sorted(folder.glob("*.yaml"))
-            for folder in sorted(configs_dir.iterdir()) if folder.is_dir() and any(folder.glob("*.yaml"))}
+    found = {folder.name: sorted(p for p in folder.glob("*.yaml") if p.name != PAPER_FILE)
+             for folder in sorted(configs_dir.iterdir()) if folder.is_dir()}
+    return {paper: files for paper, files in found.items() if files}
 
 
 def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: bool,
@@ -40,8 +48,15 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
     # Validate everything before running anything.
     plans = [(paper, build_plan(load_config_file(path), str(path)))
              for paper in chosen for path in available[paper]]
+    numbers = {paper: load_config_file(configs_dir / paper / PAPER_FILE)
+               for paper in chosen if (configs_dir / paper / PAPER_FILE).exists()}
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name
         run_plan(plan, target, fresh=fresh, report=report, progress=progress)
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}")
+    for paper, document in numbers.items():
+        write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
+    from pfx.gallery import write_gallery
+
+    report(f"gallery: {write_gallery(out)}")

@@ -31,18 +31,20 @@ import pandas as pd
 import yaml
 
 import pfx
-from pfx.config.plan import Cell, Plan
-from pfx.engine import SpreadCriterion, simulate_truth
+from pfx.config.plan import Cell, Plan, StudyPlan
+from pfx.config.schema import ParticleSnapshots
+from pfx.engine import SnapshotRequest, SpreadCriterion, simulate_truth
 from pfx.filters import FILTERS
 from pfx.errors import ConfigError
 from pfx.figures import render_figures
 from pfx.memory import check_fits, default_budget, trials_per_batch
-from pfx.metrics import MetricInputs, compute_metrics, normalised_squares
-from pfx.seeding import TrialStreams, filter_seed, truth_seed
+from pfx.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
+from pfx.seeding import TrialStreams, filter_seed, study_generator, truth_seed
 from pfx.tables import summarize, write_csv, write_text
 
 LOCK_FILE = ".pfx.lock"
-OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "config.yaml", "manifest.json")
+OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "particles.csv", "scene.csv", "config.yaml",
+                "manifest.json")
 
 
 @dataclass
@@ -51,19 +53,28 @@ class BatchResult:
     trials: pd.DataFrame
     steps: pd.DataFrame
     wall_time: float
+    particles: Optional[pd.DataFrame] = None
 
 
-def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> BatchResult:
+def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
+              snapshots: Optional[ParticleSnapshots] = None) -> BatchResult:
     """Simulate the truth and run the filter for some trials of one cell; return table rows."""
     truth_seeds = [truth_seed(seed, t) for t in trials]
     filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
     states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
     criterion = cell.metrics.convergence
     spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
+    snapshot = None
+    if snapshots is not None and snapshots.steps and cell.filter.uses_particles:
+        rows = np.array([i for i, t in enumerate(trials) if t < snapshots.trials], dtype=np.intp)
+        if rows.size:
+            steps_kept = "all" if snapshots.steps == "all" else frozenset(snapshots.steps)
+            snapshot = SnapshotRequest(rows=rows, steps=steps_kept, stages=frozenset(snapshots.stages))
+    options = {"snapshot": snapshot} if snapshot is not None else {}
     started = time.perf_counter()
     trace = FILTERS[cell.filter.kind](
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
-        prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency)
+        prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency, **options)
     elapsed = time.perf_counter() - started
     truth = states[:, 1:]
     with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
@@ -76,7 +87,24 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int) -> Ba
     traced = [i for i, t in enumerate(trials) if t < trace_trials]
     with np.errstate(over="ignore", invalid="ignore"):
         steps = _steps_frame(cell, trials, traced, truth, trace)
-    return BatchResult(cell.key, rows, steps, elapsed)
+    particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
+    return BatchResult(cell.key, rows, steps, elapsed, particles)
+
+
+def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
+    """particles.csv rows: one per kept particle (cell, labels, trial, step, stage, particle, state, weight)."""
+    names = cell.filter_model.state_names
+    frames = []
+    for cloud in snapshot.clouds:
+        rows, n = cloud["state"].shape[:2]
+        columns = {"cell": cell.key, **cell.labels,
+                   "trial": np.repeat([trials[r] for r in cloud["rows"]], n),
+                   "step": cloud["step"], "stage": cloud["stage"], "particle": np.tile(np.arange(n), rows)}
+        for j, name in enumerate(names):
+            columns[name] = cloud["state"][..., j].ravel()
+        columns["weight"] = cloud["weights"].ravel()
+        frames.append(pd.DataFrame(columns))
+    return pd.concat(frames, ignore_index=True)
 
 
 def steps_columns(cell: Cell) -> list[str]:
@@ -107,7 +135,8 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         columns["resampled"] = trace.resampled[i]
         columns["degenerate"] = trace.degenerate[i]
         columns["spread"] = trace.spread[i]
-        columns["nees"] = (normalised_squares(trace.estimates[i] - truth[i], trace.covariances[i])
+        columns["nees"] = (normalised_squares(state_error(truth[i], trace.estimates[i], model),
+                                              trace.covariances[i])
                            if trace.covariances is not None else np.nan)
         columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
         if cell.metrics.convergence.criterion == "spread":
@@ -169,6 +198,8 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
     the workers, keeps every finished cell and re-raises; running again resumes.
     """
     out = Path(out)
+    if isinstance(plan, StudyPlan):
+        return run_study(plan, out, fresh=fresh, report=report)
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
     check_folder(plan, out, fresh)
@@ -200,6 +231,34 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
     return out
 
 
+def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
+              report: Callable[[str], None] = lambda message: None) -> Path:
+    """Compute a study (:mod:`pfx.studies`) into ``out``: its tables as CSV, then its figures."""
+    check_folder(plan, out, fresh)
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out):
+        manifest_path = out / "manifest.json"
+        if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
+            report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+            return out
+        for path in [*out.glob("*.csv"), out / "manifest.json", out / "config.yaml"]:
+            path.unlink(missing_ok=True)
+        shutil.rmtree(out / "figures", ignore_errors=True)
+        study = plan.experiment.study
+        manifest = {**_provenance(plan, started=_now()), "study": study.kind, "units": dict(study.units)}
+        write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+        write_text(json.dumps(manifest, indent=2), manifest_path)
+        started = time.perf_counter()
+        tables = study.tables(study_generator(plan.experiment.seed))
+        for name, table in tables.items():
+            write_csv(table, out / f"{name}.csv")
+        manifest.update(tables=list(tables), finished=_now(), complete=True,
+                        wall_time_s=time.perf_counter() - started)
+        write_text(json.dumps(manifest, indent=2), manifest_path)
+        render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
+    return out
+
+
 def _ignore_interrupts() -> None:
     """Worker initialiser: the parent process alone reacts to Ctrl-C and SIGTERM."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -211,6 +270,7 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], workers: int, budget: i
     experiment = plan.experiment
     trials = list(range(experiment.trials))
     trace_trials = experiment.outputs.trace_trials
+    snapshots = experiment.outputs.particles
     tasks = []
     for cell in cells:
         size = trials_per_batch(cell, len(trials), budget, workers)
@@ -227,13 +287,13 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], workers: int, budget: i
             for cell, batches in tasks:
                 results = []
                 for batch in batches:
-                    results.append(run_batch(cell, experiment.seed, batch, trace_trials))
+                    results.append(run_batch(cell, experiment.seed, batch, trace_trials, snapshots))
                     advance(len(batch))
                 _write_cell(out, cell, results, cell_times)
             return
         pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_interrupts)
         try:
-            pending = [(cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials) for b in batches])
+            pending = [(cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials, snapshots) for b in batches])
                        for cell, batches in tasks]
             for cell, futures in pending:
                 results = []
@@ -295,19 +355,21 @@ def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: d
     trials = pd.concat([r.trials for r in results], ignore_index=True)
     steps = pd.concat([r.steps for r in results], ignore_index=True)
     write_csv(steps, out / "cells" / f"{cell.key}.steps.csv")
-    write_csv(trials, out / "cells" / f"{cell.key}.trials.csv")
+    particles = [r.particles for r in results if r.particles is not None]
+    if particles:
+        write_csv(pd.concat(particles, ignore_index=True), out / "cells" / f"{cell.key}.particles.csv")
+    write_csv(trials, out / "cells" / f"{cell.key}.trials.csv")     # last: marks the cell finished
     cell_times[cell.key] = sum(r.wall_time for r in results)
 
 
-def _manifest(plan: Plan, started: str) -> dict:
-    model = plan.cells[0].truth_model
+def _provenance(plan: Plan | StudyPlan, started: str) -> dict:
+    """What every manifest records: the config, the software, the machine, the times."""
     return {
         "name": plan.experiment.name,
         "description": plan.experiment.description,
         "config_file": plan.file,
         "config_hash": plan.config_hash,
         "seed": plan.experiment.seed,
-        "trials": plan.experiment.trials,
         "pfx_version": pfx.__version__,
         "git_revision": _git_revision(),
         "python": sys.version.split()[0],
@@ -316,12 +378,21 @@ def _manifest(plan: Plan, started: str) -> dict:
         "started": started,
         "finished": None,
         "complete": False,
-        "label_columns": plan.label_columns,
-        "legend_columns": plan.legend_columns,
         "figures": list(plan.experiment.outputs.figures),
         "formats": list(plan.experiment.outputs.formats),
+    }
+
+
+def _manifest(plan: Plan, started: str) -> dict:
+    model = plan.cells[0].truth_model
+    return {
+        **_provenance(plan, started),
+        "trials": plan.experiment.trials,
+        "label_columns": plan.label_columns,
+        "legend_columns": plan.legend_columns,
         "units": {"time": model.time_unit, "position": model.position_unit,
                   **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
+        "position_states": [model.state_names[i] for i in model.position_components],
         "cells": [{"cell": c.key, **c.labels} for c in plan.cells],
     }
 
@@ -335,6 +406,13 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     write_csv(trials, out / "trials.csv")
     write_csv(steps, out / "steps.csv")
     write_csv(summarize(trials, plan.label_columns), out / "summary.csv")
+    scene = plan.cells[0].truth_model.scene()
+    if scene:
+        write_csv(pd.DataFrame(scene), out / "scene.csv")
+    particle_files = [out / "cells" / f"{key}.particles.csv" for key in order]
+    if any(path.exists() for path in particle_files):
+        write_csv(pd.concat([pd.read_csv(path) for path in particle_files if path.exists()], ignore_index=True),
+                  out / "particles.csv")
     for entry in manifest["cells"]:
         entry["wall_time_s"] = cell_times.get(entry["cell"])
     manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)

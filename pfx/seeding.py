@@ -28,6 +28,7 @@ import numpy as np
 
 TRUTH_ROLE = 0
 FILTER_ROLE = 1
+STUDY_ROLE = 2
 
 
 def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int:
@@ -44,6 +45,11 @@ def truth_seed(root_seed: int, trial: int) -> int:
 def filter_seed(root_seed: int, cell_key: int, trial: int) -> int:
     """Seed of trial ``trial``'s filter stream in the cell with key ``cell_key``."""
     return stream_seed(root_seed, FILTER_ROLE, trial, cell_key)
+
+
+def study_generator(root_seed: int) -> np.random.Generator:
+    """The one generator a study (:mod:`pfx.studies`) draws from."""
+    return np.random.default_rng(stream_seed(root_seed, STUDY_ROLE, 0))
 
 
 class TrialStreams:

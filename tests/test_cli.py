@@ -399,7 +399,9 @@ def test_reproduce_runs_each_paper_folder(cli):
     trials = pd.read_csv(folder / "trials.csv")
     assert len(trials) == tiny_config_dict()["trials"]
     assert json.loads((folder / "manifest.json").read_text())["complete"] is True
-    assert sorted(p.name for p in (cli["root"] / "results").iterdir()) == ["toy-paper"]
+    assert sorted(p.name for p in (cli["root"] / "results").iterdir()) == ["README.md", "toy-paper"]
+    # the gallery has no section for a paper without a report
+    assert "toy-paper" not in (cli["root"] / "results" / "README.md").read_text()
 
 
 def test_reproduce_of_an_unknown_paper_is_an_error(cli):

@@ -18,7 +18,7 @@ from typing import Any, Optional
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from pfx.config.schema import Experiment, FilterConfig
+from pfx.config.schema import Experiment, FilterConfig, StudyExperiment
 from pfx.config.validation import validate
 from pfx.config.yaml_loading import deep_merge, set_path
 from pfx.errors import ConfigError, located_value_error
@@ -65,6 +65,10 @@ class Plan:
         return canonical_hash(self.resolved)
 
     @property
+    def size_text(self) -> str:
+        return f"{len(self.cells)} cell(s) x {self.experiment.trials} trial(s)"
+
+    @property
     def label_columns(self) -> list[str]:
         return list(self.cells[0].labels) if self.cells else []
 
@@ -73,6 +77,24 @@ class Plan:
         """The columns that tell cells apart in a legend: the arm (if several), the sweep keys."""
         arms = ["arm"] if len(self.experiment.arms) > 1 else []
         return arms + [sweep_column(key) for key in self.experiment.sweep]
+
+
+@dataclass
+class StudyPlan:
+    """A study config, validated: one computation, no cells (see :mod:`pfx.studies`)."""
+
+    file: str
+    experiment: StudyExperiment
+    resolved: dict
+    cells: list = field(default_factory=list)
+
+    @property
+    def config_hash(self) -> str:
+        return canonical_hash(self.resolved)
+
+    @property
+    def size_text(self) -> str:
+        return f"study {self.experiment.study.kind}"
 
 
 def canonical_hash(data: Any, length: int = 16) -> str:
@@ -187,9 +209,17 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
                 filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics)
 
 
-def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan:
-    """Validate the whole config and expand it into cells; raise ConfigError on any problem."""
+def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | StudyPlan:
+    """Validate the whole config and expand it into cells; raise ConfigError on any problem.
+
+    A config with a ``study`` section is a study (:mod:`pfx.studies`): it has no cells.
+    """
     raw = copy.deepcopy(raw)
+    if isinstance(raw, dict) and "study" in raw:
+        if trials is not None:
+            raise ConfigError("a study has no trials; drop --trials", file=file, key="study")
+        study = validate(StudyExperiment, raw, file=file)
+        return StudyPlan(file=file, experiment=study, resolved=study.model_dump(mode="json"))
     if trials is not None:
         raw["trials"] = trials
     experiment = validate(Experiment, raw, file=file)

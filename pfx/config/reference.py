@@ -9,19 +9,22 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from pfx.config.schema import Experiment, FilterConfig, OutputsConfig
+from pfx.config.schema import Experiment, FilterConfig, OutputsConfig, ParticleSnapshots, StudyExperiment
 from pfx.config.validation import _union_members, _unwrap
 from pfx.diffusion import DIFFUSIONS
 from pfx.initial_laws import GaussianLaw, PointLaw, UniformLaw
 from pfx.metrics import ConvergenceCriterion
 from pfx.models import MODELS
 from pfx.noise import Noise
+from pfx.studies import STUDIES
 from pfx.weighting import WEIGHTINGS
 
 
 def _type_name(annotation: Any) -> str:
     annotation = _unwrap(annotation)
     origin = typing.get_origin(annotation)
+    if origin is typing.Literal and len(typing.get_args(annotation)) > 8:
+        return "name"              # long registries (figures): the description says where to look
     if origin is typing.Literal:
         return " \\| ".join(repr(a).replace("'", "") for a in typing.get_args(annotation))
     if origin in (typing.Union, types.UnionType):
@@ -91,6 +94,14 @@ def markdown_reference() -> str:
         parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]
     parts += ["### `outputs`", "", model_table(OutputsConfig), ""]
+    parts += ["### `outputs.particles`", "", model_table(ParticleSnapshots), ""]
+    parts += ["### Studies", "", (StudyExperiment.__doc__ or "").strip()
+              + ". A config with a `study` section has these top-level keys instead of `model`, "
+              "`filter`, `arms`, `sweep`, `trials` and `metrics`:", "", model_table(StudyExperiment), ""]
+    for name in STUDIES:
+        study = STUDIES[name]
+        parts += [f"#### `study: {{kind: {name}}}`", "", (study.__doc__ or "").strip(), "",
+                  model_table(study, ("kind",)), ""]
     return "\n".join(parts)
 
 

@@ -22,12 +22,14 @@ from pfx.initial_laws import InitialLaw
 from pfx.metrics import MetricsConfig
 from pfx.models import MODELS
 from pfx.resampling import RESAMPLERS
+from pfx.studies import STUDIES
 from pfx.weighting import GaussianWeighting, Weighting
 
 ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
 FilterKind = Literal[FILTERS.names()]  # type: ignore[valid-type]
 FigureName = Literal[FIGURES.names()]  # type: ignore[valid-type]
 ModelConfig = Annotated[Union[tuple(MODELS[name] for name in MODELS)], Field(discriminator="kind")]
+StudyConfig = Annotated[Union[tuple(STUDIES[name] for name in STUDIES)], Field(discriminator="kind")]
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
 
 
@@ -66,16 +68,41 @@ class FilterConfig(BaseModel):
         return 0.0 if self.kind == "sis" else self.ess_threshold
 
 
-class OutputsConfig(BaseModel):
-    """Which traces and figures to write."""
+class ParticleSnapshots(BaseModel):
+    """Particle clouds to keep (particles.csv), for figures of the particles themselves."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
+    steps: Union[Literal["all"], list[Annotated[StrictInt, Field(ge=0)]]] = Field(
+        default_factory=list, description="steps whose particles are kept (0 = the prior), or `all`")
+    trials: StrictInt = Field(1, ge=1, le=1000, description="how many trials per cell (the first ones)")
+    stages: list[Literal["predicted", "weighted", "resampled"]] = Field(
+        default_factory=lambda: ["weighted"], min_length=1,
+        description="predicted (after the transition), weighted (after the weight update, before "
+                    "resampling), resampled (after resampling and diffusion)")
+
+    def wanted(self, step: int) -> bool:
+        return self.steps == "all" or step in self.steps
+
+
+class FigureOutputs(BaseModel):
+    """Which figures to render, in which formats."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    figures: list[FigureName] = Field(  # type: ignore[valid-type]
+        default_factory=list, description="figures to render (`pfx list figures`)")
+    formats: list[Literal["png", "svg", "pdf"]] = Field(
+        default_factory=lambda: ["png"], description="figure file formats (animations are always GIF)")
+
+
+class OutputsConfig(FigureOutputs):
+    """Which traces, particle clouds and figures to write."""
+
     figures: list[FigureName] = Field(  # type: ignore[valid-type]
         default_factory=lambda: ["error_over_time", "ess_over_time"],
         description="figures to render (`pfx list figures`)")
-    formats: list[Literal["png", "svg", "pdf"]] = Field(
-        default_factory=lambda: ["png"], description="figure file formats")
+    trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
+    particles: ParticleSnapshots = Field(default_factory=ParticleSnapshots,
+                                         description="particle clouds to keep in particles.csv")
 
 
 class Experiment(BaseModel):
@@ -99,3 +126,16 @@ class Experiment(BaseModel):
                     "(e.g. filter.particles: [200, 400])")
     metrics: MetricsConfig = Field(default_factory=MetricsConfig, description="metric parameters")
     outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="tables and figures")
+
+
+class StudyExperiment(BaseModel):
+    """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    name: str = Field(pattern=NAME_PATTERN, max_length=100,
+                      description="experiment name (the default result folder is runs/<name>)")
+    description: str = Field("", description="free text, copied to the manifest")
+    seed: StrictInt = Field(0, ge=0, lt=2**63, description="root seed of the study's random stream")
+    study: StudyConfig = Field(description="the computation and its parameters (`pfx list studies`)")
+    outputs: FigureOutputs = Field(default_factory=FigureOutputs, description="figures")

@@ -81,6 +81,9 @@ def _walk(root: type[BaseModel], location: tuple) -> tuple[tuple, Any]:
             if annotation is None:
                 clean.append(part)
                 continue
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel) and part == _kind_of(annotation) \
+                and part not in annotation.model_fields:
+            continue            # the tag of a one-member discriminated union
         clean.append(part)
         if isinstance(annotation, type) and issubclass(annotation, BaseModel):
             fields = {f.alias or name: f for name, f in annotation.model_fields.items()}
@@ -152,9 +155,13 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
 
 
 def validate(model_class: type[BaseModel], data: Any, *, file: str | None = None, prefix: str = ""):
-    """Validate ``data`` as ``model_class``; raise ConfigError located at the first problem."""
+    """Validate ``data`` as ``model_class``; raise ConfigError located at the first problem.
+
+    Validators find the config file's name in the validation context (``config_file``), to
+    read files the config names relative to its folder.
+    """
     try:
-        return model_class.model_validate(data)
+        return model_class.model_validate(data, context={"config_file": file})
     except ValidationError as error:
         raise to_config_error(error, model_class, file=file, prefix=prefix) from None
 

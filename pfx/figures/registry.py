@@ -1,4 +1,10 @@
-"""The figure registry, the read-only view of a result folder, and rendering."""
+"""The figure registry, the read-only view of a result folder, and rendering.
+
+A figure function returns a matplotlib Figure (saved in the config's formats), a
+``matplotlib.animation.Animation`` (saved as an animated GIF with matplotlib's Pillow writer;
+an attribute ``frames_per_second`` on it sets the frame rate), or None when the folder has
+nothing for it to draw.
+"""
 
 from __future__ import annotations
 
@@ -42,6 +48,26 @@ class ResultFolder:
         return self.table("summary")
 
     @cached_property
+    def particles(self) -> pd.DataFrame:
+        """particles.csv: the kept particle clouds (empty if the config kept none)."""
+        return self.optional_table("particles")
+
+    @cached_property
+    def scene(self) -> pd.DataFrame:
+        """scene.csv: the model's fixed world (beacons, walls, path; empty if it has none)."""
+        return self.optional_table("scene")
+
+    def optional_table(self, name: str) -> pd.DataFrame:
+        import pandas as pd
+
+        return self.table(name) if (self.path / f"{name}.csv").exists() else pd.DataFrame()
+
+    @property
+    def position_states(self) -> list[str]:
+        """The state columns that form the position (the first two are drawn on maps)."""
+        return self.manifest.get("position_states", [])
+
+    @cached_property
     def manifest(self) -> dict:
         return json.loads((self.path / "manifest.json").read_text())
 
@@ -68,11 +94,16 @@ class ResultFolder:
 
 
 def _save(figure, target: Path) -> None:
-    """Write a figure atomically (temporary file in the same folder, then rename)."""
+    """Write a figure (or an animation, as GIF) atomically: a temporary file, then rename."""
     descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=".tmp-", suffix=target.suffix)
     os.close(descriptor)
     try:
-        figure.savefig(temporary, dpi=150, bbox_inches="tight")
+        if _is_animation(figure):
+            from matplotlib.animation import PillowWriter
+
+            figure.save(temporary, writer=PillowWriter(fps=getattr(figure, "frames_per_second", 5)), dpi=90)
+        else:
+            figure.savefig(temporary, dpi=150, bbox_inches="tight")
         os.chmod(temporary, FILE_MODE)
         os.replace(temporary, target)
     finally:
@@ -97,9 +128,15 @@ def render_figures(result_dir: str | Path, names: Optional[list[str]] = None,
         figure = FIGURES[name](result)
         if figure is None:
             continue
-        for extension in formats:
+        for extension in ("gif",) if _is_animation(figure) else formats:
             target = out / f"{name}.{extension}"
             _save(figure, target)
             written.append(target)
-        plt.close(figure)
+        plt.close("all")       # an animation's figure too
     return written
+
+
+def _is_animation(figure) -> bool:
+    from matplotlib.animation import Animation
+
+    return isinstance(figure, Animation)

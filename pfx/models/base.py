@@ -28,6 +28,7 @@ Cross-field checks raise ``ValueError("@key.path: reason")`` so errors point at 
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar, Optional
 
 import numpy as np
@@ -92,6 +93,19 @@ class Model(BaseModel):
         units = {self.state_units[i] for i in self.position_components}
         return units.pop() if len(units) == 1 else ""
 
+    @property
+    def angular_components(self) -> tuple[int, ...]:
+        """Indices of the state components that are angles, in units of :attr:`full_turn`.
+
+        The estimate averages them on the circle and errors are wrapped (:mod:`pfx.angles`).
+        """
+        return ()
+
+    @property
+    def full_turn(self) -> float:
+        """One full turn in the unit of the angular components (2 pi: radians)."""
+        return 2.0 * math.pi
+
     time_unit: ClassVar[str] = "s"
 
     def control(self, step: int) -> Optional[np.ndarray]:
@@ -117,6 +131,15 @@ class Model(BaseModel):
     def default_prior(self):
         """The prior a filter starts from unless its config names one (default: ``initial``)."""
         return self.initial
+
+    def scene(self) -> list[dict[str, Any]]:
+        """The fixed things of the model's world, for map figures (written to scene.csv).
+
+        One dict per element with keys ``element`` (``beacon``, ``wall``, ``path``, ``region``,
+        ...), ``x``, ``y`` and, for segments and boxes, ``x_end``, ``y_end``; ``label`` optional.
+        A ``path`` is the polyline through its rows in order. Default: nothing.
+        """
+        return []
 
     # -- Jacobians for the extended Kalman filter (optional) ------------------------------------
 

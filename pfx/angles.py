@@ -1,0 +1,43 @@
+r"""Angles: state components that live on a circle (a robot's heading).
+
+An angle and the same angle plus a full turn :math:`\tau` (360 degrees, or :math:`2\pi`) are one
+state, so two operations differ from their linear forms:
+
+* the **difference** of two angles is wrapped into :math:`(-\tau/2, \tau/2]`: a heading of
+  359 degrees estimated as 1 degree is 2 degrees off, not 358;
+* the **mean** of weighted angles is the circular mean, the direction of the weighted resultant
+  vector:
+
+  .. math:: \bar\theta = \operatorname{atan2}\Big(\sum_i w_i \sin\theta_i,\ \sum_i w_i \cos\theta_i\Big),
+
+  so a cloud straddling 0 / 360 degrees averages near 0, not near 180.
+
+A model names its angular components (:attr:`pfx.models.base.Model.angular_components`) and its
+full turn (:attr:`pfx.models.base.Model.full_turn`); the engine's estimate and the metrics' errors
+use these functions for those components only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def wrap_angle(angle: np.ndarray, full_turn: float) -> np.ndarray:
+    """An angle reduced into [0, full_turn)."""
+    reduced = np.mod(angle, full_turn)
+    # mod of a tiny negative angle rounds up to full_turn itself
+    return np.where(reduced >= full_turn, 0.0, reduced)
+
+
+def wrap_difference(difference: np.ndarray, full_turn: float) -> np.ndarray:
+    """An angle difference wrapped into (-full_turn / 2, full_turn / 2]."""
+    half = full_turn / 2.0
+    return half - np.mod(half - difference, full_turn)
+
+
+def circular_mean(weights: np.ndarray, angles: np.ndarray, full_turn: float) -> np.ndarray:
+    """Weighted circular mean per row, in [0, full_turn): (R, N), (R, N, k) -> (R, k)."""
+    radians = angles * (2.0 * np.pi / full_turn)
+    sine = np.einsum("rn,rnk->rk", weights, np.sin(radians))
+    cosine = np.einsum("rn,rnk->rk", weights, np.cos(radians))
+    return wrap_angle(np.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)

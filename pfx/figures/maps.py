@@ -1,0 +1,221 @@
+"""Map figures for planar models: the world (scene.csv), paths (steps.csv), particles (particles.csv).
+
+* ``trajectory_map``: the true and the estimated path of the first traced trial, over the
+  model's scene (beacons, walls, designed path), one panel per cell.
+* ``particle_snapshots``: the particle cloud at the kept steps of the first cell's first trial
+  (marker area proportional to weight), with the true and estimated positions.
+* ``particle_animation``: the same, step by step, as an animated GIF.
+
+They need a model with at least two position components; models draw their world through
+:meth:`pfx.models.base.Model.scene`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pfx.figures.registry import FIGURES, ResultFolder
+
+MAX_PANELS = 6
+MAX_FRAMES = 60
+
+
+def draw_scene(axes, scene) -> None:
+    """Beacons as triangles, walls as thick lines, the designed path dashed, the region boxed."""
+    if scene.empty:
+        return
+    from matplotlib.patches import Rectangle
+
+    for _, row in scene[scene["element"] == "region"].iterrows():
+        axes.add_patch(Rectangle((row["x"], row["y"]), row["x_end"] - row["x"], row["y_end"] - row["y"],
+                                 fill=False, linestyle=":", edgecolor="gray", linewidth=1, label="region"))
+    walls = scene[scene["element"] == "wall"]
+    for index, (_, row) in enumerate(walls.iterrows()):
+        axes.plot([row["x"], row["x_end"]], [row["y"], row["y_end"]], color="black", linewidth=2.2,
+                  solid_capstyle="round", label="walls" if index == 0 else None)
+    path = scene[scene["element"] == "path"]
+    if not path.empty:
+        axes.plot(path["x"], path["y"], linestyle="--", color="gray", linewidth=1, label="designed path")
+    beacons = scene[scene["element"] == "beacon"]
+    if not beacons.empty:
+        axes.scatter(beacons["x"], beacons["y"], marker="^", s=90, color="crimson", edgecolor="black",
+                     zorder=5, label="beacons / tags")
+        if "label" in beacons:
+            for _, row in beacons.iterrows():
+                if isinstance(row.get("label"), str):
+                    axes.annotate(row["label"], (row["x"], row["y"]), textcoords="offset points",
+                                  xytext=(5, 5), fontsize=8)
+
+
+def _axes_labels(axes, result: ResultFolder, x_name: str, y_name: str) -> None:
+    unit = result.units.get("position", "")
+    suffix = f" [{unit}]" if unit else ""
+    axes.set_xlabel(f"{x_name}{suffix}")
+    axes.set_ylabel(f"{y_name}{suffix}")
+    axes.set_aspect("equal", adjustable="box")
+    axes.grid(alpha=0.25)
+
+
+def _planar(result: ResultFolder):
+    names = result.position_states
+    return names[:2] if len(names) >= 2 else None
+
+
+def _grid(count: int):
+    import matplotlib.pyplot as plt
+
+    columns = min(count, 3)
+    rows = -(-count // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 4.3 * rows), layout="constrained",
+                                squeeze=False)
+    for extra in axes.ravel()[count:]:
+        extra.set_visible(False)
+    return figure, axes.ravel()
+
+
+@FIGURES.register("trajectory_map")
+def trajectory_map(result: ResultFolder):
+    """True and estimated path of the first traced trial over the model's world, per cell."""
+    planar = _planar(result)
+    steps = result.steps
+    if planar is None or steps.empty:
+        return None
+    x_name, y_name = planar
+    frame = steps.assign(_cell=result.cell_names(steps))
+    cells = list(dict.fromkeys(frame["_cell"]))[:MAX_PANELS]
+    figure, axes_list = _grid(len(cells))
+    for axes, cell in zip(axes_list, cells):
+        rows = frame[frame["_cell"] == cell]
+        rows = rows[rows["trial"] == rows["trial"].min()].sort_values("step")
+        draw_scene(axes, result.scene)
+        axes.plot(rows[f"truth_{x_name}"], rows[f"truth_{y_name}"], color="black", linewidth=1.6, label="true path")
+        axes.plot(rows[f"estimate_{x_name}"], rows[f"estimate_{y_name}"], color="tab:blue", linewidth=1.3,
+                  marker=".", markersize=4, label="estimated path")
+        axes.scatter(rows[f"truth_{x_name}"].iloc[:1], rows[f"truth_{y_name}"].iloc[:1], marker="o",
+                     color="black", zorder=6, label="start")
+        error = rows["error_distance"].mean()
+        unit = result.units.get("position", "")
+        axes.set_title(f"{cell}\n(trial {int(rows['trial'].iloc[0])}, mean error {error:.3g} {unit})", fontsize=10)
+        _axes_labels(axes, result, x_name, y_name)
+    handles, labels = axes_list[0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncol=4, fontsize=8)
+    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths", fontsize=12)
+    return figure
+
+
+def _first_cloud_series(result: ResultFolder):
+    """Particles, truth and estimates of the first cell's first kept trial, by step."""
+    particles = result.particles
+    if particles.empty or _planar(result) is None:
+        return None
+    first_cell = particles["cell"].iloc[0]
+    particles = particles[particles["cell"] == first_cell]
+    trial = particles["trial"].min()
+    particles = particles[particles["trial"] == trial]
+    stages = list(dict.fromkeys(particles["stage"]))
+    stage = "weighted" if "weighted" in stages else stages[-1]
+    chosen = particles[(particles["stage"] == stage) | (particles["step"] == 0)]
+    steps = result.steps
+    track = steps[(steps["cell"] == first_cell) & (steps["trial"] == trial)].sort_values("step") \
+        if not steps.empty else steps
+    label = result.cell_names(particles.head(1)).iloc[0]
+    return chosen, track, label, stage, trial
+
+
+def _draw_cloud(axes, result, cloud, track, step: int, x_name: str, y_name: str, size_scale: float) -> None:
+    draw_scene(axes, result.scene)
+    weights = cloud["weight"].to_numpy()
+    sizes = size_scale * weights / weights.max() if weights.max() > 0 else np.full(len(cloud), size_scale)
+    axes.scatter(cloud[x_name], cloud[y_name], s=np.maximum(sizes, 1.5), color="tab:orange", alpha=0.55,
+                 edgecolor="none", label="particles (area ∝ weight)")
+    if not track.empty and step > 0:
+        upto = track[track["step"] <= step]
+        axes.plot(upto[f"truth_{x_name}"], upto[f"truth_{y_name}"], color="black", linewidth=1.2, label="true path")
+        axes.plot(upto[f"estimate_{x_name}"], upto[f"estimate_{y_name}"], color="tab:blue", linewidth=1,
+                  label="estimate")
+        now = upto.iloc[-1]
+        axes.scatter([now[f"truth_{x_name}"]], [now[f"truth_{y_name}"]], marker="*", s=160, color="black",
+                     zorder=6, label="true position")
+        axes.scatter([now[f"estimate_{x_name}"]], [now[f"estimate_{y_name}"]], marker="X", s=80,
+                     color="tab:blue", edgecolor="white", zorder=6, label="estimate (weighted mean)")
+
+
+def _limits(result, cloud_frame, track, x_name, y_name):
+    xs = [cloud_frame[x_name]]
+    ys = [cloud_frame[y_name]]
+    scene = result.scene
+    if not scene.empty:
+        xs += [scene["x"], scene.get("x_end", scene["x"])]
+        ys += [scene["y"], scene.get("y_end", scene["y"])]
+    if not track.empty:
+        xs.append(track[f"truth_{x_name}"])
+        ys.append(track[f"truth_{y_name}"])
+    x = np.concatenate([np.asarray(v, dtype=float) for v in xs])
+    y = np.concatenate([np.asarray(v, dtype=float) for v in ys])
+    x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+    pad_x, pad_y = 0.05 * (x.max() - x.min() or 1), 0.05 * (y.max() - y.min() or 1)
+    return (x.min() - pad_x, x.max() + pad_x), (y.min() - pad_y, y.max() + pad_y)
+
+
+@FIGURES.register("particle_snapshots")
+def particle_snapshots(result: ResultFolder):
+    """The particle cloud at up to six kept steps of one trial, over the model's world."""
+    series = _first_cloud_series(result)
+    if series is None:
+        return None
+    clouds, track, label, stage, trial = series
+    x_name, y_name = _planar(result)
+    kept = sorted(clouds["step"].unique())
+    if len(kept) > MAX_PANELS:
+        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, MAX_PANELS).round().astype(int)]
+    figure, axes_list = _grid(len(kept))
+    x_limits, y_limits = _limits(result, clouds, track, x_name, y_name)
+    for axes, step in zip(axes_list, kept):
+        cloud = clouds[clouds["step"] == step]
+        _draw_cloud(axes, result, cloud, track, int(step), x_name, y_name, size_scale=40)
+        axes.set_title("prior (step 0)" if step == 0 else f"step {int(step)}", fontsize=10)
+        _axes_labels(axes, result, x_name, y_name)
+        axes.set_xlim(x_limits)
+        axes.set_ylim(y_limits)
+    handles, labels = axes_list[-1 if len(kept) > 1 else 0].get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncol=4, fontsize=8)
+    n = int(clouds[clouds["step"] == kept[-1]]["particle"].nunique())
+    figure.suptitle(f"{result.manifest.get('name', '')}: {n} particles ({stage}) of {label}, trial {int(trial)}",
+                    fontsize=12)
+    return figure
+
+
+@FIGURES.register("particle_animation")
+def particle_animation(result: ResultFolder):
+    """Animated GIF of one trial: the particle cloud step by step, with the true and estimated paths."""
+    series = _first_cloud_series(result)
+    if series is None:
+        return None
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation
+
+    clouds, track, label, stage, trial = series
+    x_name, y_name = _planar(result)
+    kept = sorted(clouds["step"].unique())
+    if len(kept) > MAX_FRAMES:
+        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, MAX_FRAMES).round().astype(int)]
+    figure, axes = plt.subplots(figsize=(5.6, 5.4), layout="constrained")
+    x_limits, y_limits = _limits(result, clouds, track, x_name, y_name)
+    by_step = {step: clouds[clouds["step"] == step] for step in kept}
+
+    def draw(frame_index: int):
+        axes.clear()
+        step = kept[frame_index]
+        _draw_cloud(axes, result, by_step[step], track, int(step), x_name, y_name, size_scale=30)
+        _axes_labels(axes, result, x_name, y_name)
+        axes.set_xlim(x_limits)
+        axes.set_ylim(y_limits)
+        axes.set_title(f"{result.manifest.get('name', '')}: {label}, trial {int(trial)}\n"
+                       + ("prior (step 0)" if step == 0 else f"step {int(step)} ({stage})"), fontsize=10)
+        if frame_index == 0:
+            axes.legend(fontsize=7, loc="upper right")
+        return []
+
+    animation = FuncAnimation(figure, draw, frames=len(kept), blit=False)
+    animation.frames_per_second = 4
+    return animation

@@ -1,0 +1,28 @@
+"""Probabilistic Robotics' motion models for a planar robot (Thrun, Burgard & Fox 2005, ch. 5).
+
+A motion model is the transition law :math:`p(x_t \\mid u_t, x_{t-1})` of a robot pose
+:math:`x = (x, y, \\theta)` under a control :math:`u_t`. Each comes as the book gives it, twice:
+a sampler (what a particle filter's prediction step needs) and a density (what a histogram filter,
+or a figure of the distribution, needs). Modules:
+
+* :mod:`pfx.motion.distributions`: ``prob(a, b)`` and ``sample(b)`` of variance b, normal or
+  triangular (Tables 5.2 and 5.4, corrected printing);
+* :mod:`pfx.motion.velocity`: control :math:`(v, \\omega)`, Tables 5.1 and 5.3;
+* :mod:`pfx.motion.odometry`: control = two odometry readings, Tables 5.5 and 5.6;
+* :mod:`pfx.motion.angles`: headings wrapped to (-pi, pi].
+
+:class:`pfx.models.planar_robot.PlanarRobot` makes either one the transition of a pfx model.
+"""
+
+from pfx.motion.angles import wrap_angle
+from pfx.motion.distributions import (log_prob, prob, prob_normal, prob_triangular, sample, sample_normal,
+                                      sample_triangular)
+from pfx.motion.odometry import (OdometryAlphas, motion_model_odometry, relative_motion,
+                                 sample_motion_model_odometry)
+from pfx.motion.velocity import (VelocityAlphas, executed_velocities, motion_model_velocity,
+                                 sample_motion_model_velocity)
+
+__all__ = ["wrap_angle", "log_prob", "prob", "prob_normal", "prob_triangular", "sample", "sample_normal",
+           "sample_triangular", "OdometryAlphas", "motion_model_odometry", "relative_motion",
+           "sample_motion_model_odometry", "VelocityAlphas", "executed_velocities", "motion_model_velocity",
+           "sample_motion_model_velocity"]
