@@ -6,7 +6,7 @@ traces. :func:`trial_bytes` estimates that peak as
 
     8 bytes x [N (8 d + 4 m + 12) + T (3 d + m + 8)]
 
-for N particles, d state and m measurement components and T steps: about 1.3 to 2 times the
+for N particles, d state and m measurement components and T steps: about 1.3 to 2.5 times the
 peak that tracemalloc measures on the bundled models (``tests/test_memory.py`` checks that it
 is never below). Trials are run in batches that fit the budget (by default half the memory
 available when the run starts, shared by the worker processes); a cell of which even one
