@@ -45,3 +45,8 @@ STUDIES.add("nonlinear_transform", NonlinearTransform)
 from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
 
 STUDIES.add("mahalanobis_distances", MahalanobisDistances)
+from pfx.studies.empirical_cdf import EmpiricalCdf  # noqa: E402
+from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf  # noqa: E402
+
+STUDIES.add("empirical_cdf", EmpiricalCdf)
+STUDIES.add("importance_sampling_cdf", ImportanceSamplingCdf)
