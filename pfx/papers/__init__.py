@@ -13,3 +13,5 @@ from pfx.papers import park_mpf  # noqa: E402,F401
 from pfx.papers import prob_robotics  # noqa: E402,F401
 
 __all__ = ["REPORTS"]
+
+from pfx.papers import bayes_blog  # noqa: E402,F401  (registers the report)
