@@ -150,7 +150,7 @@ def test_the_paper_configs_are_valid():
 
 
 def test_figures_render_from_csv(paper_results):
-    expected = {"empirical-cdf": ["empirical_cdf.png"], "importance-sampling": ["importance_sampling.png"],
+    expected = {"empirical-cdf": ["empirical_cdf.png"], "importance-sampling": ["importance_sampling_cdf.png"],
                 "landmark-demo": ["error_over_time.png", "particle_animation.gif", "particle_snapshots.png",
                                   "trajectory_map.png"],
                 "resamplers": ["rmse_vs_particles.png"]}

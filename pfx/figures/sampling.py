@@ -4,7 +4,7 @@
   (a step of 1/n at every sample) over the true normal CDF, with the Kolmogorov-Smirnov gap
   marked; a last panel puts the KS distance against n on log-log axes beside its exact
   expectation and the :math:`0.8687/\\sqrt n` law.
-* ``importance_sampling`` (study ``importance_sampling_cdf``): the target density, the uniform
+* ``importance_sampling_cdf`` (the study of that name): the target density, the uniform
   proposal and the weighted samples as stems; the CDF estimated from them (self-normalised and
   the post's plain 1/n form) against the true CDF; their errors with the theoretical ±2
   standard-error band.
@@ -83,8 +83,8 @@ def empirical_cdf(result: ResultFolder):
     return figure
 
 
-@FIGURES.register("importance_sampling")
-def importance_sampling(result: ResultFolder):
+@FIGURES.register("importance_sampling_cdf")
+def importance_sampling_cdf(result: ResultFolder):
     """Normal CDF from uniform-proposal samples: densities and weights, CDF estimates, errors."""
     import matplotlib.pyplot as plt
 

@@ -125,7 +125,7 @@ def _importance_sampling(results: PaperResults, section: Section) -> None:
     proposal = f"U({setup['proposal_low']:g}, {setup['proposal_high']:g})"
     target = f"N({setup['target_mean']:g}, {setup['target_std']:g}²)"
     section.items.append(Figure(
-        "importance-sampling", "importance_sampling.png",
+        "importance-sampling", "importance_sampling_cdf.png",
         f"The post's importance-sampling figure: {n:,} samples of the proposal {proposal}, each weighted by "
         f"p/q, estimate the CDF of {target}. Top: densities and the weights (stems); middle: the estimates "
         "against the true CDF; bottom: their errors within the theoretical ±2 standard-error bands."))
