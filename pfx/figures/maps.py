@@ -216,6 +216,12 @@ def particle_animation(result: ResultFolder):
             axes.legend(fontsize=7, loc="upper right")
         return []
 
+    # Lay the figure out once, on the first frame, and keep that layout: every frame has the same
+    # axes, limits and title lines, and re-running constrained layout per frame was most of the
+    # cost of writing the GIF.
+    draw(0)
+    figure.canvas.draw()
+    figure.set_layout_engine("none")
     animation = FuncAnimation(figure, draw, frames=len(kept), blit=False)
     animation.frames_per_second = 4
     return animation

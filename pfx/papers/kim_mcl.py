@@ -45,6 +45,7 @@ import yaml
 from scipy import stats
 
 from pfx.compare import paired_comparison, relative_change_interval
+from pfx.errors import ConfigError
 from pfx.gallery import REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number, markdown_table
 
 PAPER = "kim-mcl"
@@ -166,7 +167,10 @@ def _verdicts(trials: pd.DataFrame, labels: list[str], variance: float) -> list[
     verdicts = []
 
     def paired(metric: str):
-        table = paired_comparison(frame, metric, by="arm", baseline=NOISY, label_columns=labels)
+        try:
+            table = paired_comparison(frame, metric, by="arm", baseline=NOISY, label_columns=labels)
+        except ConfigError:            # no run converged in both arms: nothing to pair, the claim fails
+            return pd.DataFrame(columns=["n_particles", "mean_difference", "ci95_low", "ci95_high"])
         return table.sort_values("n_particles")
 
     def listing(table, unit: str) -> str:
