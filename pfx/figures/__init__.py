@@ -8,6 +8,7 @@ folder's config asks for.
 
 from pfx.figures.registry import FIGURES, render_figures
 # One import per figure module (each registers its figures).
+from pfx.figures import arena  # noqa: F401
 from pfx.figures import closeups  # noqa: F401
 from pfx.figures import concept  # noqa: F401
 from pfx.figures import degeneracy  # noqa: F401
