@@ -7,6 +7,6 @@ folder's config asks for.
 """
 
 from pfx.figures.registry import FIGURES, render_figures
-from pfx.figures import maps, resampling, sweeps, traces  # noqa: F401  (registers the figures)
+from pfx.figures import maps, motion, resampling, sweeps, traces  # noqa: F401  (registers the figures)
 
 __all__ = ["FIGURES", "render_figures"]

@@ -35,3 +35,13 @@ __all__ = ["STUDIES", "Study"]
 from pfx.studies.offspring_counts import OffspringCounts  # noqa: E402
 
 STUDIES.add("offspring_counts", OffspringCounts)
+from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
+from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
+
+STUDIES.add("velocity_motion_density", VelocityMotionDensity)
+STUDIES.add("velocity_motion_samples", VelocityMotionSamples)
+STUDIES.add("odometry_motion_density", OdometryMotionDensity)
+STUDIES.add("odometry_motion_samples", OdometryMotionSamples)
+from pfx.studies.binary_bayes import BinaryBayesCorridor  # noqa: E402
+
+STUDIES.add("binary_bayes", BinaryBayesCorridor)
