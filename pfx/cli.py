@@ -141,8 +141,10 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
                                                    f"; choose from {', '.join(LISTABLE)}"))
     for name in [what] if what else LISTABLE:
         typer.echo(f"{name}:")
-        for item, description in registries[name].describe().items():
-            typer.echo(f"  {item:<18} {description}")
+        descriptions = registries[name].describe()
+        width = max([18, *(len(item) for item in descriptions)])     # names aligned, however long
+        for item, description in descriptions.items():
+            typer.echo(f"  {item:<{width}} {description}")
 
 
 def _registries():

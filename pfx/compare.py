@@ -233,6 +233,46 @@ def _bootstrap_interval(differences: np.ndarray, resamples: int, seed: int) -> t
     return float(low), float(high)
 
 
+def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    r"""Relative change of paired means, :math:`\bar v / \bar b - 1`, with its t-interval.
+
+    The ratio :math:`\hat R = \bar v / \bar b` of the means of paired values is a smooth function
+    of two correlated means; to first order (the delta method),
+    :math:`\hat R - R \approx \tfrac{1}{\bar b}\,\overline{(v - R b)}`, so its standard error is
+    :math:`s_e / (\sqrt n\, \bar b)` with :math:`s_e` the standard deviation of the residuals
+    :math:`e_i = v_i - \hat R b_i`. The interval is
+    :math:`\hat R - 1 \pm t_{(1+\text{level})/2,\,n-1}\, s_e / (\sqrt n\, \bar b)`. Unlike
+    dividing the interval of the mean difference by :math:`\bar b`, it accounts for the
+    uncertainty of the baseline mean too. Pairs with a missing or infinite value are left out.
+    Returns (estimate, low, high); NaN where there are fewer than 2 pairs or :math:`\bar b = 0`.
+    """
+    from scipy import stats
+
+    base, value = np.asarray(base, dtype=float), np.asarray(value, dtype=float)
+    usable = np.isfinite(base) & np.isfinite(value)
+    base, value = base[usable], value[usable]
+    n = base.size
+    if n < 2 or base.mean() == 0:
+        return math.nan, math.nan, math.nan
+    ratio = value.mean() / base.mean()
+    residuals = value - ratio * base
+    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * residuals.std(ddof=1) / (math.sqrt(n) * abs(base.mean()))
+    return ratio - 1.0, ratio - 1.0 - half, ratio - 1.0 + half
+
+
+def diverged(values: np.ndarray, reference: np.ndarray, factor: float = 1000.0) -> np.ndarray:
+    """True where an error metric (an RMSE) is infinite, missing, or above ``factor`` times the
+    median of the finite ``reference`` values (a working filter's errors on the same trials):
+    the estimate has left the scale of the problem, so the value says "diverged", not how much.
+    """
+    values = np.asarray(values, dtype=float)
+    reference = np.asarray(reference, dtype=float)
+    finite = reference[np.isfinite(reference)]
+    bound = factor * float(np.median(finite)) if finite.size else math.inf
+    with np.errstate(invalid="ignore"):
+        return ~np.isfinite(values) | (values > bound)
+
+
 def _check_metric(trials: pd.DataFrame, metric: str, label_columns: list[str]) -> None:
     metrics = metric_columns(trials, label_columns)
     if metric in metrics:

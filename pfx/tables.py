@@ -66,12 +66,13 @@ def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:
         for metric in metrics:
             values = group[metric].to_numpy(dtype=float)
             values = values[np.isfinite(values)]
-            row.update({f"{metric}_{name}": value for name, value in _statistics(values).items()})
+            row.update({f"{metric}_{name}": value for name, value in describe(values).items()})
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def _statistics(values: np.ndarray) -> dict[str, float]:
+def describe(values: np.ndarray) -> dict[str, float]:
+    """n, mean, std, sem, 95% t-interval (mean +- t_{0.975, n-1} sem) and median of the values."""
     n = values.size
     result = {"n": n, "mean": np.nan, "std": np.nan, "sem": np.nan,
               "ci95_low": np.nan, "ci95_high": np.nan, "median": np.nan}

@@ -7,4 +7,9 @@ a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
 
 from pfx.gallery import REPORTS
 
+# One import per paper (each registers its report).
+from pfx.papers import han_lee  # noqa: E402,F401
+from pfx.papers import park_mpf  # noqa: E402,F401
+from pfx.papers import prob_robotics  # noqa: E402,F401
+
 __all__ = ["REPORTS"]

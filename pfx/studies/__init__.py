@@ -35,6 +35,16 @@ __all__ = ["STUDIES", "Study"]
 from pfx.studies.offspring_counts import OffspringCounts  # noqa: E402
 
 STUDIES.add("offspring_counts", OffspringCounts)
+from pfx.studies.kalman_1d_steps import KalmanSteps  # noqa: E402
+from pfx.studies.importance_sampling import ImportanceSampling  # noqa: E402
+from pfx.studies.nonlinear_transform import NonlinearTransform  # noqa: E402
+
+STUDIES.add("kalman_1d_steps", KalmanSteps)
+STUDIES.add("importance_sampling", ImportanceSampling)
+STUDIES.add("nonlinear_transform", NonlinearTransform)
+from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
+
+STUDIES.add("mahalanobis_distances", MahalanobisDistances)
 from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
 from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
 
