@@ -14,6 +14,7 @@ from pfx.figures import concept  # noqa: F401
 from pfx.figures import degeneracy  # noqa: F401
 from pfx.figures import mahalanobis  # noqa: F401
 from pfx.figures import maps  # noqa: F401
+from pfx.figures import motion  # noqa: F401
 from pfx.figures import resampling  # noqa: F401
 from pfx.figures import sampling  # noqa: F401
 from pfx.figures import state_errors  # noqa: F401

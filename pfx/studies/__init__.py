@@ -50,3 +50,13 @@ from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf  # noqa: E
 
 STUDIES.add("empirical_cdf", EmpiricalCdf)
 STUDIES.add("importance_sampling_cdf", ImportanceSamplingCdf)
+from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
+from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
+
+STUDIES.add("velocity_motion_density", VelocityMotionDensity)
+STUDIES.add("velocity_motion_samples", VelocityMotionSamples)
+STUDIES.add("odometry_motion_density", OdometryMotionDensity)
+STUDIES.add("odometry_motion_samples", OdometryMotionSamples)
+from pfx.studies.binary_bayes import BinaryBayesCorridor  # noqa: E402
+
+STUDIES.add("binary_bayes", BinaryBayesCorridor)
