@@ -25,12 +25,14 @@ contrary certain one undoes it exactly.
 Values outside :math:`[0, 1]` or NaN are refused (``ValueError``).
 
 :func:`corridor_example` is a small worked example: a 1-D row of cells in front of a range
-sensor, updated over repeated noisy scans (the data for a figure).
+sensor, updated over repeated noisy scans (the data for a figure); :func:`corridor_runs` runs
+many independent corridors at once (the ``binary_bayes`` study, :mod:`pfx.studies.binary_bayes`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -92,6 +94,48 @@ def inverse_range_sensor(cell_centres, measured_range, *, thickness: float, free
     return np.where(behind < 0, free, np.where(behind < thickness, occupied, prior))
 
 
+@dataclass
+class CorridorRuns:
+    """Independent runs of the corridor example: arrays over (run, scan, cell)."""
+
+    centres: np.ndarray               # (cells,) cell centres, distance from the sensor
+    occupied: np.ndarray              # (cells,) the truth
+    measured_ranges: np.ndarray       # (runs, scans)
+    inverse_probabilities: np.ndarray  # (runs, scans, cells): p(occupied | z) per scan
+    log_odds: np.ndarray              # (runs, scans, cells): l_t after each scan
+
+    def table(self, run: int = 0) -> pd.DataFrame:
+        """One run as one row per (scan, cell) (the columns of :func:`corridor_example`)."""
+        scans, cells = self.log_odds.shape[1:]
+        return pd.DataFrame({
+            "scan": np.repeat(np.arange(1, scans + 1), cells),
+            "cell": np.tile(np.arange(cells), scans),
+            "position": np.tile(self.centres, scans),
+            "occupied": np.tile(self.occupied, scans),
+            "measured_range": np.repeat(self.measured_ranges[run], cells),
+            "inverse_probability": self.inverse_probabilities[run].ravel(),
+            "log_odds": self.log_odds[run].ravel(),
+            "belief": belief(self.log_odds[run]).ravel(),
+        })
+
+
+def corridor_runs(random: np.random.Generator, *, runs: int = 1, cells: int = 40, cell_size: float = 0.25,
+                  obstacle: tuple[int, int] = (24, 28), scans: int = 10, range_std: float = 0.1,
+                  free: float = 0.3, occupied: float = 0.7, prior: float = 0.5) -> CorridorRuns:
+    """``runs`` independent corridors (see :func:`corridor_example`), all updated by one array operation.
+
+    Run r uses the r-th ``scans`` normal draws, so run 0 is :func:`corridor_example` with the same generator.
+    """
+    centres = (np.arange(cells) + 0.5) * cell_size
+    truth = (np.arange(cells) >= obstacle[0]) & (np.arange(cells) < obstacle[1])
+    ranges = obstacle[0] * cell_size + range_std * random.standard_normal((runs, scans))
+    inverse = inverse_range_sensor(centres, ranges, thickness=cell_size, free=free, occupied=occupied,
+                                   prior=prior)
+    # the filter runs along its first axis: scans first, then back to (run, scan, cell)
+    accumulated = run_binary_bayes_filter(np.moveaxis(inverse, 1, 0), prior)
+    return CorridorRuns(centres, truth, ranges, inverse, np.moveaxis(accumulated, 0, 1))
+
+
 def corridor_example(random: np.random.Generator, *, cells: int = 40, cell_size: float = 0.25,
                      obstacle: tuple[int, int] = (24, 28), scans: int = 10, range_std: float = 0.1,
                      free: float = 0.3, occupied: float = 0.7, prior: float = 0.5) -> pd.DataFrame:
@@ -103,19 +147,5 @@ def corridor_example(random: np.random.Generator, *, cells: int = 40, cell_size:
     Returns one row per (scan, cell): ``scan`` (1..scans), ``cell``, ``position`` (the cell's centre),
     ``occupied`` (the truth), ``measured_range``, ``inverse_probability``, ``log_odds``, ``belief``.
     """
-    centres = (np.arange(cells) + 0.5) * cell_size
-    truth = (np.arange(cells) >= obstacle[0]) & (np.arange(cells) < obstacle[1])
-    ranges = obstacle[0] * cell_size + range_std * random.standard_normal(scans)
-    inverse = inverse_range_sensor(centres, ranges, thickness=cell_size, free=free, occupied=occupied,
-                                   prior=prior)
-    accumulated = run_binary_bayes_filter(inverse, prior)
-    return pd.DataFrame({
-        "scan": np.repeat(np.arange(1, scans + 1), cells),
-        "cell": np.tile(np.arange(cells), scans),
-        "position": np.tile(centres, scans),
-        "occupied": np.tile(truth, scans),
-        "measured_range": np.repeat(ranges, cells),
-        "inverse_probability": inverse.ravel(),
-        "log_odds": accumulated.ravel(),
-        "belief": belief(accumulated).ravel(),
-    })
+    return corridor_runs(random, runs=1, cells=cells, cell_size=cell_size, obstacle=obstacle, scans=scans,
+                         range_std=range_std, free=free, occupied=occupied, prior=prior).table(0)

@@ -349,6 +349,26 @@ def _find_value(values: list, baseline: str, by: str):
                       + f"; values: {', '.join(names)}", key="--baseline")
 
 
+def holm_adjusted(p_values) -> np.ndarray:
+    """Holm's step-down adjustment of a family of p-values (family-wise error control).
+
+    With the m p-values sorted, p_(1) <= .. <= p_(m): adjusted_(k) = max over j <= k of
+    min(1, (m - j + 1) p_(j)). Rejecting where the adjusted value is below alpha keeps the
+    chance of any false rejection in the family below alpha (Holm 1979). Missing values stay
+    missing and do not count in m.
+    """
+    p_values = np.asarray(p_values, dtype=float)
+    adjusted = np.full(p_values.shape, np.nan)
+    present = np.flatnonzero(np.isfinite(p_values))
+    order = present[np.argsort(p_values[present], kind="stable")]
+    m = order.size
+    running = 0.0
+    for rank, index in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * p_values[index]))
+        adjusted[index] = running
+    return adjusted
+
+
 # -- the printed table ------------------------------------------------------------------------
 
 def _number(value, digits: int = 4) -> str:

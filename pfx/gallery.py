@@ -116,7 +116,7 @@ def format_number(value, digits: int = 3) -> str:
 def markdown_table(frame, digits: int = 3, formats: Optional[dict[str, Callable]] = None) -> str:
     """A pandas DataFrame as a Markdown table (no extra dependency), numbers via format_number."""
     formats = formats or {}
-    header = "| " + " | ".join(str(c) for c in frame.columns) + " |"
+    header = "| " + " | ".join(str(c).replace("|", "\\|") for c in frame.columns) + " |"
     rule = "| " + " | ".join("---" for _ in frame.columns) + " |"
     lines = [header, rule]
     for _, row in frame.iterrows():

@@ -340,3 +340,12 @@ def test_compare_errors_are_one_line_exit_2_and_write_nothing(cli, name):
     assert "Traceback" not in result.output and result.stdout == ""
     folder = cli["root"] / ERRORS[name][0][0]
     assert not list(folder.glob("compare_*")) if folder.exists() else True
+
+
+def test_holm_adjustment_is_the_step_down_rule():
+    from pfx.compare import holm_adjusted
+
+    # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1, made non-decreasing; a missing value stays missing
+    adjusted = holm_adjusted([0.01, 0.04, 0.03, float("nan"), 0.005])
+    np.testing.assert_allclose(adjusted, [0.03, 0.06, 0.06, np.nan, 0.02])
+    assert holm_adjusted([0.9, 0.8]).tolist() == [1.0, 1.0]        # 2 x 0.8 capped at 1

@@ -199,23 +199,55 @@ def particle_animation(result: ResultFolder):
     kept = sorted(clouds["step"].unique())
     if len(kept) > MAX_FRAMES:
         kept = [kept[i] for i in np.linspace(0, len(kept) - 1, MAX_FRAMES).round().astype(int)]
-    figure, axes = plt.subplots(figsize=(5.6, 5.4), layout="constrained")
+    figure, axes = plt.subplots(figsize=(5.6, 6.2), layout="constrained")
     x_limits, y_limits = _limits(result, clouds, track, x_name, y_name)
     by_step = {step: clouds[clouds["step"] == step] for step in kept}
+    # The scene and the artists are made once; each frame only moves their data (redrawing
+    # whole axes per frame cost most of the GIF's time).
+    draw_scene(axes, result.scene)
+    cloud = axes.scatter(np.empty(0), np.empty(0), s=20, color="tab:orange", alpha=0.55,
+                         edgecolor="none", label="particles (area ∝ weight)")
+    true_path, = axes.plot([], [], color="black", linewidth=1.2, label="true path")
+    estimate_path, = axes.plot([], [], color="tab:blue", linewidth=1, label="estimate")
+    true_now = axes.scatter(np.empty(0), np.empty(0), marker="*", s=160, color="black", zorder=6,
+                            label="true position")
+    estimate_now = axes.scatter(np.empty(0), np.empty(0), marker="X", s=80, color="tab:blue", edgecolor="white",
+                                zorder=6, label="estimate (weighted mean)")
+    _axes_labels(axes, result, x_name, y_name)
+    axes.set_xlim(x_limits)
+    axes.set_ylim(y_limits)
+    handles, labels = axes.get_legend_handles_labels()
+    figure.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=7)   # off the map, every frame
+    title = axes.set_title("", fontsize=10)
+    nowhere = np.empty((0, 2))
 
     def draw(frame_index: int):
-        axes.clear()
         step = kept[frame_index]
-        _draw_cloud(axes, result, by_step[step], track, int(step), x_name, y_name, size_scale=30)
-        _axes_labels(axes, result, x_name, y_name)
-        axes.set_xlim(x_limits)
-        axes.set_ylim(y_limits)
-        axes.set_title(f"{result.manifest.get('name', '')}: {label}, trial {int(trial)}\n"
-                       + ("prior (step 0)" if step == 0 else f"step {int(step)} ({stage})"), fontsize=10)
-        if frame_index == 0:
-            axes.legend(fontsize=7, loc="upper right")
+        points = by_step[step]
+        weights = points["weight"].to_numpy()
+        sizes = 30 * weights / weights.max() if weights.max() > 0 else np.full(len(points), 30.0)
+        cloud.set_offsets(np.column_stack([points[x_name], points[y_name]]))
+        cloud.set_sizes(np.maximum(sizes, 1.5))
+        upto = track[track["step"] <= step] if not track.empty and step > 0 else None
+        if upto is None or upto.empty:
+            for line in (true_path, estimate_path):
+                line.set_data([], [])
+            true_now.set_offsets(nowhere)
+            estimate_now.set_offsets(nowhere)
+        else:
+            true_path.set_data(upto[f"truth_{x_name}"], upto[f"truth_{y_name}"])
+            estimate_path.set_data(upto[f"estimate_{x_name}"], upto[f"estimate_{y_name}"])
+            now = upto.iloc[-1]
+            true_now.set_offsets([[now[f"truth_{x_name}"], now[f"truth_{y_name}"]]])
+            estimate_now.set_offsets([[now[f"estimate_{x_name}"], now[f"estimate_{y_name}"]]])
+        title.set_text(f"{result.manifest.get('name', '')}: {label}, trial {int(trial)}\n"
+                       + ("prior (step 0)" if step == 0 else f"step {int(step)} ({stage})"))
         return []
 
+    # Lay the figure out once, then freeze it: every frame has the same axes.
+    draw(0)
+    figure.canvas.draw()
+    figure.set_layout_engine("none")
     animation = FuncAnimation(figure, draw, frames=len(kept), blit=False)
     animation.frames_per_second = 4
     return animation

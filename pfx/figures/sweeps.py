@@ -49,6 +49,11 @@ def metric_versus_particles(result: ResultFolder, metric: str, ylabel: str, titl
         axes.fill_between(group["n_particles"], group[f"{metric}_ci95_low"], group[f"{metric}_ci95_high"],
                           color=line.get_color(), alpha=0.15)
     trials = int(summary["trials"].max())
+    counts = sorted(int(n) for n in summary["n_particles"].unique())
+    if counts[0] > 0 and counts[-1] >= 8 * counts[0]:        # doubling sweeps read best on a log axis
+        axes.set_xscale("log")
+        axes.set_xticks(counts, [str(n) for n in counts])
+        axes.minorticks_off()
     axes.set_xlabel("number of particles N")
     axes.set_ylabel(ylabel)
     axes.set_title(f"{result.manifest.get('name', '')}: {title}\n(mean over {trials} trials per point, "

@@ -294,6 +294,25 @@ class SonarMCL(Model):
     def default_prior(self):
         return FreeSpaceLaw(walls=self.walls)
 
+    def scene(self):
+        """The walls, and the commanded route as a ``path``: one row per action, executed exactly.
+
+        Row k of the path is where the noise-free route puts the robot after action k (row 0:
+        the start, when the start is a point); its ``label`` is k and ``heading`` the heading
+        then, so a map can number the actions (several turns share one position).
+        """
+        elements = [{"element": "wall", "x": x1, "y": y1, "x_end": x2, "y_end": y2}
+                    for x1, y1, x2, y2 in self.walls]
+        if isinstance(self.initial, PointLaw) and len(self.initial.state) == 3:
+            x, y, heading = self.initial.state
+            elements.append({"element": "path", "x": x, "y": y, "heading": heading, "label": "0"})
+            for number, (distance, angle) in enumerate(self._controls, start=1):
+                cos, sin = _direction(np.asarray(heading))
+                x, y = x + distance * float(cos), y + distance * float(sin)
+                heading = float(wrap_angle(np.asarray(heading + angle), FULL_TURN))
+                elements.append({"element": "path", "x": x, "y": y, "heading": heading, "label": str(number)})
+        return elements
+
     def control(self, step):
         """u_k = [d, 0] for a move of d cm, [0, alpha] for a turn of alpha degrees."""
         return self._controls[step - 1]

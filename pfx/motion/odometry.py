@@ -54,7 +54,15 @@ Choices, each where the book is silent:
   at both; the second is negligible unless the translation noise is comparable to the translation.
 
 As for the velocity model, the value is the density of the noise at the preimage (the book's
-definition), not divided by the Jacobian of the map to poses. Poses are ``(..., 3)`` arrays
+definition), not divided by the Jacobian of the map to poses. The density of the pose itself
+(:func:`pose_density_odometry`, what the sampler's poses follow) divides each preimage's term by
+
+.. math:: |J| = \Big|\det\frac{\partial(x', y', \theta')}
+                {\partial(\hat\delta_{rot1}, \hat\delta_{trans}, \hat\delta_{rot2})}\Big|
+          = |\hat\delta_{trans}|
+
+(polar coordinates: the area element is :math:`|\hat\delta_{trans}|\, d\hat\delta_{trans}\,
+d\hat\delta_{rot1}`, and :math:`\hat\delta_{rot2}` moves the heading alone). Poses are ``(..., 3)`` arrays
 (x, y, theta in radians); leading dimensions broadcast.
 """
 
@@ -178,6 +186,35 @@ def log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_be
             log_prob(translation - sign * translation_hat, variance_trans, noise),
             log_prob(wrap_angle(rotation2 - rotation2_hat + turn), variance2, noise)))
     return np.logaddexp(*terms)
+
+
+def log_densities_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
+                           noise: MotionNoise = "normal") -> tuple[np.ndarray, np.ndarray]:
+    """(log :func:`motion_model_odometry`, log :func:`pose_density_odometry`).
+
+    Both preimages share :math:`|J| = |\\hat\\delta_{trans}|`, so it divides their sum.
+    """
+    log_book = log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas, noise)
+    _, translation_hat, _ = relative_motion(pose_before, pose_now)
+    with np.errstate(divide="ignore"):
+        return log_book, log_product(log_book, -np.log(translation_hat))
+
+
+def log_pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
+                              noise: MotionNoise = "normal") -> np.ndarray:
+    """log of :func:`pose_density_odometry`."""
+    return log_densities_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas, noise)[1]
+
+
+def pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
+                          noise: MotionNoise = "normal") -> np.ndarray:
+    r"""The density of the sampled pose (per m^2 rad): Table 5.5's value divided by :math:`|\hat\delta_{trans}|`.
+
+    The density that :func:`sample_motion_model_odometry`'s poses follow (change of variables,
+    see the module docstring); infinite at zero displacement (a set of measure zero).
+    """
+    return np.exp(log_pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before,
+                                            alphas, noise))
 
 
 def motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,

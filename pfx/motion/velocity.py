@@ -74,8 +74,20 @@ A pose with no displacement at all (:math:`c = 0`) is read as :math:`\hat v = \h
 forward and as a full turn on the spot backward: there the split between :math:`\hat\omega` and
 :math:`\hat\gamma` is not determined by the poses, a degenerate case of the book's model. As in
 the book, the value is the density of the executed noise at the pose's preimage; the density of
-the pose itself would also divide by the Jacobian of the map
-:math:`(\hat v, \hat\omega, \hat\gamma) \mapsto x_t`, which the book's algorithm leaves out.
+the pose itself also divides by the Jacobian of the map
+:math:`(\hat v, \hat\omega, \hat\gamma) \mapsto x_t`, which the book's algorithm leaves out:
+
+.. math::
+
+    p_{pose}(x_t \mid u_t, x_{t-1}) = \sum_{\text{forward, backward}}
+    \frac{\mathrm{prob}(\cdot)\,\mathrm{prob}(\cdot)\,\mathrm{prob}(\cdot)}{|J|}, \qquad
+    |J| = \Big|\det \frac{\partial(x', y', \theta')}{\partial(\hat v, \hat\omega, \hat\gamma)}\Big|
+        = \tfrac12 |\hat v|\, \Delta t^4\, \mathrm{sinc}^2(\tfrac{\hat\omega\Delta t}{2})
+
+(:func:`arc_jacobian`, :func:`pose_density_velocity`). This is the density the sampler's poses
+follow (it integrates to 1 over :math:`(x, y, \theta)`); Table 5.1's value is it times
+:math:`|J|`, which varies with :math:`\hat v`, so the two differ in shape by a few per cent
+when the translational noise is a few per cent of :math:`v`.
 
 Arrays: poses are ``(..., 3)`` (x, y, theta in radians), controls ``(..., 2)`` (v, omega);
 leading dimensions broadcast.
@@ -203,19 +215,70 @@ def sample_motion_model_velocity(control, pose, dt: float, alphas, noise: Motion
     return move_on_arc(np.broadcast_to(pose, shape + (3,)), v_hat, w_hat, gamma_hat, dt)
 
 
-def log_motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,
-                              noise: MotionNoise) -> np.ndarray:
-    """log of :func:`motion_model_velocity` (computed in the log domain; -inf where it is 0)."""
+def arc_jacobian(v_hat, w_hat, dt: float) -> np.ndarray:
+    r""":math:`|\det \partial(x', y', \theta') / \partial(\hat v, \hat\omega, \hat\gamma)|
+    = \tfrac12 |\hat v|\, \Delta t^4\, \mathrm{sinc}^2(\hat\omega\Delta t / 2)`.
+
+    In the robot's frame the move is the chord :math:`c = \hat v\Delta t\,\mathrm{sinc}\,\varphi`
+    at the angle :math:`\varphi = \hat\omega\Delta t / 2`. In polar coordinates
+    :math:`(c, \varphi)` the area element is :math:`|c|\, dc\, d\varphi`, and
+    :math:`\partial(c, \varphi)/\partial(\hat v, \hat\omega)` is triangular with diagonal
+    :math:`(\Delta t\,\mathrm{sinc}\,\varphi, \Delta t / 2)`; :math:`\theta'` gains
+    :math:`\Delta t` per unit of :math:`\hat\gamma`, on which x' and y' do not depend.
+    """
+    return 0.5 * np.abs(v_hat) * dt ** 4 * _sinc(0.5 * np.asarray(w_hat) * dt) ** 2
+
+
+def log_densities_velocity(pose_now, control, pose_before, dt: float, alphas,
+                           noise: MotionNoise = "normal") -> tuple[np.ndarray, np.ndarray]:
+    """(log :func:`motion_model_velocity`, log :func:`pose_density_velocity`), sharing the preimages.
+
+    Each preimage's term is the noise density (Table 5.1's product); the pose density divides
+    each term by its :func:`arc_jacobian` before the two preimages are added.
+    """
     control = np.asarray(control, dtype=float)
     v, w = control[..., 0], control[..., 1]
     variance_v, variance_w, variance_gamma = VelocityAlphas.of(alphas).variances(v, w)
-    terms = []
+    noise_terms, pose_terms = [], []
     for direction in (1, -1):
         v_hat, w_hat, gamma_hat = executed_velocities(pose_before, pose_now, dt, direction)
-        terms.append(log_product(log_prob(v - v_hat, variance_v, noise),
-                                 log_prob(w - w_hat, variance_w, noise),
-                                 log_prob(gamma_hat, variance_gamma, noise)))
-    return np.logaddexp(*terms)
+        term = log_product(log_prob(v - v_hat, variance_v, noise),
+                           log_prob(w - w_hat, variance_w, noise),
+                           log_prob(gamma_hat, variance_gamma, noise))
+        noise_terms.append(term)
+        with np.errstate(divide="ignore"):
+            pose_terms.append(log_product(term, -np.log(arc_jacobian(v_hat, w_hat, dt))))
+    return np.logaddexp(*noise_terms), np.logaddexp(*pose_terms)
+
+
+def log_motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,
+                              noise: MotionNoise) -> np.ndarray:
+    """log of :func:`motion_model_velocity` (computed in the log domain; -inf where it is 0)."""
+    return log_densities_velocity(pose_now, control, pose_before, dt, alphas, noise)[0]
+
+
+def log_pose_density_velocity(pose_now, control, pose_before, dt: float, alphas,
+                              noise: MotionNoise = "normal") -> np.ndarray:
+    """log of :func:`pose_density_velocity`."""
+    return log_densities_velocity(pose_now, control, pose_before, dt, alphas, noise)[1]
+
+
+def pose_density_velocity(pose_now, control, pose_before, dt: float, alphas,
+                          noise: MotionNoise = "normal") -> np.ndarray:
+    r"""The density of the sampled pose (per m^2 rad): Table 5.1's terms divided by :func:`arc_jacobian`.
+
+    .. math::
+
+        \sum_{\text{forward, backward}}
+        \frac{\mathrm{prob}(v - \hat v, \alpha_1 v^2 + \alpha_2 \omega^2)\,
+               \mathrm{prob}(\omega - \hat\omega, \alpha_3 v^2 + \alpha_4 \omega^2)\,
+               \mathrm{prob}(\hat\gamma, \alpha_5 v^2 + \alpha_6 \omega^2)}
+              {\tfrac12 |\hat v|\, \Delta t^4\, \mathrm{sinc}^2(\hat\omega\Delta t/2)}
+
+    The density that :func:`sample_motion_model_velocity`'s poses follow (change of variables);
+    infinite where the Jacobian vanishes (no displacement, a set of measure zero).
+    """
+    return np.exp(log_pose_density_velocity(pose_now, control, pose_before, dt, alphas, noise))
 
 
 def motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,

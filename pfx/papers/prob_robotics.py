@@ -27,6 +27,7 @@ from pfx.compare import paired_comparison
 from pfx.figures.registry import ResultFolder
 from pfx.gallery import (REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number,
                          markdown_table)
+from pfx.papers.prob_robotics_motion import motion_sections
 from pfx.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes
 
 PAPER = "prob-robotics"
@@ -69,6 +70,9 @@ def report(results: PaperResults) -> Section:
             built = builder(results, results.folder(experiment))
             items += built.items
             verdicts += built.verdicts
+    motion_items, motion_verdicts = motion_sections(results)     # Figs. 5.3-5.9 and Table 4.2
+    items += motion_items
+    verdicts += motion_verdicts
     title = numbers.get("short_title", "Probabilistic Robotics (Thrun, Burgard & Fox 2005), chapters 3-5")
     summary = (f"{numbers.get('source', 'Study notes on Probabilistic Robotics')}. "
                f"{numbers.get('numeric_results', '')} Each verdict below compares our numbers with the "

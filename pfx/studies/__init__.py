@@ -45,3 +45,18 @@ STUDIES.add("nonlinear_transform", NonlinearTransform)
 from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
 
 STUDIES.add("mahalanobis_distances", MahalanobisDistances)
+from pfx.studies.empirical_cdf import EmpiricalCdf  # noqa: E402
+from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf  # noqa: E402
+
+STUDIES.add("empirical_cdf", EmpiricalCdf)
+STUDIES.add("importance_sampling_cdf", ImportanceSamplingCdf)
+from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
+from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
+
+STUDIES.add("velocity_motion_density", VelocityMotionDensity)
+STUDIES.add("velocity_motion_samples", VelocityMotionSamples)
+STUDIES.add("odometry_motion_density", OdometryMotionDensity)
+STUDIES.add("odometry_motion_samples", OdometryMotionSamples)
+from pfx.studies.binary_bayes import BinaryBayesCorridor  # noqa: E402
+
+STUDIES.add("binary_bayes", BinaryBayesCorridor)
