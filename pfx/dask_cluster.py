@@ -35,6 +35,17 @@ from pfx.errors import ExecutorError, UsageError
 from pfx.executors import Executor, Results, Task, ignore_interrupts
 
 
+# Dask settings for the workers of the clusters pfx starts (README: the same for your own).
+# Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their workers, which turns off glibc's adaptive
+# mmap threshold: every particle-sized array then comes fresh from the kernel, and the filter
+# spends about three times the CPU time (measured). The workers' statistical profiler (a
+# stack sample every 10 ms, for the dashboard) costs another 10% or so of CPU time (measured).
+WORKER_SETTINGS = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.worker.profile.enabled": False,
+}
+
+
 class IgnoreInterrupts(distributed.WorkerPlugin):
     """Worker plugin for the clusters pfx starts: Ctrl-C, which reaches the whole process
     group, is left to the ``pfx run`` process, which cancels the run and closes the cluster."""
@@ -59,26 +70,31 @@ class DaskCluster(Executor):
         self.client: Optional[distributed.Client] = None
         self.cluster: Optional[distributed.LocalCluster] = None
         self._pending: dict = {}           # key -> (index, future) of the tasks not yet returned
+        self._settings = None              # WORKER_SETTINGS in force, for a cluster of our own
 
     def __enter__(self) -> "DaskCluster":
-        if self.scheduler is None:
-            self._start_local_cluster()
-        else:
-            self._connect()
+        try:
+            if self.scheduler is None:
+                self._start_local_cluster()
+            else:
+                self._connect()
+                self._check_versions()
+        except BaseException:
+            self.close(abandon=True)
+            raise
         self.slots = max(1, sum(self.client.nthreads().values()))
         return self
 
     def _start_local_cluster(self) -> None:
-        # Loopback only; the dashboard on a free port (a fixed one would clash with another
-        # run's). Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their workers, which turns off
-        # glibc's adaptive mmap threshold: every particle-sized array then comes fresh from
-        # the kernel, and the filter spends about three times the CPU time (measured). The
-        # workers' own logs stay quiet (their shutdown races log tracebacks); what matters comes
-        # back through the client: a task's exception, a worker's death (its tasks rerun).
-        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
-            self.cluster = distributed.LocalCluster(
-                n_workers=self.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
+        # The settings hold while the cluster lives: its nannies read them again when they
+        # restart a worker. Loopback only; the dashboard on a free port (a fixed one would
+        # clash with another run's). The workers' own logs stay quiet (their shutdown races log
+        # tracebacks); what matters comes back through the client: a task's exception, a
+        # worker's death.
+        self._settings = dask.config.set(WORKER_SETTINGS)
+        self.cluster = distributed.LocalCluster(
+            n_workers=self.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+            dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
         self.client = distributed.Client(self.cluster, set_as_default=False)
         self.client.register_plugin(IgnoreInterrupts(), name="pfx-ignore-interrupts")
 
@@ -89,11 +105,6 @@ class DaskCluster(Executor):
             reason = " ".join(str(error).split()) or type(error).__name__
             raise UsageError(f"cannot connect to the Dask scheduler at {self.scheduler}: {reason}",
                              key="--scheduler") from None
-        try:
-            self._check_versions()
-        except BaseException:
-            self.close()
-            raise
 
     def _check_versions(self) -> None:
         """Refuse workers without this pfx: they would fail, or compute with other code."""
@@ -126,7 +137,8 @@ class DaskCluster(Executor):
                 try:
                     result = future.result()
                 except distributed.KilledWorker as error:
-                    raise ExecutorError(f"Dask workers kept dying while running a batch: {error}") from None
+                    raise ExecutorError("Dask workers kept dying while running a batch: "
+                                        + " ".join(str(error).split())) from None
                 except distributed.CancelledError:
                     raise ExecutorError(f"the Dask scheduler at {self._address()} dropped the run's tasks "
                                         "(lost or restarted?)") from None
@@ -157,3 +169,6 @@ class DaskCluster(Executor):
             client.close()
         if cluster is not None:
             cluster.close()
+        settings, self._settings = self._settings, None
+        if settings is not None:
+            settings.__exit__(None, None, None)

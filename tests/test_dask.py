@@ -29,6 +29,8 @@ from conftest import REPO_ROOT, _environment, tiny_config_dict, write_config_fil
 distributed = pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
 import dask.config  # noqa: E402  (after the skip: it comes with distributed)
 
+from pfx.dask_cluster import WORKER_SETTINGS  # noqa: E402
+
 CELLS = 8
 SWEEP = {
     "name": "sweep",
@@ -99,13 +101,13 @@ def config(tmp_path_factory) -> Path:
 def cluster():
     """A Dask cluster as a user would start one: a scheduler and 2 single-threaded worker
     processes (with nannies, which restart a killed worker), on loopback."""
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+    with dask.config.set(WORKER_SETTINGS):          # as the README advises for one's own workers
         local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                          dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
-    client = distributed.Client(local, set_as_default=False)
-    yield local, client
-    client.close()
-    local.close()
+        client = distributed.Client(local, set_as_default=False)
+        yield local, client
+        client.close()
+        local.close()
 
 
 @pytest.fixture(scope="module")
@@ -155,6 +157,32 @@ def test_killed_worker_loses_no_result(config, runs, cluster, tmp_path):
     assert process.returncode == 0, stderr
     assert_same_tables(out, runs["local"])
     assert pids[victim] not in client.run(os.getpid).values()     # that process is gone indeed
+
+
+def test_workers_dying_beyond_dasks_limit_end_the_run_in_one_line_keeping_cells(config, tmp_path):
+    """With Dask's allowed-failures at 0, one worker death fails its tasks (KilledWorker):
+    exit status 1, one error line, the finished cells kept for a resume."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL,
+                                  scheduler_kwargs={"allowed_failures": 0}) as local, \
+            distributed.Client(local, set_as_default=False) as client:
+        pids = client.run(os.getpid)
+        victim = sorted(pids)[0]
+        out = tmp_path / "out"
+        process = _start("run", config, "--out", out, "--executor", "dask", "--scheduler", local.scheduler_address)
+        try:
+            _wait_for(lambda: _finished_cells(out) and client.processing(workers=[victim]).get(victim), process)
+            os.kill(pids[victim], signal.SIGKILL)
+            _, stderr = process.communicate(timeout=SAFETY_TIMEOUT_S)
+        finally:
+            if process.poll() is None:
+                process.kill()
+    assert process.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith("pfx: error: Dask workers kept dying while running a batch: ")
+    assert last.endswith("finished cells are kept, run again to resume")
+    assert 1 <= len(_finished_cells(out)) < CELLS and not (out / "trials.csv").exists()
 
 
 def test_interrupted_dask_run_keeps_finished_cells_and_resumes(config, runs, tmp_path):
