@@ -130,23 +130,29 @@ class DaskCluster(Executor):
             future = self.client.submit(function, *arguments, key=f"pfx-batch-{token}-{index}",
                                         priority=len(tasks) - index, pure=False)
             pending[future.key] = (index, future)
+        # Results are fetched in the background as tasks finish (with_results), not one
+        # round trip per task; a task's exception is raised here, as the local executors do.
+        finished = distributed.as_completed([future for _, future in pending.values()],
+                                            loop=self.client.loop, with_results=True)
         try:
-            futures = [future for _, future in pending.values()]
-            for future in distributed.as_completed(futures, loop=self.client.loop):
+            for future, result in self._translated(finished):
                 index, _ = pending.pop(future.key)
-                try:
-                    result = future.result()
-                except distributed.KilledWorker as error:
-                    raise ExecutorError("Dask workers kept dying while running a batch: "
-                                        + " ".join(str(error).split())) from None
-                except distributed.CancelledError:
-                    raise ExecutorError(f"the Dask scheduler at {self._address()} dropped the run's tasks "
-                                        "(lost or restarted?)") from None
                 future.release()           # the cluster may now forget the result
                 yield index, result
         except BaseException:
             self._cancel()
             raise
+
+    def _translated(self, finished):
+        """Dask's failures of the cluster itself, as one-line :class:`ExecutorError` s."""
+        try:
+            yield from finished
+        except distributed.KilledWorker as error:
+            raise ExecutorError("Dask workers kept dying while running a batch: "
+                                + " ".join(str(error).split())) from None
+        except distributed.CancelledError:
+            raise ExecutorError(f"the Dask scheduler at {self._address()} dropped the run's tasks "
+                                "(lost or restarted?)") from None
 
     def _cancel(self) -> None:
         """Drop the tasks not yet returned, so that the cluster stops working for this run."""

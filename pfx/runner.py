@@ -205,12 +205,12 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
     return out
 
 
-def batch_arguments(cell: Cell, experiment, trials: list[int]) -> tuple:
+def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
     """The arguments of :func:`run_batch` for some trials of a cell: everything a worker needs.
 
     The one place they are put together; with Dask, this tuple is what travels to a worker.
     """
-    return (cell, experiment.seed, trials, experiment.outputs.trace_trials)
+    return (cell, plan.experiment.seed, trials, plan.experiment.outputs.trace_trials)
 
 
 def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
@@ -219,14 +219,15 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     experiment = plan.experiment
     trials = list(range(experiment.trials))
     tasks, owner, sizes = [], [], []          # per task: its arguments, its cell's number, its trial count
+    expected = []                             # per cell: its number of batches
     for number, cell in enumerate(cells):
         size = trials_per_batch(cell, len(trials), budget, executor.slots)
-        for start in range(0, len(trials), size):
-            batch = trials[start:start + size]
-            tasks.append(batch_arguments(cell, experiment, batch))
+        batches = [trials[start:start + size] for start in range(0, len(trials), size)]
+        for batch in batches:
+            tasks.append(batch_arguments(plan, cell, batch))
             owner.append(number)
             sizes.append(len(batch))
-    expected = [owner.count(number) for number in range(len(cells))]
+        expected.append(len(batches))
     returned: list[dict[int, BatchResult]] = [{} for _ in cells]
     by_tasks = executor.counts == "tasks"
     total = len(tasks) if by_tasks else sum(sizes)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -136,6 +137,21 @@ def test_dask_local_cluster_gives_identical_tables(runs):
 def test_dask_scheduler_gives_identical_tables(runs, cluster):
     assert_same_tables(runs["dask"], runs["local"])
     assert f"the Dask cluster at {cluster[0].scheduler_address}: 2 worker(s)" in runs["stderr"]["dask"].stderr
+
+
+def test_model_error_on_a_worker_is_the_same_one_line(cluster, tmp_path):
+    """A batch's exception travels back from the worker: exit 1, 'pfx: error: model ... step'."""
+    overflow = {"name": "overflow", "seed": 11, "trials": 3,
+                "model": {"kind": "linear_gaussian", "transition_matrix": [[1.0, 1.0], [0.0, 1.0]],
+                          "measurement_matrix": [[1.0, 0.0]], "steps": 5},
+                "filter": {"particles": 10, "initial": {"kind": "point", "state": [1.0, 0.0]},
+                           "model": {"transition_matrix": [[1e300, 0.0], [0.0, 1.0]]}}}  # inf at step 2
+    config = write_config_file(tmp_path, overflow, "overflow.yaml")
+    result = _run("run", config, "--out", tmp_path / "out", "--executor", "dask", "--scheduler",
+                  cluster[0].scheduler_address)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    assert re.search(r"^pfx: error: .*model linear_gaussian\b.*\bstep 2 of the filter",
+                     result.stderr.strip().splitlines()[-1])
 
 
 def test_killed_worker_loses_no_result(config, runs, cluster, tmp_path):
