@@ -1,3 +1,4 @@
 from pfx.cli import main
 
-main()
+if __name__ == "__main__":      # spawned worker processes (Dask) import this module without running it
+    main()

@@ -17,7 +17,7 @@ from typing import List, Optional
 import typer
 import yaml
 
-from pfx.errors import ConfigError, ModelNumericalError
+from pfx.errors import ConfigError, ExecutorError, ModelNumericalError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="pfx: run, compare and reproduce particle-filter experiments from YAML configs.")
@@ -39,6 +39,8 @@ def _guarded(command):
             _fail(str(error))
         except ModelNumericalError as error:
             _fail(str(error), status=1)
+        except ExecutorError as error:
+            _fail(f"{error}; finished cells are kept, run again to resume", status=1)
         except Interrupted as error:
             _fail(f"interrupted by {error.signal_name}; finished cells are kept, run again to resume",
                   status=128 + error.signal_number)
@@ -81,18 +83,27 @@ def run(
                                        "with several configs, their parent)"),
     assignments: List[str] = typer.Option([], "--set", help="override a key: dotted.path=value"),
     trials: Optional[int] = typer.Option(None, "--trials", min=1, help="override the trial count"),
-    workers: int = typer.Option(1, "--workers", min=1, help="worker processes"),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, show_default=False,
+                                          help="local worker processes (default 1), or the dask-local "
+                                               "cluster's worker processes (default: one per CPU)"),
+    executor_name: str = typer.Option("local", "--executor", metavar="local|dask|dask-local",
+                                      help="where batches run: here, a Dask cluster at --scheduler, "
+                                           "or a Dask cluster started here"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", metavar="ADDRESS",
+                                            help="the Dask scheduler, e.g. tcp://host:8786 (--executor dask)"),
     resume: bool = typer.Option(True, "--resume/--fresh", help="resume an interrupted run, or recompute"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar or messages"),
     max_memory: Optional[str] = typer.Option(None, "--max-memory",
                                              help="memory for particle arrays, e.g. 4G (default: half the available)"),
 ):
     """Run every cell and trial of the config(s); write CSV tables and figures."""
+    from pfx.executors import make_executor
     from pfx.memory import budget_from_option, check_fits, keep_freed_memory
     from pfx.runner import run_plan
 
     signal.signal(signal.SIGTERM, _raise_interrupted)
     keep_freed_memory()
+    executor = make_executor(executor_name, workers, scheduler)    # options checked, Dask imported
     budget = budget_from_option(max_memory)
     from pfx.runner import check_folder
 
@@ -108,11 +119,15 @@ def run(
         check_folder(plans[index], target, fresh=not resume)
         check_fits(plans[index], budget)
     report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
-    for plan, target in zip(plans, targets):
-        run_plan(plan, target, workers=workers, fresh=not resume, report=report,
-                 progress=_show_progress(quiet), memory_budget=budget)
-        if not quiet:
-            typer.echo(f"{plan.experiment.name}: {plan.size_text} -> {target}")
+    with executor:                  # a Dask scheduler is reached (or a local cluster started) here
+        where = executor.describe()
+        if where:
+            report(f"running on {where}")
+        for plan, target in zip(plans, targets):
+            run_plan(plan, target, executor=executor, fresh=not resume, report=report,
+                     progress=_show_progress(quiet), memory_budget=budget)
+            if not quiet:
+                typer.echo(f"{plan.experiment.name}: {plan.size_text} -> {target}")
 
 
 @app.command()

@@ -55,3 +55,19 @@ def located_value_error(error: ValueError, *, prefix: str, file: str | None = No
 
 class ModelNumericalError(RuntimeError):
     """A model produced NaN or infinity; the message names the model and the step."""
+
+
+class UsageError(ConfigError):
+    """A command-line request pfx cannot honour (an option, a missing optional extra, an
+    unreachable scheduler): one line naming the option, exit status 2, nothing written."""
+
+    def _text(self) -> str:
+        return f"{self.key}: {self.reason}" if self.key else self.reason
+
+
+class ExecutorError(RuntimeError):
+    """The executor could not finish the run (a lost cluster, a task whose workers kept dying).
+
+    Not the user's input and not a bug in a model: the command line prints one line, exits
+    with status 1 and keeps the finished cells for a resume.
+    """

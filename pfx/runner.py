@@ -1,12 +1,13 @@
 """Run a plan: every cell, every trial, in batches; write the result folder.
 
 Work is split into tasks of (cell, batch of trials). A batch runs all its trials at once in
-the engine; because every trial has its own random streams, batching and the number of
-worker processes change nothing in the results. Each finished cell is written atomically to
-``cells/`` inside the result folder; when every cell is done the tables, the summary and
-the figures are assembled and ``cells/`` is removed. Running again with the same config
-resumes from the finished cells; a folder made by a different config is refused unless
-``--fresh`` is given.
+the engine; an executor (:mod:`pfx.executors`: this process, local worker processes, or a
+Dask cluster) computes the tasks. Because every trial has its own random streams, batching,
+the executor and the number of workers change nothing in the results. Each finished cell is
+written atomically to ``cells/`` inside the result folder, by this process alone; when every
+cell is done the tables, the summary and the figures are assembled and ``cells/`` is removed.
+Running again with the same config resumes from the finished cells; a folder made by a
+different config is refused unless ``--fresh`` is given.
 """
 
 from __future__ import annotations
@@ -15,11 +16,9 @@ import json
 import os
 import platform
 import shutil
-import signal
 import subprocess
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -36,6 +35,7 @@ from pfx.config.schema import ParticleSnapshots
 from pfx.engine import SnapshotRequest, SpreadCriterion, simulate_truth
 from pfx.filters import FILTERS
 from pfx.errors import ConfigError
+from pfx.executors import Executor, make_executor
 from pfx.figures import render_figures
 from pfx.memory import check_fits, default_budget, trials_per_batch
 from pfx.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
@@ -189,10 +189,13 @@ def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
     return {path.name.split(".")[0] for path in (out / "cells").glob("*.trials.csv")}
 
 
-def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
-             report: Callable[[str], None] = lambda message: None, progress: bool = False,
-             memory_budget: Optional[int] = None) -> Path:
+def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Executor] = None,
+             fresh: bool = False, report: Callable[[str], None] = lambda message: None,
+             progress: bool = False, memory_budget: Optional[int] = None) -> Path:
     """Run every unfinished cell of the plan into ``out``; assemble tables and figures.
+
+    The batches are computed by ``executor`` (see :mod:`pfx.executors`; the caller starts and
+    closes it), or by ``workers`` local processes when none is given.
 
     Interrupted (KeyboardInterrupt, or SIGTERM turned into one by the command line), it stops
     the workers, keeps every finished cell and re-raises; running again resumes.
@@ -220,8 +223,10 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, fresh: bool = False,
         started = time.perf_counter()
         cell_times: dict[str, float] = {}
         try:
-            _run_cells(plan, out, [c for c in plan.cells if c.key not in done], workers, budget,
-                       progress, cell_times)
+            owned = make_executor("local", workers) if executor is None else nullcontext(executor)
+            with owned as running:
+                _run_cells(plan, out, [c for c in plan.cells if c.key not in done], running, budget,
+                           progress, cell_times)
         except KeyboardInterrupt:
             finished = len(list((out / "cells").glob("*.trials.csv")))
             report(f"{out}: interrupted; {finished} of {len(plan.cells)} cells finished and kept; "
@@ -259,55 +264,44 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
     return out
 
 
-def _ignore_interrupts() -> None:
-    """Worker initialiser: the parent process alone reacts to Ctrl-C and SIGTERM."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
+    """The arguments of :func:`run_batch` for some trials of a cell: everything a worker needs.
+
+    The one place they are put together; with Dask, this tuple is what travels to a worker.
+    """
+    outputs = plan.experiment.outputs
+    return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles)
 
 
-def _run_cells(plan: Plan, out: Path, cells: list[Cell], workers: int, budget: int, progress: bool,
+def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
                cell_times: dict) -> None:
+    """Hand every batch of every cell to the executor; write each cell once all its batches are back."""
     experiment = plan.experiment
     trials = list(range(experiment.trials))
-    trace_trials = experiment.outputs.trace_trials
-    snapshots = experiment.outputs.particles
-    tasks = []
-    for cell in cells:
-        size = trials_per_batch(cell, len(trials), budget, workers)
-        tasks.append((cell, [trials[i:i + size] for i in range(0, len(trials), size)]))
-    total = sum(len(batch) for _, batches in tasks for batch in batches)
-    with _progress_bar(progress, total, experiment.name) as live:
-        task_id = live.add_task("trials", total=total) if live else None
-
-        def advance(count: int) -> None:
+    tasks, owner, sizes = [], [], []          # per task: its arguments, its cell's number, its trial count
+    expected = []                             # per cell: its number of batches
+    for number, cell in enumerate(cells):
+        size = trials_per_batch(cell, len(trials), budget, executor.slots)
+        batches = [trials[start:start + size] for start in range(0, len(trials), size)]
+        for batch in batches:
+            tasks.append(batch_arguments(plan, cell, batch))
+            owner.append(number)
+            sizes.append(len(batch))
+        expected.append(len(batches))
+    returned: list[dict[int, BatchResult]] = [{} for _ in cells]
+    by_tasks = executor.counts == "tasks"
+    total = len(tasks) if by_tasks else sum(sizes)
+    with _progress_bar(progress, total, experiment.name, executor.counts) as live:
+        task_id = live.add_task(executor.counts, total=total) if live else None
+        for index, result in executor.run(run_batch, tasks):
+            number = owner[index]
+            returned[number][index] = result
             if live:
-                live.advance(task_id, count)
-
-        if workers == 1:
-            for cell, batches in tasks:
-                results = []
-                for batch in batches:
-                    results.append(run_batch(cell, experiment.seed, batch, trace_trials, snapshots))
-                    advance(len(batch))
-                _write_cell(out, cell, results, cell_times)
-            return
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=_ignore_interrupts)
-        try:
-            pending = [(cell, [pool.submit(run_batch, cell, experiment.seed, b, trace_trials, snapshots) for b in batches])
-                       for cell, batches in tasks]
-            for cell, futures in pending:
-                results = []
-                for future in futures:
-                    results.append(future.result())
-                    advance(len(results[-1].trials))
-                _write_cell(out, cell, results, cell_times)
-        except BaseException:
-            in_flight = list((getattr(pool, "_processes", None) or {}).values())
-            pool.shutdown(wait=False, cancel_futures=True)
-            for process in in_flight:        # stop the batches still running
-                process.terminate()
-            raise
-        pool.shutdown()
+                live.advance(task_id, 1 if by_tasks else sizes[index])
+            if len(returned[number]) == expected[number]:
+                batches = returned[number]
+                _write_cell(out, cells[number], [batches[i] for i in sorted(batches)], cell_times)
+                returned[number] = {}
 
 
 @contextmanager
@@ -339,14 +333,14 @@ def folder_lock(out: Path):
         handle.close()
 
 
-def _progress_bar(enabled: bool, total: int, name: str):
+def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
     if not enabled or total == 0:
         return nullcontext()
     from rich.console import Console
     from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                TimeElapsedColumn, TimeRemainingColumn)
 
-    return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn("trials"),
+    return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn(counts),
                     TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True,
                     console=Console(stderr=True))
 
