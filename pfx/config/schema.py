@@ -105,8 +105,8 @@ class OutputsConfig(FigureOutputs):
                                          description="particle clouds to keep in particles.csv")
 
 
-class Experiment(BaseModel):
-    """One experiment: a model, a filter, its arms and sweep, trials and seed."""
+class ExperimentHeader(BaseModel):
+    """What every config starts with: its name, description and root seed."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -114,6 +114,11 @@ class Experiment(BaseModel):
                       description="experiment name (the default result folder is runs/<name>)")
     description: str = Field("", description="free text, copied to the manifest")
     seed: StrictInt = Field(0, ge=0, lt=2**63, description="root seed of every random stream")
+
+
+class Experiment(ExperimentHeader):
+    """One experiment: a model, a filter, its arms and sweep, trials and seed."""
+
     trials: StrictInt = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
     model: ModelConfig = Field(description="the true system (`pfx list models`)")
     filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")
@@ -128,14 +133,8 @@ class Experiment(BaseModel):
     outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="tables and figures")
 
 
-class StudyExperiment(BaseModel):
+class StudyExperiment(ExperimentHeader):
     """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    name: str = Field(pattern=NAME_PATTERN, max_length=100,
-                      description="experiment name (the default result folder is runs/<name>)")
-    description: str = Field("", description="free text, copied to the manifest")
-    seed: StrictInt = Field(0, ge=0, lt=2**63, description="root seed of the study's random stream")
     study: StudyConfig = Field(description="the computation and its parameters (`pfx list studies`)")
     outputs: FigureOutputs = Field(default_factory=FigureOutputs, description="figures")

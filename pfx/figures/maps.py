@@ -140,6 +140,14 @@ def _draw_cloud(axes, result, cloud, track, step: int, x_name: str, y_name: str,
                      color="tab:blue", edgecolor="white", zorder=6, label="estimate (weighted mean)")
 
 
+def _kept_steps(clouds, most: int) -> list:
+    """The kept steps, thinned evenly to at most ``most``."""
+    kept = sorted(clouds["step"].unique())
+    if len(kept) > most:
+        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, most).round().astype(int)]
+    return kept
+
+
 def _limits(result, cloud_frame, track, x_name, y_name):
     xs = [cloud_frame[x_name]]
     ys = [cloud_frame[y_name]]
@@ -165,9 +173,7 @@ def particle_snapshots(result: ResultFolder):
         return None
     clouds, track, label, stage, trial = series
     x_name, y_name = _planar(result)
-    kept = sorted(clouds["step"].unique())
-    if len(kept) > MAX_PANELS:
-        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, MAX_PANELS).round().astype(int)]
+    kept = _kept_steps(clouds, MAX_PANELS)
     figure, axes_list = _grid(len(kept))
     x_limits, y_limits = _limits(result, clouds, track, x_name, y_name)
     for axes, step in zip(axes_list, kept):
@@ -196,9 +202,7 @@ def particle_animation(result: ResultFolder):
 
     clouds, track, label, stage, trial = series
     x_name, y_name = _planar(result)
-    kept = sorted(clouds["step"].unique())
-    if len(kept) > MAX_FRAMES:
-        kept = [kept[i] for i in np.linspace(0, len(kept) - 1, MAX_FRAMES).round().astype(int)]
+    kept = _kept_steps(clouds, MAX_FRAMES)
     figure, axes = plt.subplots(figsize=(5.6, 6.2), layout="constrained")
     x_limits, y_limits = _limits(result, clouds, track, x_name, y_name)
     by_step = {step: clouds[clouds["step"] == step] for step in kept}
