@@ -49,6 +49,9 @@ def peer_version(name: str) -> Optional[str]:
 def global_generator_seeded(seed: int):
     """Seed NumPy's legacy global generator for a library that draws from it; restore it after."""
     saved = np.random.get_state()
+    # The one use of the global generator in pfx, on purpose: filterpy, pfilter and particles draw
+    # their resampling numbers from it, so the benchmark seeds it for them (from the case's seed)
+    # and restores it after; pfx's own draws always come from its per-trial Generators.
     np.random.seed(seed % 2**32)
     try:
         yield
