@@ -38,15 +38,20 @@ def _guarded(command):
         except ConfigError as error:
             _fail(str(error))
         except ModelNumericalError as error:
-            _fail(str(error), status=1)
+            _fail(_with_outcome(str(error), error), status=1)
         except ExecutorError as error:
-            _fail(f"{error}; finished cells are kept, run again to resume", status=1)
+            _fail(_with_outcome(str(error), error), status=1)
         except Interrupted as error:
-            _fail(f"interrupted by {error.signal_name}; finished cells are kept, run again to resume",
-                  status=128 + error.signal_number)
-        except KeyboardInterrupt:
-            _fail("interrupted by SIGINT; finished cells are kept, run again to resume", status=130)
+            _fail(_with_outcome(f"interrupted by {error.signal_name}", error), status=128 + error.signal_number)
+        except KeyboardInterrupt as error:
+            _fail(_with_outcome("interrupted by SIGINT", error), status=130)
     return wrapper
+
+
+def _with_outcome(message: str, error: BaseException) -> str:
+    """The error and what the run kept (the runner's note on the exception), in one line."""
+    notes = getattr(error, "__notes__", None)
+    return f"{message}; {notes[-1]}" if notes else message
 
 
 class Interrupted(KeyboardInterrupt):
@@ -66,13 +71,16 @@ def _show_progress(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
 
 
-def _load_plan(path: Path, assignments: list[str], trials: Optional[int]):
+def _load_plan(path: Path, assignments: list[str], trials: Optional[int], report=None):
+    from pfx.config.overrides import apply_overrides
     from pfx.config.plan import build_plan
-    from pfx.config.yaml_loading import apply_overrides, load_config_file
+    from pfx.config.yaml_loading import load_config_file
 
-    raw = load_config_file(path)
-    raw = apply_overrides(raw, assignments, str(path))
-    return build_plan(raw, str(path), trials=trials)
+    raw, notes = apply_overrides(load_config_file(path), assignments, str(path))
+    plan = build_plan(raw, str(path), trials=trials)
+    for note in notes if report else []:
+        report(f"{path}: {note}")
+    return plan
 
 
 @app.command()
@@ -107,7 +115,8 @@ def run(
     budget = budget_from_option(max_memory)
     from pfx.runner import check_folder
 
-    plans = [_load_plan(path, assignments, trials) for path in configs]   # validate all first
+    report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
+    plans = [_load_plan(path, assignments, trials, report) for path in configs]   # validate all first
     if out is None:
         targets = [Path("runs") / plan.experiment.name for plan in plans]
     else:
@@ -118,7 +127,6 @@ def run(
                               f"folder {target}; rename one", file=plans[index].file, key="name")
         check_folder(plans[index], target, fresh=not resume)
         check_fits(plans[index], budget)
-    report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
     with executor:                  # a Dask scheduler is reached (or a local cluster started) here
         where = executor.describe()
         if where:
@@ -128,6 +136,18 @@ def run(
                      progress=_show_progress(quiet), memory_budget=budget)
             if not quiet:
                 typer.echo(f"{plan.experiment.name}: {plan.size_text} -> {target}")
+                _print_summary(plan, target)
+
+
+def _print_summary(plan, target: Path) -> None:
+    """The end-of-run table and next command (a study writes its own tables: none)."""
+    from pfx.result_folder import read_manifest
+    from pfx.run_summary import print_run_summary
+
+    manifest = read_manifest(target)
+    if plan.cells and manifest and (target / "summary.csv").is_file():
+        print_run_summary(target, manifest, typer.echo,
+                          rich_console=sys.stdout.isatty() and not os.environ.get("CI"))
 
 
 @app.command()
@@ -137,7 +157,8 @@ def validate(
     assignments: List[str] = typer.Option([], "--set", help="override a key: dotted.path=value"),
 ):
     """Check configs and print each fully resolved config (exit 0, or 2 on the first error)."""
-    plans = [_load_plan(path, assignments, None) for path in configs]
+    plans = [_load_plan(path, assignments, None, lambda message: typer.echo(message, err=True))
+             for path in configs]
     for plan in plans:
         typer.echo(f"# {plan.file}: valid; {plan.size_text}; "
                    f"config hash {plan.config_hash}")
@@ -196,17 +217,28 @@ def schema(output_format: str = typer.Option("json", "--format", help="json (JSO
 
 @app.command()
 @_guarded
-def figures(result_dir: Path = typer.Argument(..., help="a result folder written by pfx run")):
-    """Re-render a result folder's figures from its CSV files alone."""
-    from pfx.figures import render_figures
+def figures(
+    result_dir: Path = typer.Argument(..., help="a result folder written by pfx run"),
+    add: List[str] = typer.Option([], "--figure", metavar="NAME",
+                                  help="add this figure (`pfx list figures`) to the folder and render it"),
+):
+    """Re-render a result folder's figures from its CSV files alone (or add one with --figure)."""
+    from pfx.figures import FIGURES, render_figures
+    from pfx.result_folder import finished_manifest, record_figures
 
-    try:
-        manifest = json.loads((result_dir / "manifest.json").read_text())
-    except (OSError, ValueError):
-        manifest = {}
-    if not isinstance(manifest, dict) or manifest.get("complete") is not True:
-        raise ConfigError("not a finished pfx result folder (no complete manifest.json)", file=str(result_dir))
-    for path in render_figures(result_dir, None, tuple(manifest.get("formats", ["png"]))):
+    manifest = finished_manifest(result_dir)
+    formats = tuple(manifest.get("formats", ["png"]))
+    for name in add:
+        if name not in FIGURES:
+            raise ConfigError(f"--figure: {FIGURES.unknown_message(name)}", file=str(result_dir))
+    written = render_figures(result_dir, add or None, formats)
+    drawn = {path.stem for path in written}
+    for name in add:
+        if name not in drawn:
+            typer.echo(f"{name}: nothing to draw from this folder's tables (not added)", err=True)
+    if add:
+        record_figures(result_dir, [name for name in add if name in drawn])
+    for path in written:
         typer.echo(str(path))
 
 

@@ -60,9 +60,13 @@ class Registry(Generic[T]):
         try:
             return self._items[name]
         except KeyError:
-            hint = closest_name(name, self._items)
-            suffix = f" (did you mean {hint!r}?)" if hint else ""
-            raise KeyError(f"unknown {self.what} {name!r}{suffix}") from None
+            raise KeyError(self.unknown_message(name)) from None
+
+    def unknown_message(self, name: str) -> str:
+        """'unknown figure 'x' (did you mean 'y'?)': the words for a name not registered."""
+        hint = closest_name(name, self._items)
+        suffix = f" (did you mean {hint!r}?)" if hint else f" (`pfx list {self.what}s`)"
+        return f"unknown {self.what} {name!r}{suffix}"
 
     def __contains__(self, name: object) -> bool:
         return name in self._items

@@ -13,13 +13,12 @@ different config is refused unless ``--fresh`` is given.
 from __future__ import annotations
 
 import json
-import os
 import platform
 import shutil
 import subprocess
 import sys
 import time
-from contextlib import contextmanager, nullcontext
+from contextlib import nullcontext
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -34,17 +33,20 @@ from pfx.config.plan import Cell, Plan, StudyPlan
 from pfx.config.schema import ParticleSnapshots
 from pfx.engine import SnapshotRequest, SpreadCriterion, simulate_truth
 from pfx.filters import FILTERS
-from pfx.errors import ConfigError
 from pfx.executors import Executor, make_executor
 from pfx.figures import render_figures
+from pfx.figures.registry import ResultFolder
 from pfx.memory import check_fits, default_budget, trials_per_batch
+from pfx.result_folder import (CELLS, LOCK_FILE, MANIFEST, FolderState, clear_outputs, folder_lock,
+                               inspect_folder)
 from pfx.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
 from pfx.seeding import TrialStreams, filter_seed, study_generator, truth_seed
+from pfx.step_summary import merge_step_summaries, step_values, summarize_steps
 from pfx.tables import summarize, write_csv, write_text
 
-LOCK_FILE = ".pfx.lock"
-OUTPUT_FILES = ("trials.csv", "steps.csv", "summary.csv", "particles.csv", "scene.csv", "config.yaml",
-                "manifest.json")
+OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "scene.csv",
+                "config.yaml", "manifest.json")
+CELL_TABLES = ("steps", "steps_summary", "particles", "trials")     # per cell in cells/; trials last
 
 
 @dataclass
@@ -54,6 +56,7 @@ class BatchResult:
     steps: pd.DataFrame
     wall_time: float
     particles: Optional[pd.DataFrame] = None
+    step_values: Optional[dict] = None        # every trial's per-step values (pfx.step_summary)
 
 
 def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
@@ -88,7 +91,7 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
     with np.errstate(over="ignore", invalid="ignore"):
         steps = _steps_frame(cell, trials, traced, truth, trace)
     particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
-    return BatchResult(cell.key, rows, steps, elapsed, particles)
+    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model))
 
 
 def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
@@ -158,35 +161,10 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def check_folder(plan: Plan, out: Path, fresh: bool) -> None:
-    """Refuse, without touching anything, a result folder this run may not write to."""
-    if out.exists() and not out.is_dir():
-        raise ConfigError("result path exists and is not a folder", file=str(out))
-    if fresh or not out.exists() or not [p for p in out.iterdir() if p.name != LOCK_FILE]:
-        return
-    manifest_path = out / "manifest.json"
-    if not manifest_path.exists():
-        raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
-                          "use --fresh", file=str(out))
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except (OSError, ValueError):
-        raise ConfigError("result folder has an unreadable manifest.json; use --fresh", file=str(out)) from None
-    if manifest.get("config_hash") != plan.config_hash:
-        raise ConfigError(f"result folder holds results of a different config (hash "
-                          f"{manifest.get('config_hash')} != {plan.config_hash}); use --fresh to "
-                          "replace them or --out for another folder", file=str(out))
-
-
-def prepare_folder(plan: Plan, out: Path, fresh: bool) -> set[str]:
-    """Clear the folder for --fresh; return the keys of cells already finished (for resuming)."""
-    if fresh and out.exists():
-        for name in OUTPUT_FILES:
-            (out / name).unlink(missing_ok=True)
-        shutil.rmtree(out / "cells", ignore_errors=True)
-        shutil.rmtree(out / "figures", ignore_errors=True)
-        return set()
-    return {path.name.split(".")[0] for path in (out / "cells").glob("*.trials.csv")}
+def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool) -> FolderState:
+    """Refuse, without touching anything, a result folder this run may not write to
+    (:func:`pfx.result_folder.inspect_folder`); return what it holds."""
+    return inspect_folder(plan, Path(out), fresh)
 
 
 def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Executor] = None,
@@ -195,71 +173,132 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
     """Run every unfinished cell of the plan into ``out``; assemble tables and figures.
 
     The batches are computed by ``executor`` (see :mod:`pfx.executors`; the caller starts and
-    closes it), or by ``workers`` local processes when none is given.
+    closes it), or by ``workers`` local processes when none is given. What happens with a
+    folder that already holds results is :mod:`pfx.result_folder`'s table: resume, extend with
+    more trials, only re-render the outputs, or refuse.
 
-    Interrupted (KeyboardInterrupt, or SIGTERM turned into one by the command line), it stops
-    the workers, keeps every finished cell and re-raises; running again resumes.
+    Stopped by an error or an interrupt (KeyboardInterrupt, or SIGTERM turned into one by the
+    command line), it keeps every finished cell and re-raises, with a note (``__notes__``)
+    saying what was kept; a run that finished no cell leaves the folder as it found it.
     """
     out = Path(out)
     if isinstance(plan, StudyPlan):
         return run_study(plan, out, fresh=fresh, report=report)
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
-    check_folder(plan, out, fresh)
+    state = check_folder(plan, out, fresh)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    with folder_lock(out):
-        done = prepare_folder(plan, out, fresh)
-        manifest_path = out / "manifest.json"
-        if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
-            report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
-            return out
-        if done:
-            report(f"{out}: resuming (same config hash {plan.config_hash}): {len(done)} of "
-                   f"{len(plan.cells)} cells already done, skipping them")
-        (out / "cells").mkdir(exist_ok=True)
-        manifest = _manifest(plan, started=_now())
-        write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
-        write_text(json.dumps(manifest, indent=2), manifest_path)
-        started = time.perf_counter()
-        cell_times: dict[str, float] = {}
-        try:
-            owned = make_executor("local", workers) if executor is None else nullcontext(executor)
-            with owned as running:
-                _run_cells(plan, out, [c for c in plan.cells if c.key not in done], running, budget,
-                           progress, cell_times)
-        except KeyboardInterrupt:
-            finished = len(list((out / "cells").glob("*.trials.csv")))
-            report(f"{out}: interrupted; {finished} of {len(plan.cells)} cells finished and kept; "
-                   "run the same command again to resume")
-            raise
-        _assemble(plan, out, manifest, cell_times, time.perf_counter() - started)
+    try:
+        with folder_lock(out):
+            if fresh:
+                clear_outputs(out, OUTPUT_FILES)
+            if state.complete and state.kept_trials == plan.experiment.trials:
+                update_record(plan, out, state.manifest, report)
+                return out
+            _run_and_assemble(plan, out, state, executor or workers, budget, progress, report)
+    finally:
+        if created and not [path for path in out.iterdir() if path.name != LOCK_FILE]:
+            shutil.rmtree(out, ignore_errors=True)       # a run that kept nothing leaves no folder
     return out
+
+
+def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Executor | int, budget: int,
+                      progress: bool, report: Callable[[str], None]) -> None:
+    trials = plan.experiment.trials
+    first = state.kept_trials              # trials 0 .. first-1 are in the tables already
+    if state.done:
+        report(f"{out}: resuming: {len(state.done)} of {len(plan.cells)} cells already done, skipping them")
+    elif state.complete:
+        report(f"{out}: extending from {first} to {trials} trials per cell (trials {first}..{trials - 1})")
+    earlier_record = {name: (out / name).read_text() for name in ("config.yaml", MANIFEST)
+                      if state.complete and (out / name).exists()}
+    (out / CELLS).mkdir(exist_ok=True)
+    manifest = _manifest(plan, started=_now())
+    if first:
+        manifest["extending_from"] = first
+    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+    write_text(json.dumps(manifest, indent=2), out / MANIFEST)
+    started = time.perf_counter()
+    cell_times: dict[str, float] = {}
+    try:
+        owned = make_executor("local", executor) if isinstance(executor, int) else nullcontext(executor)
+        with owned as running:
+            _run_cells(plan, out, [c for c in plan.cells if c.key not in state.done], running, budget,
+                       progress, cell_times, first)
+    except BaseException as error:
+        error.add_note(_keep_what_finished(plan, out, earlier_record))
+        raise
+    _assemble(plan, out, manifest, cell_times, time.perf_counter() - started, state)
+
+
+def _keep_what_finished(plan: Plan, out: Path, earlier_record: dict[str, str]) -> str:
+    """After a failed or interrupted run: keep the finished cells for a resume, or, if none
+    finished, put the folder back as it was (so no later run takes it for progress). Returns
+    what was kept, in words."""
+    finished = len(list((out / CELLS).glob("*.trials.csv")))
+    if finished:
+        return (f"{finished} of {len(plan.cells)} cells finished and are kept in {out}; "
+                "run the same command again to resume")
+    shutil.rmtree(out / CELLS, ignore_errors=True)
+    for name in ("config.yaml", MANIFEST):
+        if name in earlier_record:
+            write_text(earlier_record[name], out / name)
+        else:
+            (out / name).unlink(missing_ok=True)
+    if earlier_record:
+        return f"no new trial finished; {out} holds its earlier results, unchanged"
+    return "no cell had finished, so nothing was kept"
+
+
+def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Callable[[str], None]) -> None:
+    """A finished folder with the same results: bring its record (config.yaml, the manifest's
+    name, description and outputs) up to the config, and render the figures it lacks."""
+    if manifest.get("config_hash") == plan.config_hash:
+        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        return
+    outputs = plan.experiment.outputs
+    figures, formats = list(outputs.figures), list(outputs.formats)
+    old_figures, old_formats = manifest.get("figures", []), manifest.get("formats", ["png"])
+    removed = [name for name in old_figures if name not in figures]
+    for path in (out / "figures").glob("*") if (out / "figures").is_dir() else []:
+        name, extension = path.stem, path.suffix.lstrip(".")
+        if name in removed or (name in figures and extension not in formats and extension != "gif"):
+            path.unlink()
+    manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
+                    config_hash=plan.config_hash, figures=figures, formats=formats)
+    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+    write_text(json.dumps(manifest, indent=2), out / MANIFEST)
+    wanted = figures if formats != old_formats else [name for name in figures if name not in old_figures]
+    render_figures(out, wanted, tuple(formats))
+    report(f"{out}: results up to date (same results hash {plan.results_hash}); record updated"
+           + (f", figures rendered: {', '.join(wanted)}" if wanted else "")
+           + (f", figures removed: {', '.join(removed)}" if removed else ""))
 
 
 def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
               report: Callable[[str], None] = lambda message: None) -> Path:
     """Compute a study (:mod:`pfx.studies`) into ``out``: its tables as CSV, then its figures."""
-    check_folder(plan, out, fresh)
+    state = check_folder(plan, out, fresh)
     out.mkdir(parents=True, exist_ok=True)
     with folder_lock(out):
-        manifest_path = out / "manifest.json"
-        if not fresh and manifest_path.exists() and json.loads(manifest_path.read_text()).get("complete"):
-            report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        if state.complete:
+            update_record(plan, out, state.manifest, report)
             return out
-        for path in [*out.glob("*.csv"), out / "manifest.json", out / "config.yaml"]:
+        for path in [*out.glob("*.csv"), out / MANIFEST, out / "config.yaml"]:
             path.unlink(missing_ok=True)
         shutil.rmtree(out / "figures", ignore_errors=True)
         study = plan.experiment.study
         manifest = {**_provenance(plan, started=_now()), "study": study.kind, "units": dict(study.units)}
         write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
-        write_text(json.dumps(manifest, indent=2), manifest_path)
+        write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         started = time.perf_counter()
         tables = study.tables(study_generator(plan.experiment.seed))
         for name, table in tables.items():
             write_csv(table, out / f"{name}.csv")
         manifest.update(tables=list(tables), finished=_now(), complete=True,
                         wall_time_s=time.perf_counter() - started)
-        write_text(json.dumps(manifest, indent=2), manifest_path)
+        write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
     return out
 
@@ -274,10 +313,11 @@ def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
 
 
 def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
-               cell_times: dict) -> None:
-    """Hand every batch of every cell to the executor; write each cell once all its batches are back."""
+               cell_times: dict, first: int = 0) -> None:
+    """Hand every batch of every cell (trials ``first`` onwards) to the executor; write each cell
+    once all its batches are back."""
     experiment = plan.experiment
-    trials = list(range(experiment.trials))
+    trials = list(range(first, experiment.trials))
     tasks, owner, sizes = [], [], []          # per task: its arguments, its cell's number, its trial count
     expected = []                             # per cell: its number of batches
     for number, cell in enumerate(cells):
@@ -304,35 +344,6 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
                 returned[number] = {}
 
 
-@contextmanager
-def folder_lock(out: Path):
-    """Hold an exclusive lock on the result folder; a second run on it is refused.
-
-    The lock (``.pfx.lock``, flock) dies with its process, so a killed run leaves no stale lock.
-    """
-    try:
-        import fcntl
-    except ImportError:          # no flock on this platform: run unlocked
-        yield
-        return
-    handle = open(out / LOCK_FILE, "a+")
-    try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "?"
-            raise ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
-                              "wait for it or choose another --out", file=str(out)) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(str(os.getpid()))
-        handle.flush()
-        yield
-    finally:
-        handle.close()
-
-
 def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
     if not enabled or total == 0:
         return nullcontext()
@@ -346,13 +357,19 @@ def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
 
 
 def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: dict) -> None:
+    """Write one finished cell's tables to cells/ (its trials last: they mark it finished)."""
     trials = pd.concat([r.trials for r in results], ignore_index=True)
-    steps = pd.concat([r.steps for r in results], ignore_index=True)
-    write_csv(steps, out / "cells" / f"{cell.key}.steps.csv")
+    values = {name: np.concatenate([r.step_values[name] for r in results]) for name in results[0].step_values}
+    tables = {"steps": pd.concat([r.steps for r in results], ignore_index=True),
+              "steps_summary": summarize_steps(values, cell.truth_model.state_names, {"cell": cell.key, **cell.labels},
+                                               cell.truth_model.times()),
+              "trials": trials}
     particles = [r.particles for r in results if r.particles is not None]
     if particles:
-        write_csv(pd.concat(particles, ignore_index=True), out / "cells" / f"{cell.key}.particles.csv")
-    write_csv(trials, out / "cells" / f"{cell.key}.trials.csv")     # last: marks the cell finished
+        tables["particles"] = pd.concat(particles, ignore_index=True)
+    for name in CELL_TABLES:
+        if name in tables:
+            write_csv(tables[name], out / CELLS / f"{cell.key}.{name}.csv")
     cell_times[cell.key] = sum(r.wall_time for r in results)
 
 
@@ -363,6 +380,7 @@ def _provenance(plan: Plan | StudyPlan, started: str) -> dict:
         "description": plan.experiment.description,
         "config_file": plan.file,
         "config_hash": plan.config_hash,
+        "results_hash": plan.results_hash,
         "seed": plan.experiment.seed,
         "pfx_version": pfx.__version__,
         "git_revision": _git_revision(),
@@ -391,25 +409,54 @@ def _manifest(plan: Plan, started: str) -> dict:
     }
 
 
-def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time: float) -> None:
+def _cell_tables(out: Path, key: str, name: str, kept: Optional[pd.DataFrame]) -> list[pd.DataFrame]:
+    """One cell's rows of a table: those the folder kept from earlier trials, then the new ones."""
+    frames = [kept[kept["cell"] == key]] if kept is not None and not kept.empty else []
+    path = out / CELLS / f"{key}.{name}.csv"
+    if path.exists():
+        frames.append(pd.read_csv(path))
+    return frames
+
+
+def _combined(frames: list[pd.DataFrame]) -> Optional[pd.DataFrame]:
+    """The frames stacked; None when there are none. Empty frames (a cell without traced
+    trials) only give their columns."""
+    if not frames:
+        return None
+    return pd.concat([f for f in frames if not f.empty] or frames[:1], ignore_index=True)
+
+
+def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time: float,
+              state: FolderState) -> None:
+    """Write the folder's tables from cells/ (and, when extending, the tables it kept), the
+    summary, the scene, the finished manifest and the figures; remove cells/."""
     order = [cell.key for cell in plan.cells]
-    trials = pd.concat([pd.read_csv(out / "cells" / f"{key}.trials.csv", keep_default_na=True)
-                        for key in order], ignore_index=True)
-    steps_frames = [pd.read_csv(out / "cells" / f"{key}.steps.csv") for key in order]
-    steps = pd.concat([f for f in steps_frames if not f.empty] or steps_frames[:1], ignore_index=True)
-    write_csv(trials, out / "trials.csv")
-    write_csv(steps, out / "steps.csv")
-    write_csv(summarize(trials, plan.label_columns), out / "summary.csv")
+    kept = {name: ResultFolder(out).optional_table(name) if state.kept_trials else None
+            for name in ("trials", "steps", "steps_summary", "particles")}
+    tables = {name: _combined([frame for key in order for frame in _cell_tables(out, key, name, kept[name])])
+              for name in ("trials", "steps", "particles")}
+    summaries = []
+    for key in order:
+        parts = _cell_tables(out, key, "steps_summary", kept["steps_summary"])
+        summaries.append(merge_step_summaries(*parts) if len(parts) == 2 else parts[0])
+    tables["steps_summary"] = pd.concat(summaries, ignore_index=True)
+    for name in ("trials", "steps", "steps_summary", "particles"):
+        if tables[name] is not None:
+            write_csv(tables[name], out / f"{name}.csv")
+    write_csv(summarize(tables["trials"], plan.label_columns), out / "summary.csv")
     scene = plan.cells[0].truth_model.scene()
     if scene:
         write_csv(pd.DataFrame(scene), out / "scene.csv")
-    particle_files = [out / "cells" / f"{key}.particles.csv" for key in order]
-    if any(path.exists() for path in particle_files):
-        write_csv(pd.concat([pd.read_csv(path) for path in particle_files if path.exists()], ignore_index=True),
-                  out / "particles.csv")
+    earlier = {entry["cell"]: entry.get("wall_time_s") for entry in (state.manifest or {}).get("cells", [])}
     for entry in manifest["cells"]:
-        entry["wall_time_s"] = cell_times.get(entry["cell"])
+        times = [t for t in (earlier.get(entry["cell"]) if state.kept_trials else None,
+                             cell_times.get(entry["cell"])) if t is not None]
+        entry["wall_time_s"] = sum(times) if times else None
+    manifest.pop("extending_from", None)
+    if state.kept_trials:
+        manifest["started"] = state.manifest.get("started", manifest["started"])
+        wall_time += state.manifest.get("wall_time_s") or 0.0
     manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)
-    write_text(json.dumps(manifest, indent=2), out / "manifest.json")
+    write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
-    shutil.rmtree(out / "cells", ignore_errors=True)
+    shutil.rmtree(out / CELLS, ignore_errors=True)

@@ -126,7 +126,8 @@ def test_run_writes_every_output_and_no_leftovers(out, cli):
     assert "cells" not in names and not [n for n in names if n.startswith(".tmp")], names
     figures = sorted(p.name for p in (out / "figures").iterdir())
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["figures"] == ["error_over_time", "ess_over_time"]          # the default figures
+    # the default figures of a sweep over particle counts: the metric against N, then over time
+    assert manifest["figures"] == ["rmse_vs_particles", "error_over_time", "ess_over_time"]
     assert figures == sorted(f"{name}.png" for name in manifest["figures"])
     for png in (out / "figures").iterdir():
         assert png.read_bytes().startswith(PNG_SIGNATURE)

@@ -62,7 +62,20 @@ class Plan:
 
     @property
     def config_hash(self) -> str:
+        """Hash of the whole resolved config: the record of what was asked."""
         return canonical_hash(self.resolved)
+
+    @property
+    def results_hash(self) -> str:
+        """Hash of what the numbers depend on: every cell (its settings and labels), the seed,
+        and which trials keep traces and particle clouds. Not the name, the description, the
+        figures or the trial count: changing those keeps a result folder's results (more trials
+        extend them, each trial having its own random streams)."""
+        outputs = self.experiment.outputs
+        return canonical_hash({"seed": self.experiment.seed,
+                               "cells": [[cell.key, cell.labels] for cell in self.cells],
+                               "trace_trials": outputs.trace_trials,
+                               "particles": outputs.particles.model_dump(mode="json")})
 
     @property
     def size_text(self) -> str:
@@ -91,6 +104,11 @@ class StudyPlan:
     @property
     def config_hash(self) -> str:
         return canonical_hash(self.resolved)
+
+    @property
+    def results_hash(self) -> str:
+        """Hash of what the tables depend on: the study and the seed (not its figures)."""
+        return canonical_hash({"seed": self.experiment.seed, "study": self.resolved["study"]})
 
     @property
     def size_text(self) -> str:
@@ -124,11 +142,26 @@ def identity_dump(value: Any) -> Any:
     return value
 
 
+def _as_data(value: Any) -> Any:
+    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
+
+
 def sweep_column(key: str) -> str:
     return _KNOWN_COLUMNS.get(key, key.replace(".", "_"))
 
 
-def _filter_model(raw_model: dict, overrides: dict, file: str, prefix: str) -> Model:
+def _filter_model(truth: Model, raw_model: dict, overrides: dict, file: str, prefix: str) -> Model:
+    """The model the filter assumes: the true model's settings with ``filter.model`` merged over.
+
+    Settings the true model took from its presets (or that equal them, as in a resolved
+    config, which writes every preset out) are derived again for the filter's model, so that
+    an override they depend on (``motion.noise`` for ``planar_robot``'s process noise, the
+    ``variant`` of ``falling_body``) carries through to them.
+    """
+    if overrides:
+        presets = truth.presets()
+        raw_model = {key: value for key, value in raw_model.items()
+                     if key not in presets or _as_data(getattr(truth, key)) != _as_data(presets[key])}
     merged = deep_merge(raw_model, overrides)
     if merged.get("kind") != raw_model.get("kind"):
         raise ConfigError("the filter's model must be of the same kind as the true model",
@@ -157,8 +190,8 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
     try:
         experiment = validate(Experiment, cell_raw, file=file)
         settings = experiment.filter
-        filter_model = _filter_model(cell_raw["model"], settings.model, file, "filter.model")
         truth = experiment.model
+        filter_model = _filter_model(truth, cell_raw["model"], settings.model, file, "filter.model")
         if (filter_model.state_dimension, filter_model.measurement_dimension) != \
                 (truth.state_dimension, truth.measurement_dimension):
             raise ConfigError("the filter's model must have the true model's state and measurement sizes",
@@ -255,5 +288,38 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
                               "remove the repeated sweep value", file=file, key="sweep")
         seen[cell.key] = index
 
-    resolved = experiment.model_dump(mode="json")
+    if "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
+        experiment.outputs.figures = ["rmse_vs_particles", *experiment.outputs.figures]
+    resolved = resolved_config(experiment, raw, arms, cells, file)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
+
+
+def _sweeps_particle_count(sweep: dict) -> bool:
+    return len(sweep.get("filter.particles", [])) >= 2
+
+
+def resolved_config(experiment: Experiment, raw: dict, arms: dict[str, Optional[dict]], cells: list[Cell],
+                    file: str) -> dict:
+    """The config as it runs, every default filled in: what ``config.yaml`` records and ``pfx
+    validate`` prints. Running it gives the same cells, hence the same numbers.
+
+    Each arm is written as what it changes against the resolved ``filter:`` section (the arm's
+    own keys merged over that section, then compared with it), so that the record reads like
+    the config. Filter settings that apply to none of the cells' filter kinds (``grid`` for a
+    particle filter) are left out where they hold their default.
+    """
+    resolved = experiment.model_dump(mode="json")
+    kinds_by_arm: dict[str, set[str]] = {}
+    for cell in cells:
+        kinds_by_arm.setdefault(cell.labels["arm"], set()).add(cell.filter.kind)
+    all_kinds = set().union(*kinds_by_arm.values()) if kinds_by_arm else {experiment.filter.kind}
+    section = experiment.filter.model_dump(mode="json")
+    resolved["filter"] = experiment.filter.applicable_dump(all_kinds)
+    if experiment.arms:
+        resolved["arms"] = {}
+        for name, arm_raw in arms.items():
+            merged = validate(FilterConfig, deep_merge(raw.get("filter") or {}, arm_raw or {}),
+                              file=file, prefix=f"arms.{name}")
+            resolved["arms"][name] = {key: value for key, value in merged.model_dump(mode="json").items()
+                                      if section.get(key) != value}
+    return resolved

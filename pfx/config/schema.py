@@ -9,7 +9,7 @@ the JSON Schema printed by ``pfx schema``, and the config reference in the READM
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Optional, Union
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictFloat
 
@@ -60,9 +60,23 @@ class FilterConfig(BaseModel):
         description="model parameters the filter assumes where they differ from the truth "
                     "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")
 
+    # settings that only some filter kinds read (every other setting applies to every kind)
+    KIND_SPECIFIC: ClassVar[dict[str, frozenset[str]]] = {
+        "particles": PARTICLE_KINDS, "weighting": PARTICLE_KINDS, "resampler": frozenset({"particle"}),
+        "ess_threshold": frozenset({"particle"}), "diffusion": frozenset({"particle"}),
+        "unscented": frozenset({"ukf"}), "grid": frozenset({"histogram"})}
+
     @property
     def uses_particles(self) -> bool:
         return self.kind in PARTICLE_KINDS
+
+    def applicable_dump(self, kinds) -> dict:
+        """The settings as config data, without those that none of ``kinds`` reads and that
+        hold their default (a setting given explicitly is always kept)."""
+        defaults = FilterConfig().model_dump(mode="json")
+        return {key: value for key, value in self.model_dump(mode="json").items()
+                if key not in self.KIND_SPECIFIC or self.KIND_SPECIFIC[key] & set(kinds)
+                or value != defaults[key]}
 
     def effective_threshold(self) -> float:
         return 0.0 if self.kind == "sis" else self.ess_threshold
