@@ -1,0 +1,282 @@
+"""A result folder is a record of what ran: its config.yaml reruns to the same numbers, and
+what a later run does with the folder (resume, extend, re-render, refuse) keeps that true.
+
+* Every shipped config (examples, papers, studies), run with 2 trials, then rerun from the
+  folder's own config.yaml: every table identical apart from run times. ``pfx validate``'s
+  output is itself a config that resolves to the same plan.
+* ``--set`` wins over arms and the sweep, and says so; ``--set sweep.KEY=[...]`` adds an axis.
+* A run that fails keeps only what a rerun can resume from, and says what it kept.
+* Changing only the outputs, the name or the trial count keeps the results: figures are
+  re-rendered, more trials extend the run to exactly what a fresh run gives.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from conftest import REPO_ROOT, tiny_config_dict, write_config_file
+from pfx.config.overrides import apply_overrides
+from pfx.config.plan import build_plan
+from pfx.config.yaml_loading import load_config_file
+from pfx.errors import ConfigError
+from pfx.runner import run_plan
+
+SHIPPED = sorted(path for path in (REPO_ROOT / "configs").rglob("*.yaml") if path.name != "paper.yaml")
+
+
+def _id(path: Path) -> str:
+    return str(path.relative_to(REPO_ROOT / "configs"))
+
+
+def _tables(folder: Path) -> dict[str, pd.DataFrame]:
+    """Every CSV of a folder without its timing columns (the only ones allowed to differ)."""
+    tables = {}
+    for path in sorted(folder.glob("*.csv")):
+        frame = pd.read_csv(path)
+        tables[path.name] = frame[[c for c in frame.columns if "run_time" not in c]]
+    return tables
+
+
+def _cells(plan) -> list:
+    return [(cell.key, cell.labels) for cell in plan.cells]
+
+
+def test_every_shipped_config_is_found():
+    assert len(SHIPPED) >= 33
+    assert any("study" in load_config_file(path) for path in SHIPPED)
+
+
+@pytest.mark.parametrize("config", SHIPPED, ids=_id)
+def test_the_saved_config_reruns_to_identical_tables(config, tmp_path):
+    raw = load_config_file(config)
+    raw.setdefault("outputs", {})["figures"] = []           # the numbers are what is checked here
+    study = "study" in raw
+    first = run_plan(build_plan(raw, str(config), trials=None if study else 2), tmp_path / "first")
+    saved = first / "config.yaml"
+    second = run_plan(build_plan(load_config_file(saved), str(saved)), tmp_path / "second")
+    before, after = _tables(first), _tables(second)
+    assert list(before) == list(after) and "trials.csv" in before or study
+    for name, table in before.items():
+        pd.testing.assert_frame_equal(table, after[name], check_exact=True, obj=name)
+
+
+@pytest.fixture(scope="module")
+def validated(run_pfx):
+    """``pfx validate`` of every shipped config, concurrently."""
+    return run_pfx.many({path: (["validate", path], REPO_ROOT) for path in SHIPPED})
+
+
+@pytest.mark.parametrize("config", SHIPPED, ids=_id)
+def test_validate_prints_a_config_that_resolves_to_the_same_plan(config, validated, tmp_path):
+    result = validated[config]
+    assert result.returncode == 0, result.output
+    printed = yaml.safe_load(result.stdout)            # the header line is a YAML comment
+    original = build_plan(load_config_file(config), str(config))
+    again = build_plan(printed, "printed")
+    assert again.resolved == original.resolved == printed
+    assert _cells(again) == _cells(original)
+    assert again.results_hash == original.results_hash
+
+
+def test_validate_prints_only_the_settings_of_the_filter_kind():
+    plan = build_plan(tiny_config_dict(), "tiny")
+    assert "unscented" not in plan.resolved["filter"] and "grid" not in plan.resolved["filter"]
+    ukf = build_plan(tiny_config_dict(filter={"kind": "ukf"}), "tiny")
+    assert "unscented" in ukf.resolved["filter"] and "particles" not in ukf.resolved["filter"]
+    # a setting given explicitly stays, even where the kind does not read it
+    explicit = build_plan(tiny_config_dict(filter={"particles": 20, "grid": {"cells": [11]}}), "tiny")
+    assert explicit.resolved["filter"]["grid"]["cells"] == [11]
+
+
+def test_arms_are_recorded_as_what_they_change_against_the_filter_section():
+    """The defect: arms were written filled with the filter's defaults, not merged with filter:."""
+    config = tiny_config_dict(filter={"particles": 20, "diffusion": {"kind": "roughening", "factor": 0.2}},
+                              arms={"plain": {}, "many": {"particles": 40}})
+    plan = build_plan(config, "tiny")
+    assert plan.resolved["arms"] == {"plain": {}, "many": {"particles": 40}}
+    assert plan.resolved["filter"]["particles"] == 20
+    assert plan.resolved["filter"]["diffusion"] == {"kind": "roughening", "factor": 0.2}
+    assert [cell.filter.particles for cell in plan.cells] == [20, 40]
+    assert all(cell.filter.diffusion.kind == "roughening" for cell in plan.cells)
+
+
+# --- --set wins ------------------------------------------------------------------------------------
+
+SWEPT = tiny_config_dict(filter={"particles": 20, "weighting": {"kind": "mahalanobis", "form": "paper"}},
+                         arms={"own": {"particles": 30, "weighting": "gaussian"},
+                               "form": {"weighting": {"kind": "mahalanobis", "form": "paper"}},
+                               "inherits": {"resampler": "multinomial"}},
+                         sweep={"filter.particles": [10, 50], "metrics.convergence.radius": [1.0, 2.0]})
+
+
+def _plan(config: dict, *assignments: str):
+    raw, notes = apply_overrides(config, list(assignments), "swept.yaml")
+    return build_plan(raw, "swept.yaml"), notes
+
+
+def test_set_overrides_the_arms_and_replaces_the_sweep_axis():
+    plan, notes = _plan(SWEPT, "filter.particles=500")
+    assert {cell.filter.particles for cell in plan.cells} == {500}
+    assert len(plan.cells) == 3 * 2                     # the particle axis is gone, the radius axis stays
+    assert any("sweep axis filter.particles ([10, 50])" in note for note in notes)
+    assert any("arm own" in note for note in notes)
+
+
+def test_set_below_a_key_reaches_only_the_arms_that_set_it():
+    plan, notes = _plan(SWEPT, "filter.weighting.form=innovation")
+    labels = {cell.labels["arm"]: cell.labels["weighting"] for cell in plan.cells}
+    assert labels == {"own": "gaussian", "form": "mahalanobis-innovation", "inherits": "mahalanobis-innovation"}
+    assert notes == ["--set filter.weighting.form also replaces the value of arm form"]
+
+
+def test_set_sweep_adds_replaces_and_removes_an_axis():
+    base = tiny_config_dict()
+    plan, _ = _plan(base, "sweep.filter.particles=[10, 20, 40]")
+    assert [cell.filter.particles for cell in plan.cells] == [10, 20, 40]
+    plan, _ = _plan(SWEPT, "sweep.filter.particles=[5]", "sweep.metrics.convergence.radius=null")
+    assert {cell.filter.particles for cell in plan.cells} == {5} and len(plan.cells) == 3
+
+
+@pytest.mark.parametrize("assignment, words", [
+    ("sweep.filter.particles=100", "takes a list"),
+    ("sweep.model.steps=null", "no axis"),
+    ("metrics.convergence.radius.value=3", "the sweep sets metrics.convergence.radius"),
+    ("arms.inherits.particles=5", "the sweep sets filter.particles for every arm"),
+])
+def test_set_that_cannot_apply_to_every_cell_is_refused(assignment, words):
+    with pytest.raises(ConfigError) as error:
+        _plan(SWEPT, assignment)
+    assert words in str(error.value) and str(error.value).startswith("swept.yaml: ")
+
+
+def test_readme_quick_start_set_reaches_every_cell(run_pfx):
+    config = REPO_ROOT / "configs" / "examples" / "linear-gaussian.yaml"
+    result = run_pfx("validate", config, "--set", "filter.particles=500")
+    assert result.returncode == 0, result.output
+    printed = yaml.safe_load(result.stdout)
+    assert printed["filter"]["particles"] == 500 and "filter.particles" not in printed.get("sweep", {})
+    assert "replaces the sweep axis filter.particles" in result.stderr
+
+
+# --- a failed run keeps only what a rerun can use -------------------------------------------------
+
+def _failing(order: list[str]) -> dict:
+    """Two arms; 'blows-up' assumes a transition that overflows, so its particles become infinite."""
+    arms = {"fine": {}, "blows-up": {"model": {"transition_matrix": [[1.0e200]]}}}
+    return tiny_config_dict(name="failing", arms={name: arms[name] for name in order},
+                            outputs={"trace_trials": 1, "figures": []})
+
+
+def test_failure_in_the_first_cell_leaves_no_folder(tmp_path, run_pfx):
+    config = write_config_file(tmp_path, _failing(["blows-up", "fine"]), "failing.yaml")
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 1, result.output
+    assert result.stderr.count("\n") == 1 and "nothing was kept" in result.stderr
+    assert not (tmp_path / "out").exists()
+    fixed = write_config_file(tmp_path, _failing(["fine"]), "fixed.yaml")     # a later run is not refused
+    assert run_pfx("run", fixed, "--out", tmp_path / "out", "--quiet", cwd=tmp_path).returncode == 0
+
+
+def test_failure_after_a_finished_cell_keeps_it_for_a_resume(tmp_path, run_pfx):
+    config = write_config_file(tmp_path, _failing(["fine", "blows-up"]), "failing.yaml")
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 1 and "1 of 2 cells finished and are kept" in result.stderr, result.output
+    assert len(list((tmp_path / "out" / "cells").glob("*.trials.csv"))) == 1
+    other = run_pfx("run", config, "--out", tmp_path / "out", "--trials", "9", cwd=tmp_path)
+    assert other.returncode == 2 and "interrupted run of 4 trials" in other.stderr, other.output
+
+
+# --- changing the outputs, the name or the trials keeps the results --------------------------------
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A finished folder of 3 trials per cell, and a fresh 6-trial folder to compare with."""
+    root = tmp_path_factory.mktemp("record")
+    config = tiny_config_dict(name="record", trials=3, sweep={"filter.resampler": ["systematic", "multinomial"]},
+                              outputs={"trace_trials": 4, "figures": ["error_over_time"]})
+    folder = run_plan(build_plan(config, "record.yaml"), root / "three")
+    fresh = run_plan(build_plan(config, "record.yaml", trials=6), root / "six")
+    return config, folder, fresh
+
+
+def _copy(folder: Path, tmp_path: Path) -> Path:
+    return Path(shutil.copytree(folder, tmp_path / folder.name))
+
+
+def test_more_trials_extend_a_finished_run_to_what_a_fresh_run_gives(finished, tmp_path):
+    config, three, six = finished
+    folder = _copy(three, tmp_path)
+    messages = []
+    run_plan(build_plan(config, "record.yaml", trials=6), folder, report=messages.append)
+    assert any("extending from 3 to 6 trials" in m for m in messages)
+    extended, fresh = _tables(folder), _tables(six)
+    for name in ("trials.csv", "steps.csv", "summary.csv"):
+        pd.testing.assert_frame_equal(extended[name], fresh[name], check_exact=True, obj=name)
+    # per-step means and deviations merge exactly in exact arithmetic: here to rounding
+    pd.testing.assert_frame_equal(extended["steps_summary.csv"], fresh["steps_summary.csv"], rtol=1e-12)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["trials"] == 6 and manifest["complete"] and "extending_from" not in manifest
+    assert not (folder / "cells").exists()
+
+
+def test_fewer_trials_than_the_folder_holds_is_refused(finished, tmp_path):
+    config, three, _ = finished
+    folder = _copy(three, tmp_path)
+    before = (folder / "trials.csv").read_bytes()
+    with pytest.raises(ConfigError, match="holds 3 trials per cell and the config asks for 2"):
+        run_plan(build_plan(config, "record.yaml", trials=2), folder)
+    assert (folder / "trials.csv").read_bytes() == before
+
+
+def test_changing_figures_and_name_rerenders_without_recomputing(finished, tmp_path):
+    config, three, _ = finished
+    folder = _copy(three, tmp_path)
+    before = {name: (folder / name).read_bytes() for name in ("trials.csv", "steps.csv", "summary.csv")}
+    changed = {**config, "name": "renamed", "description": "new words",
+               "outputs": {**config["outputs"], "figures": ["ess_over_time"], "formats": ["png", "svg"]}}
+    messages = []
+    run_plan(build_plan(changed, "record.yaml"), folder, report=messages.append)
+    assert {name: (folder / name).read_bytes() for name in before} == before
+    assert sorted(p.name for p in (folder / "figures").iterdir()) == ["ess_over_time.png", "ess_over_time.svg"]
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["name"] == "renamed" and manifest["figures"] == ["ess_over_time"]
+    assert yaml.safe_load((folder / "config.yaml").read_text())["description"] == "new words"
+    assert any("record updated" in m and "removed: error_over_time" in m for m in messages)
+
+
+def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, run_pfx):
+    _, three, _ = finished
+    folder = _copy(three, tmp_path)
+    result = run_pfx("figures", folder, "--figure", "ess_over_time")
+    assert result.returncode == 0, result.output
+    assert (folder / "figures" / "ess_over_time.png").exists()
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["figures"] == ["error_over_time", "ess_over_time"]
+    saved = yaml.safe_load((folder / "config.yaml").read_text())
+    assert saved["outputs"]["figures"] == manifest["figures"]
+    again = build_plan(saved, "saved")                  # the record still resolves to its own hash
+    assert again.config_hash == manifest["config_hash"]
+    wrong = run_pfx("figures", folder, "--figure", "ess_over_tim")
+    assert wrong.returncode == 2 and "did you mean 'ess_over_time'" in wrong.stderr
+
+
+def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, run_pfx):
+    config = write_config_file(tmp_path, tiny_config_dict(
+        arms={"few": {"particles": 10}, "many": {"particles": 40}}, outputs={"figures": []}), "arms.yaml")
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 0, result.output
+    lines = result.stdout.splitlines()
+    header = next(line for line in lines if "position RMSE" in line)
+    assert header.split()[:2] == ["arm", "trials"]
+    summary = pd.read_csv(tmp_path / "out" / "summary.csv")
+    few = next(line for line in lines if line.strip().startswith("few"))
+    assert f"{summary['rmse_position_mean'].iloc[0]:.4g}" in few
+    assert f"next: pfx compare {tmp_path / 'out'} --metric rmse_position --by arm" in result.stdout
+    assert np.isfinite(summary["rmse_position_ci95_low"]).all()
