@@ -196,15 +196,19 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
             if state.complete and state.kept_trials == plan.experiment.trials:
                 update_record(plan, out, state.manifest, report)
                 return out
-            _run_and_assemble(plan, out, state, executor or workers, budget, progress, report)
+            own = make_executor("local", workers) if executor is None else None
+            with own or nullcontext(executor) as running:        # the caller closes an executor it gave
+                _run_and_assemble(plan, out, state, running, budget, progress, report)
     finally:
         if created and not [path for path in out.iterdir() if path.name != LOCK_FILE]:
             shutil.rmtree(out, ignore_errors=True)       # a run that kept nothing leaves no folder
     return out
 
 
-def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Executor | int, budget: int,
+def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Executor, budget: int,
                       progress: bool, report: Callable[[str], None]) -> None:
+    """Run the cells the folder lacks (all trials, or only the new ones of an extension) and
+    assemble the tables; on failure, keep what finished (see :func:`_keep_what_finished`)."""
     trials = plan.experiment.trials
     first = state.kept_trials              # trials 0 .. first-1 are in the tables already
     if state.done:
@@ -222,10 +226,8 @@ def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Execu
     started = time.perf_counter()
     cell_times: dict[str, float] = {}
     try:
-        owned = make_executor("local", executor) if isinstance(executor, int) else nullcontext(executor)
-        with owned as running:
-            _run_cells(plan, out, [c for c in plan.cells if c.key not in state.done], running, budget,
-                       progress, cell_times, first)
+        _run_cells(plan, out, [c for c in plan.cells if c.key not in state.done], executor, budget,
+                   progress, cell_times, first)
     except BaseException as error:
         error.add_note(_keep_what_finished(plan, out, earlier_record))
         raise
