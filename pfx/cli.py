@@ -19,10 +19,45 @@ import yaml
 
 from pfx.errors import ConfigError, ExecutorError, ModelNumericalError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+app = typer.Typer(add_completion=True, no_args_is_help=True, pretty_exceptions_enable=False,
+                  context_settings={"help_option_names": ["-h", "--help"]},     # inherited by every command
                   help="pfx: run, compare and reproduce particle-filter experiments from YAML configs.")
 
-LISTABLE = ("models", "filters", "resamplers", "weightings", "noises", "diffusions", "metrics", "figures")
+
+def _print_version(requested: bool) -> None:
+    if requested:
+        from pfx import __version__
+
+        typer.echo(f"pfx {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _global_options(
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                 help="print the version and exit"),
+):
+    """Options before any command: --version, and typer's shell-completion options.
+
+    (The app's help text is the ``help`` given to ``typer.Typer`` above, not this docstring.)
+    """
+
+
+# What `pfx list` can show, in the order it shows them: name -> (module, registry in it).
+# The one source of truth for both LISTABLE and _registries(); the modules are imported only
+# when a listing is asked for (importing them all takes a second or more).
+REGISTRY_SOURCES = {
+    "models": ("pfx.models", "MODELS"),
+    "studies": ("pfx.studies", "STUDIES"),
+    "filters": ("pfx.filters", "FILTERS"),
+    "resamplers": ("pfx.resampling", "RESAMPLERS"),
+    "weightings": ("pfx.weighting", "WEIGHTINGS"),
+    "noises": ("pfx.noise", "NOISE_FAMILIES"),
+    "diffusions": ("pfx.diffusion", "DIFFUSIONS"),
+    "metrics": ("pfx.metrics", "METRICS"),
+    "figures": ("pfx.figures", "FIGURES"),
+}
+LISTABLE = tuple(REGISTRY_SOURCES)
 
 
 def _fail(message: str, status: int = 2) -> None:
@@ -171,11 +206,11 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
     """List what a config can name, with a one-line description each."""
     from pfx.registry import closest_name
 
-    registries = _registries()
-    if what is not None and what not in registries:
-        hint = closest_name(what, registries)
+    if what is not None and what not in LISTABLE:
+        hint = closest_name(what, LISTABLE)
         _fail(f"nothing called {what!r} to list" + (f" (did you mean {hint!r}?)" if hint else
                                                    f"; choose from {', '.join(LISTABLE)}"))
+    registries = _registries()
     for name in [what] if what else LISTABLE:
         typer.echo(f"{name}:")
         descriptions = registries[name].describe()
@@ -184,19 +219,12 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
             typer.echo(f"  {item:<{width}} {description}")
 
 
-def _registries():
-    from pfx.diffusion import DIFFUSIONS
-    from pfx.figures import FIGURES
-    from pfx.filters import FILTERS
-    from pfx.metrics import METRICS
-    from pfx.models import MODELS
-    from pfx.noise import NOISE_FAMILIES
-    from pfx.resampling import RESAMPLERS
-    from pfx.studies import STUDIES
-    from pfx.weighting import WEIGHTINGS
+def _registries() -> dict:
+    """Every listable registry by name, in LISTABLE's order (imports the registries' modules)."""
+    import importlib
 
-    return {"models": MODELS, "studies": STUDIES, "filters": FILTERS, "resamplers": RESAMPLERS, "weightings": WEIGHTINGS,
-            "noises": NOISE_FAMILIES, "diffusions": DIFFUSIONS, "metrics": METRICS, "figures": FIGURES}
+    return {name: getattr(importlib.import_module(module), attribute)
+            for name, (module, attribute) in REGISTRY_SOURCES.items()}
 
 
 @app.command()
@@ -316,14 +344,23 @@ def bench(
     peers: bool = typer.Option(True, "--peers/--no-peers", help="time particles, filterpy, pfilter if installed"),
     workers: bool = typer.Option(True, "--workers/--no-workers", help="measure --workers 2 against 1"),
     memory: bool = typer.Option(True, "--memory/--no-memory", help="measure memory per particle"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress lines on stderr"),
 ):
     """Benchmark: ns per particle-step of pfx, a plain NumPy filter and the Python peers."""
     from pfx.bench import run_bench
 
-    progress = _show_progress(False)
+    # A full benchmark takes minutes: say what is being timed, one plain line per case and
+    # implementation, on a terminal and in a redirected log alike; not in CI, where logs are
+    # read after the fact and the report says it all.
+    def show(message: str) -> None:
+        typer.echo(f"  ... {message}", err=True)
+
+    def hide(message: str) -> None:
+        pass
+
+    progress = hide if quiet or os.environ.get("CI") else show
     run_bench(quick=quick, repeats=repeats, budget=budget, peers=peers, workers=workers, memory=memory,
-              echo=typer.echo,
-              progress=(lambda message: typer.echo(f"  ... {message}", err=True)) if progress else (lambda m: None))
+              echo=typer.echo, progress=progress)
 
 
 def _one_thread_per_process() -> None:

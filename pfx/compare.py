@@ -27,9 +27,16 @@ each group holding both; rows come value by value, groups in the table's order.
 ``baseline`` (the baseline value), ``metric``, ``n_pairs``, ``excluded_pairs``,
 ``baseline_mean`` and ``mean`` (the metric's mean over the *used* pairs, so that
 ``mean - baseline_mean == mean_difference``), ``mean_difference`` (value - baseline, mean over
-pairs), ``relative_change`` (``mean_difference / baseline_mean``, a fraction; empty when the
+pairs), ``relative_change`` (``mean_difference / |baseline_mean|``, a fraction; empty when the
 baseline mean is 0), ``ci95_low``, ``ci95_high``, ``ci_method``, ``p_value``, ``better``,
 ``wins``, ``losses``, ``ties``.
+
+**Relative change.** It is divided by the *absolute value* of the baseline mean, here and in
+:func:`relative_change_interval`, so that its sign is always the sign of the difference: a
+value below the baseline is a negative change, whatever the baseline's sign. (Dividing by a
+negative baseline mean, a log-likelihood of -130, would turn a lower, worse log-likelihood
+into a positive change.) ``--higher-is-better`` changes only ``better`` and the wins and
+losses, never the sign of a difference or of a change.
 
 * **Exclusions.** A pair is used only when both values are finite: a missing value (a trial
   that never converged has no ``convergence_step``) or an infinite one (a diverged filter's
@@ -111,8 +118,7 @@ def paired_comparison(trials: pd.DataFrame, metric: str, by: str = "arm", baseli
     _check_by(trials, by, label_columns)
     values = _unique(trials[by])
     if len(values) < 2:
-        raise ConfigError(f"column {by!r} has a single value ({_text(values[0])!r}) in trials.csv: "
-                          "nothing to compare", key="--by")
+        raise ConfigError(_single_value_message(trials, by, values[0], label_columns), key="--by")
     base = values[0] if baseline is None else _find_value(values, baseline, by)
     groups = grouping_columns(trials, by, label_columns)
     if bootstrap is not None and bootstrap < 1:
@@ -161,6 +167,20 @@ def paired_comparison(trials: pd.DataFrame, metric: str, by: str = "arm", baseli
     return pd.DataFrame(rows, columns=groups + [by] + list(RESULT_COLUMNS))
 
 
+def _single_value_message(trials: pd.DataFrame, by: str, value, label_columns: list[str]) -> str:
+    """Why nothing can be compared by ``by``, and which label columns could be (one line).
+
+    A run without arms has the single arm 'default', so the default ``--by arm`` compares
+    nothing; the swept columns are what the user most likely wants instead.
+    """
+    varying = [c for c in label_columns if c not in (by, "cell", "trial") and c in trials
+               and trials[c].nunique(dropna=False) > 1]
+    message = f"column {by!r} has a single value ({_text(value)!r}) in trials.csv: nothing to compare"
+    if varying:
+        return message + f"; label columns that vary: {', '.join(varying)} (try --by {varying[0]})"
+    return message + "; no label column varies (one cell only)"
+
+
 def _unused(side: pd.DataFrame, groups: list[str]) -> list[str]:
     """Grouping columns empty in every row of one side: settings its filter does not use."""
     return [c for c in groups if side[c].isna().all()]
@@ -200,8 +220,10 @@ def _statistics(base: np.ndarray, value: np.ndarray, higher_is_better: bool,
         return result
     mean_difference = float(differences.mean())
     baseline_mean = float(base.mean())
+    # divided by |baseline mean|: the change has the sign of the difference even when the
+    # baseline is negative (a log-likelihood); see the module docstring
     result.update(baseline_mean=baseline_mean, mean=float(value.mean()), mean_difference=mean_difference,
-                  relative_change=mean_difference / baseline_mean if baseline_mean != 0 else np.nan)
+                  relative_change=mean_difference / abs(baseline_mean) if baseline_mean != 0 else np.nan)
     if n < 2:
         return result
     from scipy import stats
@@ -234,16 +256,19 @@ def _bootstrap_interval(differences: np.ndarray, resamples: int, seed: int) -> t
 
 
 def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
-    r"""Relative change of paired means, :math:`\bar v / \bar b - 1`, with its t-interval.
+    r"""Relative change of paired means, :math:`(\bar v - \bar b) / |\bar b|`, with its t-interval.
 
-    The ratio :math:`\hat R = \bar v / \bar b` of the means of paired values is a smooth function
-    of two correlated means; to first order (the delta method),
-    :math:`\hat R - R \approx \tfrac{1}{\bar b}\,\overline{(v - R b)}`, so its standard error is
-    :math:`s_e / (\sqrt n\, \bar b)` with :math:`s_e` the standard deviation of the residuals
-    :math:`e_i = v_i - \hat R b_i`. The interval is
-    :math:`\hat R - 1 \pm t_{(1+\text{level})/2,\,n-1}\, s_e / (\sqrt n\, \bar b)`. Unlike
-    dividing the interval of the mean difference by :math:`\bar b`, it accounts for the
-    uncertainty of the baseline mean too. Pairs with a missing or infinite value are left out.
+    For a positive baseline mean this is :math:`\hat R - 1` with :math:`\hat R = \bar v / \bar b`;
+    for a negative one it is :math:`-(\hat R - 1)`, so that the change always has the sign of
+    :math:`\bar v - \bar b` (module docstring, "Relative change"). The ratio :math:`\hat R` of
+    the means of paired values is a smooth function of two correlated means; to first order
+    (the delta method), :math:`\hat R - R \approx \tfrac{1}{\bar b}\,\overline{(v - R b)}`, so its
+    standard error (and that of the change, which differs from it by a sign at most) is
+    :math:`s_e / (\sqrt n\, |\bar b|)` with :math:`s_e` the standard deviation of the residuals
+    :math:`e_i = v_i - \hat R b_i`. The interval is the estimate
+    :math:`\pm\, t_{(1+\text{level})/2,\,n-1}\, s_e / (\sqrt n\, |\bar b|)`. Unlike dividing the
+    interval of the mean difference by :math:`|\bar b|`, it accounts for the uncertainty of the
+    baseline mean too. Pairs with a missing or infinite value are left out.
     Returns (estimate, low, high); NaN where there are fewer than 2 pairs or :math:`\bar b = 0`.
     """
     from scipy import stats
@@ -257,7 +282,8 @@ def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float =
     ratio = value.mean() / base.mean()
     residuals = value - ratio * base
     half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * residuals.std(ddof=1) / (math.sqrt(n) * abs(base.mean()))
-    return ratio - 1.0, ratio - 1.0 - half, ratio - 1.0 + half
+    change = (value.mean() - base.mean()) / abs(base.mean())     # = ratio - 1 for a positive baseline
+    return change, change - half, change + half
 
 
 def diverged(values: np.ndarray, reference: np.ndarray, factor: float = 1000.0) -> np.ndarray:

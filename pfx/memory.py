@@ -2,9 +2,9 @@
 
 The engine holds, per trial, a handful of particle-sized arrays (the state, its prediction and
 the model's temporaries, log-weights, weights, the weighting's innovations) and the per-step
-traces. :func:`trial_bytes` estimates that peak as
+traces and values (error, ESS, NEES, NIS and squared error per state, for steps_summary.csv). :func:`trial_bytes` estimates that peak as
 
-    8 bytes x [N (8 d + 4 m + 12) + T (3 d + m + 8)]
+    8 bytes x [N (8 d + 4 m + 12) + T (4 d + m + 12)]
 
 for N particles, d state and m measurement components and T steps: about 1.3 to 2.5 times the
 peak that tracemalloc measures on the bundled models (``tests/test_memory.py`` checks that it
@@ -68,7 +68,7 @@ def default_budget() -> int:
 def trial_bytes(particles: int, state_dimension: int, measurement_dimension: int, steps: int) -> int:
     """Estimated peak bytes of one trial in the engine (see the module docstring)."""
     d, m = state_dimension, measurement_dimension
-    return 8 * (particles * (8 * d + 4 * m + 12) + steps * (3 * d + m + 8))
+    return 8 * (particles * (8 * d + 4 * m + 12) + steps * (4 * d + m + 12))
 
 
 def cell_trial_bytes(cell) -> int:

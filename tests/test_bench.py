@@ -47,8 +47,8 @@ def test_quick_bench_prints_every_row(quick_output):
         assert rows[label][:2] == ["pfx", "numpy"], (label, rows[label])
     assert any(line.startswith("memory, N=10000, 1 trial:") and "bytes per particle" in line for line in lines)
     assert any(line.startswith("workers, sweep of 8 cells") and "speed-up" in line for line in lines)
-    targets = lines.index("targets (ratios of best wall times on this machine):")
-    assert len(lines[targets + 1:targets + 7]) == 6
+    goals = lines.index("goals (ratios of best wall times on this machine):")
+    assert len(lines[goals + 1:goals + 7]) == 6
 
 
 def test_bench_model_is_pfx_model():

@@ -7,7 +7,9 @@ every implementation. :mod:`pfx.bench.timing` times pfx, the reference filter
 process, interleaved, best of several repeats, and reports nanoseconds per particle-step
 (wall time / (trials x N x T)) with the altitude RMSE that shows equal work;
 :mod:`pfx.bench.scaling` measures ``--workers 2`` against 1 and the memory per particle;
-:mod:`pfx.bench.report` prints it all with the machine line and the targets as ratios.
+:mod:`pfx.bench.report` prints it all with the machine line and the goals as ratios.
+While it runs, one progress line per case and implementation (and per repeat) goes to
+stderr, unless the caller's ``progress`` drops them (``pfx bench --quiet``, or CI).
 
 Speed is measured here and only here: no test asserts a timing.
 """
@@ -79,6 +81,6 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
              f"{workers_result['two']:.2f} s ({workers_result['cpu_two']:.2f} s CPU), "
              f"speed-up {workers_result['speedup']:.2f}")
     echo("")
-    echo(report.format_targets(timings, workers_result, memory_result))
+    echo(report.format_goals(timings, workers_result, memory_result))
     echo("Wall times; on a machine shared with other work they vary from run to run (best of "
          f"up to {repeats} runs, interleaved).")

@@ -1,4 +1,4 @@
-"""What ``pfx bench`` prints: the machine line, the table, the targets."""
+"""What ``pfx bench`` prints: the machine line, the table, the goals."""
 
 from __future__ import annotations
 
@@ -60,33 +60,34 @@ def _find(timings: list[Timing], particles: int, trials: int, name: str) -> Opti
     return None
 
 
-def _verdict(value: Optional[float], limit: float, at_most: bool, text: str, missing: str) -> str:
+def _goal_line(value: Optional[float], limit: float, at_most: bool, text: str, missing: str) -> str:
+    """'  TEXT: goal met (0.47 vs <= 1)', 'goal not met (...)', or 'not measured (why; goal <= 1)'."""
+    goal = f"{'<=' if at_most else '>='} {limit:g}"
     if value is None:
-        return f"  {text}: not measured ({missing})"
+        return f"  {text}: not measured ({missing + '; ' if missing else ''}goal {goal})"
     met = value <= limit if at_most else value >= limit
-    return f"  {text}: {value:.2f} (target {'<=' if at_most else '>='} {limit:g})  {'met' if met else 'NOT MET'}"
+    return f"  {text}: {'goal met' if met else 'goal not met'} ({value:.2f} vs {goal})"
 
 
-def format_targets(timings: list[Timing], workers: Optional[dict], memory: Optional[dict]) -> str:
-    """The issue's targets, as measured ratios (never asserted by a test)."""
+def format_goals(timings: list[Timing], workers: Optional[dict], memory: Optional[dict]) -> str:
+    """The benchmark's goals (from the issue that set them), as measured ratios; never asserted by a test."""
     def ratio(particles, trials, numerator, denominator):
         a, b = _find(timings, particles, trials, numerator), _find(timings, particles, trials, denominator)
         return a.seconds / b.seconds if a and b else None
 
-    lines = ["targets (ratios of best wall times on this machine):"]
-    lines.append(_verdict(ratio(100_000, 1, "pfx", "numpy"), 0.5, True,
-                          "N=1e5, 1 trial: pfx time / numpy reference time", "case not run"))
-    lines.append(_verdict(ratio(100_000, 1, "particles", "pfx"), 2.5, False,
-                          "N=1e5, 1 trial: particles time / pfx time", "particles not installed or case not run"))
-    lines.append(_verdict(ratio(100, 1000, "particles", "pfx"), 10.0, False,
-                          "1000 x N=100: particles.multiSMC time / pfx time", "particles not installed or case not run"))
-    lines.append(_verdict(ratio(100, 1000, "numpy", "pfx"), 3.0, False,
-                          "1000 x N=100: numpy reference loop time / pfx time", "case not run"))
-    lines.append(_verdict(workers["speedup"] if workers else None, 1.8, False,
-                          f"--workers 2 vs 1 on an 8-cell sweep: speed-up", "skipped"))
-    if memory and memory.get("particles") == 1_000_000:
-        lines.append(_verdict(memory["peak_rss"] / GIB, 1.0, True,
-                              "N=1e6, 1 trial: peak memory of the process (GiB)", ""))
-    else:
-        lines.append("  N=1e6, 1 trial: peak memory of the process <= 1 GiB: not measured (--quick or skipped)")
+    lines = ["goals (ratios of best wall times on this machine):"]
+    lines.append(_goal_line(ratio(100_000, 1, "pfx", "numpy"), 0.5, True,
+                            "N=1e5, 1 trial: pfx time / numpy reference time", "case not run"))
+    lines.append(_goal_line(ratio(100_000, 1, "particles", "pfx"), 2.5, False,
+                            "N=1e5, 1 trial: particles time / pfx time", "particles not installed or case not run"))
+    lines.append(_goal_line(ratio(100, 1000, "particles", "pfx"), 10.0, False,
+                            "1000 x N=100: particles.multiSMC time / pfx time",
+                            "particles not installed or case not run"))
+    lines.append(_goal_line(ratio(100, 1000, "numpy", "pfx"), 3.0, False,
+                            "1000 x N=100: numpy reference loop time / pfx time", "case not run"))
+    lines.append(_goal_line(workers["speedup"] if workers else None, 1.8, False,
+                            "--workers 2 vs 1 on an 8-cell sweep: speed-up", "skipped"))
+    measured = memory and memory.get("particles") == 1_000_000
+    lines.append(_goal_line(memory["peak_rss"] / GIB if measured else None, 1.0, True,
+                            "N=1e6, 1 trial: peak memory of the process (GiB)", "--quick or skipped"))
     return "\n".join(lines)

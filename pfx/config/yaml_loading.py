@@ -38,9 +38,67 @@ MAX_FILE_BYTES = 10 * 1024 * 1024
 
 
 def _mark_error(file: str, mark, reason: str, key: str | None = None) -> ConfigError:
-    line = mark.line + 1 if mark is not None else None
-    column = mark.column + 1 if mark is not None else None
+    """A ConfigError at a PyYAML mark (0-based line and column), or at a 1-based (line, column) pair."""
+    if mark is None:
+        line = column = None
+    elif isinstance(mark, tuple):
+        line, column = mark
+    else:
+        line, column = mark.line + 1, mark.column + 1
     return ConfigError(reason, file=file, key=key, line=line, column=column)
+
+
+# YAML's line breaks (YAML 1.1 and PyYAML's reader): the lines PyYAML's marks count.
+_LINE_BREAK = re.compile(r"\r\n|[\r\n\x85\u2028\u2029]")
+# Problems that PyYAML notices only at the next token, although what is missing (a ',', a
+# closing bracket, a ':', anything at all) belongs right after the content before that token.
+_NOTICED_LATE = re.compile(r"^expected ',' or |^could not find expected ':'|'<stream end>'")
+
+
+def _without_comment(line: str) -> str:
+    """The line without a trailing '# comment' (a '#' at the start or after a blank, outside quotes)."""
+    quote = None
+    for index, character in enumerate(line):
+        if quote:
+            if character == quote:
+                quote = None
+        elif character in "'\"":
+            quote = character
+        elif character == "#" and (index == 0 or line[index - 1] in " \t"):
+            return line[:index]
+    return line
+
+
+def _unclosed_quote(error: yaml.MarkedYAMLError) -> bool:
+    """A quoted scalar that runs to the end of the file (or to a '---'): its quote is not closed."""
+    return (error.context_mark is not None and (error.context or "").startswith("while scanning a quoted scalar")
+            and (error.problem or "").startswith("found unexpected"))
+
+
+def _syntax_error_position(error: yaml.MarkedYAMLError, text: str) -> tuple[int, int] | None:
+    """Where a user sees a YAML syntax error, as 1-based (line, column); None for no position.
+
+    PyYAML's problem mark is where the parser *noticed* the problem: for an unclosed ``{``
+    or a key without ``:`` that is the next token, often column 1 of the next line (or the
+    end of the file, after trailing blank and comment lines). Then the position reported is
+    just after the last non-blank, non-comment content before the mark: where the missing
+    ``}`` or ``:`` belongs. A quote that is never closed runs to the end of the file, so the
+    opening quote (the context mark) is reported. Otherwise, the problem mark: it points at
+    the offending character (a tab, a misplaced ``:`` or ``-``).
+    """
+    problem, context = error.problem_mark, error.context_mark
+    if problem is None:
+        return (context.line + 1, context.column + 1) if context is not None else None
+    if _unclosed_quote(error):
+        return context.line + 1, context.column + 1
+    lines = _LINE_BREAK.split(text)
+    before_on_line = lines[problem.line][:problem.column] if problem.line < len(lines) else ""
+    if _NOTICED_LATE.search(error.problem or "") and not before_on_line.strip():
+        for index in range(min(problem.line, len(lines)) - 1, -1, -1):
+            content = _without_comment(lines[index]).rstrip()
+            if content.strip():
+                return index + 1, len(content) + 1       # the column just after the content
+    return problem.line + 1, problem.column + 1
 
 
 def _check_tree(node: yaml.Node, file: str) -> None:
@@ -96,8 +154,17 @@ def parse_yaml(text: str, file: str) -> Any:
             reason = f"YAML tag not allowed: {reason}"
         elif isinstance(error, yaml.constructor.ConstructorError):
             reason = f"YAML error: {reason}"
-        else:
+        else:                           # scanner, parser, composer: where the user sees the problem
+            mark = _syntax_error_position(error, text)
             reason = f"YAML syntax error: {reason}"
+            if _unclosed_quote(error):
+                reason += " (the quote opened here is not closed)"
+            opened = error.context_mark
+            if error.context in ("while parsing a flow mapping", "while parsing a flow sequence") \
+                    and mark is not None and mark[0] != opened.line + 1:
+                # the opening bracket may be lines away from where the problem shows
+                reason += (f" (in the {error.context[len('while parsing a '):]} opened at "
+                           f"line {opened.line + 1}, column {opened.column + 1})")
         raise _mark_error(file, mark, reason) from None
     except yaml.YAMLError as error:
         raise ConfigError(f"YAML error: {error}", file=file) from None
