@@ -197,8 +197,10 @@ def test_workers_dying_beyond_dasks_limit_end_the_run_in_one_line_keeping_cells(
     assert "Traceback" not in stderr
     last = stderr.strip().splitlines()[-1]
     assert last.startswith("pfx: error: Dask workers kept dying while running a batch: ")
-    assert last.endswith("finished cells are kept, run again to resume")
-    assert 1 <= len(_finished_cells(out)) < CELLS and not (out / "trials.csv").exists()
+    finished = len(_finished_cells(out))
+    assert last.endswith(f"; {finished} of {CELLS} cells finished and are kept in {out}; "
+                         "run the same command again to resume")
+    assert 1 <= finished < CELLS and not (out / "trials.csv").exists()
 
 
 def test_interrupted_dask_run_keeps_finished_cells_and_resumes(config, runs, tmp_path):
