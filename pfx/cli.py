@@ -308,14 +308,10 @@ def compare(
     from pfx.figures.registry import ResultFolder
     from pfx.tables import write_csv
 
+    from pfx.result_folder import finished_manifest
+
+    finished_manifest(result_dir, needs=("trials.csv",))
     folder = ResultFolder(result_dir)
-    try:
-        finished = json.loads((result_dir / "manifest.json").read_text()).get("complete") is True
-    except (OSError, ValueError, AttributeError):
-        finished = False
-    if not finished or not (result_dir / "trials.csv").is_file():
-        raise ConfigError("not a finished pfx result folder (no complete manifest.json and trials.csv)",
-                          file=str(result_dir))
     try:
         trials = folder.trials
     except (ValueError, UnicodeDecodeError, OSError) as error:     # pandas' ParserError is a ValueError

@@ -1,4 +1,4 @@
-"""Safe YAML reading for configs, and dotted ``--set`` overrides.
+"""Safe YAML reading for configs, and the dotted-path helpers ``--set`` and the plan use.
 
 Only YAML's plain data types are constructed (``yaml.SafeLoader``, reading YAML 1.2 floats): tags that would build
 Python objects are errors. Duplicate keys are errors (plain PyYAML keeps the last one
@@ -227,21 +227,6 @@ def set_path(config: dict, dotted: str, value: Any) -> None:
                               key=dotted)
         node = child
     node[parts[-1]] = value
-
-
-def apply_overrides(config: dict, assignments: list[str], file: str) -> dict:
-    """Apply ``--set key.path=value`` assignments; values are parsed as YAML scalars/lists."""
-    result = copy.deepcopy(config)
-    for assignment in assignments:
-        if "=" not in assignment:
-            raise ConfigError(f"--set {assignment!r}: expected key.path=value", file=file)
-        dotted, _, raw_value = assignment.partition("=")
-        value = parse_yaml(raw_value, f"--set {dotted}") if raw_value.strip() else None
-        try:
-            set_path(result, dotted.strip(), value)
-        except ConfigError as error:
-            raise ConfigError(f"--set: {error.reason}", file=file, key=dotted.strip()) from None
-    return result
 
 
 def deep_merge(base: dict, override: dict) -> dict:
