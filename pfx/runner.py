@@ -407,6 +407,8 @@ def _manifest(plan: Plan, started: str) -> dict:
         "units": {"time": model.time_unit, "position": model.position_unit,
                   **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
         "position_states": [model.state_names[i] for i in model.position_components],
+        "angular_states": [model.state_names[i] for i in model.angular_components],
+        "full_turn": model.full_turn,
         "cells": [{"cell": c.key, **c.labels} for c in plan.cells],
     }
 

@@ -13,10 +13,14 @@ import os
 import tempfile
 from functools import cached_property
 from pathlib import Path
-from typing import Callable, Optional
+from typing import TYPE_CHECKING, Callable, Optional
 
 from pfx.registry import Registry
 from pfx.tables import FILE_MODE
+
+if TYPE_CHECKING:          # pandas and numpy are imported where a figure is drawn, not before
+    import numpy as np
+    import pandas as pd
 
 FIGURES: Registry[Callable] = Registry("figure")
 
@@ -31,7 +35,8 @@ class ResultFolder:
         import pandas as pd
 
         try:
-            return pd.read_csv(self.path / f"{name}.csv")
+            # A cell key is 12 hex digits: read as text, or "120e45678901" would become a number.
+            return pd.read_csv(self.path / f"{name}.csv", dtype={"cell": str})
         except pd.errors.EmptyDataError:
             return pd.DataFrame()
 
@@ -42,6 +47,77 @@ class ResultFolder:
     @cached_property
     def steps(self) -> pd.DataFrame:
         return self.table("steps")
+
+    @cached_property
+    def steps_summary(self) -> pd.DataFrame:
+        """steps_summary.csv: one row per (cell, step) over every trial of the cell.
+
+        A folder written before that table existed gets the same columns computed from the
+        traced trials of steps.csv instead (:attr:`steps_summary_covers_every_trial` is then
+        False, and a figure should say "traced trials"), so figures have one drawing path.
+        """
+        if (self.path / "steps_summary.csv").exists():
+            return self.table("steps_summary")
+        return self._steps_summary_from_traces()
+
+    @property
+    def steps_summary_covers_every_trial(self) -> bool:
+        """True when :attr:`steps_summary` is the run's own table, False when derived from steps.csv."""
+        return (self.path / "steps_summary.csv").exists()
+
+    @property
+    def state_names(self) -> list[str]:
+        """The model's state components in order (from the manifest's units, else steps.csv)."""
+        names = [key.removeprefix("state_") for key in self.units if key.startswith("state_")]
+        return names or [c.removeprefix("truth_") for c in self.steps.columns if c.startswith("truth_")]
+
+    def state_error(self, frame: pd.DataFrame, state: str) -> np.ndarray:
+        """estimate - truth of one state component in rows of steps.csv; an angle's (the
+        manifest's ``angular_states``) wrapped into half a turn either side, as
+        :func:`pfx.metrics.state_error` does."""
+        import numpy as np
+
+        from pfx.angles import wrap_difference
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            error = (frame[f"estimate_{state}"] - frame[f"truth_{state}"]).to_numpy(dtype=float)
+        if state in self.manifest.get("angular_states", []):
+            return wrap_difference(error, self.manifest["full_turn"])
+        return error
+
+    def _steps_summary_from_traces(self) -> pd.DataFrame:
+        """steps_summary.csv's table computed from the traced trials in steps.csv (older folders).
+
+        Each cell's traces become (trials, steps) arrays of the per-step values, summarised by
+        the very function the run uses (:func:`pfx.step_summary.summarize_steps`).
+        """
+        import numpy as np
+        import pandas as pd
+
+        from pfx.step_summary import QUANTITIES, summarize_steps
+
+        steps = self.steps
+        if steps.empty:
+            return pd.DataFrame()
+        # steps.csv starts with the cell columns (cell, labels, swept keys), then "trial".
+        cell_columns = list(steps.columns[:steps.columns.get_loc("trial")])
+        states = [c.removeprefix("truth_") for c in steps.columns if c.startswith("truth_")]
+        summaries = []
+        for _, rows in steps.groupby("cell", sort=False):
+            values = {quantity: self._by_trial(rows, rows.get(quantity, np.nan))
+                      for quantity in QUANTITIES}
+            for state in states:
+                values[f"squared_error_{state}"] = self._by_trial(rows, self.state_error(rows, state) ** 2)
+            first = rows.iloc[0]
+            times = rows.groupby("step")["time"].first().to_numpy(dtype=float)
+            summaries.append(summarize_steps(values, states, {c: first[c] for c in cell_columns}, times))
+        return pd.concat(summaries, ignore_index=True)
+
+    @staticmethod
+    def _by_trial(rows: pd.DataFrame, values) -> np.ndarray:
+        """Per-step values of one cell's rows of steps.csv as an array: one row per trial, one column per step."""
+        table = rows.assign(_value=values).pivot(index="trial", columns="step", values="_value")
+        return table.to_numpy(dtype=float)
 
     @cached_property
     def summary(self) -> pd.DataFrame:

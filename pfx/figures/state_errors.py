@@ -1,8 +1,11 @@
 r"""Figures of the error in every state component (park-mpf Figs. 4-6 and its extended comparison).
 
-* ``state_error_over_time`` (steps.csv): one panel per state component, one line per cell: the
-  error :math:`\hat x_{k,j} - x_{k,j}` over time when a single trial is traced, otherwise the
-  RMS error over the traced trials at each time, :math:`\sqrt{\tfrac1R \sum_r (\hat x_{k,j} - x_{k,j})^2}`.
+* ``state_error_over_time``: one panel per state component, one line per cell. A folder of
+  one trial draws that trial's error :math:`\hat x_{k,j} - x_{k,j}` over time (steps.csv);
+  a folder of :math:`R` trials draws the RMS error over all of them at each time,
+  :math:`\sqrt{\tfrac1R \sum_r (\hat x_{k,j} - x_{k,j})^2}` (``rms_error_<state>`` of
+  steps_summary.csv; an older folder's traced trials, said in the title). An angle's error is
+  wrapped into half a turn either side.
 * ``relative_change_by_state`` (trials.csv): for every state component, every arm's mean RMSE
   relative to the first arm's, paired by trial, with its 95% interval
   (:func:`pfx.compare.relative_change_interval`); for experiments with one cell per arm.
@@ -10,8 +13,9 @@ r"""Figures of the error in every state component (park-mpf Figs. 4-6 and its ex
 A filter that diverges (errors many orders of magnitude above the others'; see
 :func:`pfx.compare.diverged`) would flatten every other line to zero: over time, its line
 stops where it leaves the axes (a triangle marks the edge it crossed) and the panel names it
-with that time and its largest error; in the relative change, its count of diverged trials is
-written instead of an interval. The figure stays readable and says what it leaves out.
+with that time and its largest error (:func:`pfx.figures.layout.plot_within`); in the
+relative change, its count of diverged trials is written instead of an interval. The figure
+stays readable and says what it leaves out. Legends sit below the panels, off the data.
 """
 
 from __future__ import annotations
@@ -19,13 +23,9 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.compare import diverged, relative_change_interval
+from pfx.figures.layout import (cell_labels, legend_columns_of, legend_outside, off_scale_limit, peak_text,
+                                plot_within, time_axis, time_text, trials_text)
 from pfx.figures.registry import FIGURES, ResultFolder
-
-OFF_SCALE_FACTOR = 100.0          # a line whose peak exceeds 100x the smallest peak is drawn clipped
-
-
-def _state_names(columns) -> list[str]:
-    return [c.removeprefix("truth_") for c in columns if c.startswith("truth_")]
 
 
 def _label(name: str, unit: str) -> str:
@@ -38,59 +38,60 @@ def state_error_over_time(result: ResultFolder):
     """Estimation error of every state component over time, one line per cell (RMS if several trials)."""
     import matplotlib.pyplot as plt
 
-    steps = result.steps
-    if steps.empty:
+    summary = result.steps_summary
+    if summary.empty:
         return None
-    states = _state_names(steps.columns)
-    frame = steps.assign(_cell=result.cell_names(steps))
-    traced = int(frame.groupby("_cell")["trial"].nunique().max())
-    time_unit = result.units.get("time", "s")
-    figure, axes_list = plt.subplots(len(states), 1, figsize=(8.5, 2.9 * len(states) + 0.6), sharex=True,
+    states = [state for state in result.state_names if f"rms_error_{state}" in summary]
+    signed = int(summary["trials"].max()) == 1 and not result.steps.empty
+    lines = _signed_errors(result, states) if signed else _rms_errors(result, summary, states)
+    cells = summary.drop_duplicates("cell")
+    labels = dict(zip(cells["cell"], cell_labels(cells, legend_columns_of(result, cells))))
+    colours = {cell: f"C{index % 10}" for index, cell in enumerate(cells["cell"])}
+    _, x_label = time_axis(result)
+    figure, axes_list = plt.subplots(len(states), 1, figsize=(8.5, 2.9 * len(states) + 0.9), sharex=True,
                                      layout="constrained", squeeze=False)
     for axes, state in zip(axes_list[:, 0], states):
         unit = result.units.get(f"state_{state}", "")
-        lines = {}
-        for name, group in frame.groupby("_cell", sort=False):
-            error = (group[f"estimate_{state}"] - group[f"truth_{state}"]).to_numpy(dtype=float)
-            series = group.assign(_error=error).groupby("time")["_error"]
-            with np.errstate(over="ignore"):
-                values = series.first() if traced == 1 else np.sqrt(series.apply(lambda e: np.mean(np.square(e))))
-            lines[name] = values
-        peaks = {name: float(np.nanmax(np.abs(values.to_numpy()))) for name, values in lines.items()}
-        smallest = min(peaks.values())
-        in_scale = [name for name, peak in peaks.items() if np.isfinite(peak) and peak <= OFF_SCALE_FACTOR * max(smallest, 1e-300)]
-        limit = 1.15 * max(peaks[name] for name in in_scale) if in_scale else 1.0
+        peaks = {cell: float(np.nanmax(np.abs(series[state][1]))) for cell, series in lines.items()}
+        limit, in_scale = off_scale_limit(peaks)
         notes = []
-        for index, (name, values) in enumerate(lines.items()):
-            colour = f"C{index}"
-            raw = values.to_numpy(dtype=float)
-            outside = ~(np.abs(raw) <= limit)
-            # Drawn up to where it leaves the axes, then a triangle on the edge it crossed.
-            shown = np.where(np.cumsum(outside) > 0, np.nan, raw)
-            axes.plot(values.index, shown, label=name, linewidth=1.4, color=colour)
-            if outside.any():
-                first_index = int(np.argmax(outside))
-                first = values.index[first_index]
-                upward = not raw[first_index] < 0
-                axes.plot([first], [0.985 * limit if upward else -0.985 * limit], marker="^" if upward else "v",
-                          color=colour, markersize=9, clip_on=False)
-            if name not in in_scale:
-                peak = peaks[name]
-                notes.append(f"{name}: off scale from t = {first:g} {time_unit} "
-                             f"(|error| up to {'∞' if not np.isfinite(peak) else f'{peak:.1e}'} {unit})")
-        axes.set_ylim(-limit if traced == 1 else 0, limit)
-        if traced == 1:
+        for cell, series in lines.items():
+            time, error = series[state]
+            first_outside = plot_within(axes, time, error, limit, colours[cell], labels[cell])
+            if cell not in in_scale and first_outside is not None:
+                notes.append(f"{labels[cell]}: off scale from {time_text(time[first_outside], result)} "
+                             f"(|error| up to {peak_text(peaks[cell], unit)})")
+        axes.set_ylim(-limit if signed else 0, limit)
+        if signed:
             axes.axhline(0, color="black", linewidth=0.6)
-        axes.set_ylabel(("error" if traced == 1 else "RMS error") + f"\n{_label(state, unit)}", fontsize=9)
+        axes.set_ylabel(("error" if signed else "RMS error") + f"\n{_label(state, unit)}", fontsize=9)
         axes.grid(alpha=0.3)
         if notes:                      # above the panel, where it hides no data
             axes.set_title("; ".join(notes), loc="left", fontsize=8, color="C3")
-    axes_list[-1, 0].set_xlabel(f"time [{time_unit}]")
-    axes_list[0, 0].legend(fontsize=8, loc="upper right", ncol=min(3, len(lines)))
-    what = ("estimate - truth, one trial" if traced == 1
-            else f"RMS of estimate - truth over {traced} traced trials")
+    axes_list[-1, 0].set_xlabel(x_label)
+    legend_outside(figure)
+    what = ("estimate - truth, one trial" if signed else
+            f"RMS of estimate - truth over {trials_text(summary, result.steps_summary_covers_every_trial)} per cell")
     figure.suptitle(f"{result.manifest.get('name', '')}: estimation error per state ({what})", fontsize=11)
     return figure
+
+
+def _signed_errors(result: ResultFolder, states: list[str]) -> dict:
+    """cell -> state -> (time, estimate - truth) of the cell's first traced trial (steps.csv)."""
+    steps = result.steps
+    x_column, _ = time_axis(result)
+    first_trial = steps[steps["trial"] == steps.groupby("cell")["trial"].transform("min")]
+    return {cell: {state: (rows[x_column].to_numpy(dtype=float), result.state_error(rows, state))
+                   for state in states}
+            for cell, rows in first_trial.groupby("cell", sort=False)}
+
+
+def _rms_errors(result: ResultFolder, summary, states: list[str]) -> dict:
+    """cell -> state -> (time, RMS over the trials of estimate - truth) from steps_summary.csv."""
+    x_column, _ = time_axis(result)
+    return {cell: {state: (rows[x_column].to_numpy(dtype=float), rows[f"rms_error_{state}"].to_numpy(dtype=float))
+                   for state in states}
+            for cell, rows in summary.groupby("cell", sort=False)}
 
 
 @FIGURES.register("relative_change_by_state")

@@ -1,73 +1,128 @@
-"""Generic figures from steps.csv: error distance and ESS over time, one line per cell."""
+r"""Figures of a quantity over time, one line per cell, over every trial (steps_summary.csv).
+
+* ``error_over_time``: the mean error distance :math:`\bar e_k` at each step over the cell's
+  :math:`R` trials (named after the model's position: ``|error| of x`` for one state
+  component, ``position error distance`` for several);
+* ``ess_over_time``: the mean effective sample size before resampling as a share of the
+  particles, :math:`\overline{N_{\mathrm{eff}}}_k / N`;
+* ``nees_over_time``: the mean NEES (log scale) against its expected value :math:`d`, the
+  state dimension, for a consistent filter.
+
+Each line is the mean over every trial of the cell, and its band the 95% t-interval of that
+mean (steps_summary.csv, :mod:`pfx.step_summary`): where two bands do not overlap, the cells
+differ by more than their trials' spread explains. A folder written before steps_summary.csv
+existed draws the same statistics over its traced trials (steps.csv; see
+:attr:`pfx.figures.registry.ResultFolder.steps_summary`), and its title says "traced trials".
+
+Sweeps with many cells are drawn as small multiples, legends sit below the panels, and a cell
+whose mean diverges (a filter that lost the target: errors of 1e20) stops at the edge of the
+axes with a triangle and a note, so the other lines keep their scale (:mod:`pfx.figures.layout`).
+"""
 
 from __future__ import annotations
 
+import numpy as np
+
+from pfx.figures.layout import (cell_labels, error_quantity, legend_columns_of, off_scale_limit, peak_text,
+                                plot_within, small_multiples, time_axis, time_text, trials_text)
 from pfx.figures.registry import FIGURES, ResultFolder
 
+STATISTICS = ("mean", "ci95_low", "ci95_high")
 
-def _over_time(result: ResultFolder, values, ylabel: str, title: str, band: bool):
-    """One line per cell: the mean of ``values`` over the traced trials at each time."""
-    import matplotlib.pyplot as plt
 
-    steps = result.steps
-    unit = result.units.get("time", "s")
-    x_column, x_label = ("time", f"time [{unit}]") if unit != "step" else ("step", "step")
-    frame = steps.assign(_cell=result.cell_names(steps), _value=values)
-    figure, axes = plt.subplots(figsize=(7.5, 4.5), layout="constrained")
-    for name, group in frame.groupby("_cell", sort=False):
-        by_time = group.groupby(x_column)["_value"]
-        mean = by_time.mean()
-        axes.plot(mean.index, mean.values, label=name, linewidth=1.6)
-        if band and group["trial"].nunique() > 1:
-            axes.fill_between(mean.index, by_time.min().values, by_time.max().values, alpha=0.15)
-    traced = frame.groupby("_cell")["trial"].nunique().max()
-    axes.set_xlabel(x_label)
-    axes.set_ylabel(ylabel)
-    axes.set_title(f"{result.manifest.get('name', '')}: {title}\n"
-                   f"(mean{' and range' if band else ''} of {traced} traced trial{'s' if traced > 1 else ''} per cell)",
-                   fontsize=11)
-    axes.grid(alpha=0.3)
-    if frame["_cell"].nunique() > 4:   # many cells: keep the legend off the data
-        axes.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, unit: str = "",
+               scale=None, log_y: bool = False, reference=None):
+    """Mean line and 95% CI band of ``quantity`` per cell, divided by ``scale(rows)`` if given.
+
+    ``reference`` = (value, label) draws a dashed horizontal line in every panel (e.g. the
+    expected NEES). Returns the :class:`~pfx.figures.layout.SmallMultiples` (for the figure to
+    set its limits), or None when no cell has a value.
+    """
+    summary = result.steps_summary
+    if summary.empty or summary[f"{quantity}_mean"].isna().all():
+        return None
+    x_column, x_label = time_axis(result)
+    series = {}                    # cell -> (time, mean, low, high), the cells with a value
+    for cell, rows in summary.groupby("cell", sort=False):
+        divisor = scale(rows) if scale is not None else 1.0
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean, low, high = (rows[f"{quantity}_{statistic}"].to_numpy(dtype=float) / divisor
+                               for statistic in STATISTICS)
+        if not np.isnan(mean).all():   # the ESS of a Kalman filter has none: no panel, no line
+            series[cell] = (rows[x_column].to_numpy(dtype=float), mean, low, high)
+    drawn = summary["cell"].isin(series)
+    layout = small_multiples(result, summary[drawn], log_y=log_y)
+    if log_y:
+        # A log axis spans the decades: no line needs clipping, but a band's lower edge at or
+        # below zero (a wide interval) is drawn at the bottom of the axes instead.
+        positive = np.concatenate([np.concatenate([mean, low]) for _, mean, low, _ in series.values()])
+        bottom = np.min(positive[np.isfinite(positive) & (positive > 0)], initial=1.0) / 2
+        series = {cell: (time, mean, np.where(low > 0, low, bottom), high)
+                  for cell, (time, mean, low, high) in series.items()}
+        limit, in_scale = np.inf, list(series)
     else:
-        axes.legend(fontsize=8)
-    return figure, axes
+        peaks = {cell: float(np.nanmax(np.abs(np.concatenate([mean, np.where(np.isfinite(high), high, mean)]))))
+                 for cell, (_, mean, _, high) in series.items()}
+        limit, in_scale = off_scale_limit(peaks)
+    for cell, (time, mean, low, high) in series.items():
+        line = layout.lines[cell]
+        first_outside = plot_within(layout.axes_for(cell), time, mean, limit, line.colour, line.label, low, high)
+        if cell not in in_scale and first_outside is not None:
+            layout.note(cell, f"{line.label}: off scale from {time_text(time[first_outside], result)} "
+                              f"(mean up to {peak_text(np.nanmax(mean), unit)})")
+    extra = []
+    if reference is not None:
+        value, label = reference
+        for axes in layout.panels:
+            axes.axhline(value, color="black", linestyle="--", linewidth=1)
+        extra = [layout.panels[0].lines[-1]]
+        extra[0].set_label(label)      # once, in the legend's last place
+    axes = layout.panels[0]            # every panel shares its limits
+    if log_y:
+        axes.set_ylim(bottom=bottom)
+    elif np.isfinite(limit):
+        axes.set_ylim(min(0.0, axes.get_ylim()[0]), limit)
+    trials = trials_text(summary[drawn], result.steps_summary_covers_every_trial)
+    band = ", band: 95% CI" if any(np.isfinite(low).any() for _, _, low, _ in series.values()) else ""
+    title = f"{result.manifest.get('name', '')}: {what}\nmean over {trials} per cell{band}"
+    left_out = summary[~drawn].drop_duplicates("cell")
+    if not left_out.empty:             # say so, rather than leave the reader looking for them
+        title += f"\nno values for: {', '.join(cell_labels(left_out, legend_columns_of(result, left_out)))}"
+    layout.finish(title, x_label, y_label, extra_handles=extra)
+    return layout
 
 
 @FIGURES.register("error_over_time")
 def error_over_time(result: ResultFolder):
-    """Mean position error distance over time per cell (traced trials), with its range."""
-    if result.steps.empty:
+    """Mean error distance over time per cell over every trial, with the 95% CI of the mean."""
+    quantity = error_quantity(result)
+    layout = _over_time(result, "error_distance", f"{quantity.title} over time", quantity.axis_label,
+                        unit=result.units.get("position", ""))
+    if layout is None:
         return None
-    unit = result.units.get("position", "")
-    figure, _ = _over_time(result, result.steps["error_distance"],
-                           f"error distance [{unit}]" if unit else "error distance",
-                           "position error over time", band=True)
-    return figure
+    layout.panels[0].set_ylim(bottom=0)
+    return layout.figure
 
 
 @FIGURES.register("nees_over_time")
 def nees_over_time(result: ResultFolder):
     """Mean NEES over time per cell (log scale) against its expected value d, the state dimension."""
-    steps = result.steps
-    if steps.empty or steps["nees"].isna().all():
-        return None
-    dimension = sum(1 for column in steps.columns if column.startswith("truth_"))
-    figure, axes = _over_time(result, steps["nees"], "NEES (mean over traced trials)",
-                              "normalised estimation error squared", band=False)
-    axes.axhline(dimension, color="black", linestyle="--", linewidth=1, label=f"expected: d = {dimension}")
-    axes.set_yscale("log")
-    axes.legend(fontsize=8)
-    return figure
+    dimension = len(result.state_names)
+    layout = _over_time(result, "nees", "normalised estimation error squared (NEES)",
+                        f"NEES (consistent filter: d = {dimension})", log_y=True,
+                        reference=(dimension, f"expected: d = {dimension}"))
+    return layout.figure if layout is not None else None
 
 
 @FIGURES.register("ess_over_time")
 def ess_over_time(result: ResultFolder):
     """Mean effective sample size (as a share of N) over time per cell, before resampling."""
-    steps = result.steps
-    if steps.empty:
+    summary = result.steps_summary
+    if summary.empty or "n_particles" not in summary or summary["n_particles"].isna().all():
         return None
-    figure, axes = _over_time(result, steps["ess"] / steps["n_particles"], "ESS / N",
-                              "effective sample size before resampling", band=False)
-    axes.set_ylim(0, 1.05)
-    return figure
+    layout = _over_time(result, "ess", "effective sample size before resampling", "ESS / N",
+                        scale=lambda rows: float(rows["n_particles"].iloc[0]))
+    if layout is None:
+        return None
+    layout.panels[0].set_ylim(0, 1.05)
+    return layout.figure

@@ -197,10 +197,9 @@ def _landmark_demo(results: PaperResults, section: Section) -> None:
             ("particle_snapshots.png", "The particle cloud of trial 0 at a few steps, from the uniform prior over "
                                        "the square to tracking (marker area ∝ weight)."),
             ("particle_animation.gif", "The demo as an animation: trial 0, the weighted particles step by step."),
-            ("error_over_time.png", "Position error over time: the mean over the first {traced} trials, and "
-                                    "their range.")):
-        traced = folder.steps["trial"].nunique() if not folder.steps.empty else 0
-        section.items.append(Figure("landmark-demo", name, caption.format(traced=traced)))
+            ("error_over_time.png", "Position error over time: the mean over all {trials} trials, with its "
+                                    "95% confidence band.")):
+        section.items.append(Figure("landmark-demo", name, caption.format(trials=len(folder.trials))))
     trials = folder.trials
     summary = folder.summary.iloc[0]
     steps = int(trials["steps"].iloc[0])
