@@ -289,8 +289,8 @@ def plot_within(axes, x, values, limit: float, colour: str, label: str, low=None
 
 
 def peak_text(peak: float, unit: str) -> str:
-    """A diverged line's largest value for a note: "1.2e+27 ft", "∞"."""
-    return "∞" if not np.isfinite(peak) else f"{peak:.1e} {unit}".rstrip()
+    """A diverged line's largest value for a note: "1.2e+27 ft", "∞ ft"."""
+    return f"{'∞' if not np.isfinite(peak) else f'{peak:.1e}'} {unit}".rstrip()
 
 
 def trials_text(summary, covers_every_trial: bool) -> str:
