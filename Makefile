@@ -16,7 +16,10 @@ $(INSTALLED): pyproject.toml
 
 install: $(INSTALLED)
 
+# The house rules first (seconds): lint and import order (ruff), the layering (import-linter).
 test: $(INSTALLED)
+	$(BIN)/ruff check pfx tests
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
 reproduce-papers: $(INSTALLED)

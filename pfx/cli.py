@@ -50,11 +50,11 @@ REGISTRY_SOURCES = {
     "models": ("pfx.models", "MODELS"),
     "studies": ("pfx.studies", "STUDIES"),
     "filters": ("pfx.filters", "FILTERS"),
-    "resamplers": ("pfx.resampling", "RESAMPLERS"),
-    "weightings": ("pfx.weighting", "WEIGHTINGS"),
-    "noises": ("pfx.noise", "NOISE_FAMILIES"),
-    "diffusions": ("pfx.diffusion", "DIFFUSIONS"),
-    "metrics": ("pfx.metrics", "METRICS"),
+    "resamplers": ("pfx.filters.particle.resampling", "RESAMPLERS"),
+    "weightings": ("pfx.filters.particle.weighting", "WEIGHTINGS"),
+    "noises": ("pfx.laws.noise", "NOISE_FAMILIES"),
+    "diffusions": ("pfx.filters.particle.diffusion", "DIFFUSIONS"),
+    "metrics": ("pfx.analysis.metrics", "METRICS"),
     "figures": ("pfx.figures", "FIGURES"),
 }
 LISTABLE = tuple(REGISTRY_SOURCES)
@@ -109,7 +109,7 @@ def _show_progress(quiet: bool) -> bool:
 def _load_plan(path: Path, assignments: list[str], trials: Optional[int], report=None):
     from pfx.config.overrides import apply_overrides
     from pfx.config.plan import build_plan
-    from pfx.config.yaml_loading import load_config_file
+    from pfx.safe_yaml import load_config_file
 
     raw, notes = apply_overrides(load_config_file(path), assignments, str(path))
     plan = build_plan(raw, str(path), trials=trials)
@@ -140,15 +140,15 @@ def run(
                                              help="memory for particle arrays, e.g. 4G (default: half the available)"),
 ):
     """Run every cell and trial of the config(s); write CSV tables and figures."""
-    from pfx.executors import make_executor
-    from pfx.memory import budget_from_option, check_fits, keep_freed_memory
-    from pfx.runner import run_plan
+    from pfx.run.executors import make_executor
+    from pfx.run.memory import budget_from_option, check_fits, keep_freed_memory
+    from pfx.run.runner import run_plan
 
     signal.signal(signal.SIGTERM, _raise_interrupted)
     keep_freed_memory()
     executor = make_executor(executor_name, workers, scheduler)    # options checked, Dask imported
     budget = budget_from_option(max_memory)
-    from pfx.runner import check_folder
+    from pfx.run.runner import check_folder
 
     report = (lambda message: None) if quiet else (lambda message: typer.echo(message, err=True))
     plans = [_load_plan(path, assignments, trials, report) for path in configs]   # validate all first
@@ -176,8 +176,8 @@ def run(
 
 def _print_summary(plan, target: Path) -> None:
     """The end-of-run table and next command (a study writes its own tables: none)."""
+    from pfx.analysis.run_summary import print_run_summary
     from pfx.result_folder import read_manifest
-    from pfx.run_summary import print_run_summary
 
     manifest = read_manifest(target)
     if plan.cells and manifest and (target / "summary.csv").is_file():
@@ -280,8 +280,8 @@ def reproduce(
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ):
     """Regenerate the papers' tables and figures (what `make reproduce-papers` runs)."""
-    from pfx.memory import keep_freed_memory
-    from pfx.reproduce import reproduce_papers
+    from pfx.papers.reproduce import reproduce_papers
+    from pfx.run.memory import keep_freed_memory
 
     signal.signal(signal.SIGTERM, _raise_interrupted)
     keep_freed_memory()
@@ -304,11 +304,8 @@ def compare(
                                                  "(default: t-interval)"),
 ):
     """Paired differences between arms (or any label column), trial by trial, with 95% intervals."""
-    from pfx.compare import format_table, output_name, paired_comparison
-    from pfx.figures.registry import ResultFolder
-    from pfx.tables import write_csv
-
-    from pfx.result_folder import finished_manifest
+    from pfx.analysis.compare import format_table, output_name, paired_comparison
+    from pfx.result_folder import ResultFolder, finished_manifest, write_csv
 
     finished_manifest(result_dir, needs=("trials.csv",))
     folder = ResultFolder(result_dir)

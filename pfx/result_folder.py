@@ -1,4 +1,11 @@
-"""The result folder's state: what a run may do with a folder that already holds results.
+"""The result folder, in one place: writing its files atomically, reading its tables
+(:class:`ResultFolder`, all that figures and reports see), its manifest, and its state: what a
+run may do with a folder that already holds results.
+
+Files are written atomically: to a temporary file in the same folder, then renamed over the
+target, so a reader (or an interrupted run) never sees half a file. Missing values (a trial
+that never converged) are written as empty fields, never as ``nan``; a diverged value is
+written as ``inf`` (pandas reads it back as infinity).
 
 A folder belongs to the results its ``manifest.json`` describes. Its ``results_hash`` covers
 what the numbers depend on (cells, seed, traced trials; see
@@ -18,7 +25,6 @@ interrupted (``cells/`` kept)          resumes the same run; another trial count
 =====================================  ==========================================================
 
 A folder with another results hash, or not made by pfx, is refused unless ``--fresh``.
-Everything here only reads or refuses, apart from :func:`clear_outputs` and :func:`folder_lock`.
 """
 
 from __future__ import annotations
@@ -26,17 +32,203 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from pfx.errors import ConfigError
+from pfx.numerics.hashing import canonical_hash
+
+if TYPE_CHECKING:          # pandas and numpy are imported where a table is read, not before
+    import numpy as np
+    import pandas as pd
 
 LOCK_FILE = ".pfx.lock"
 MANIFEST = "manifest.json"
 CELLS = "cells"
 
+
+# -- writing ------------------------------------------------------------------------------------
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+# mkstemp creates files readable by their owner only; results get the usual permissions.
+FILE_MODE = 0o666 & ~_current_umask()
+
+
+def write_text(text: str, path: str | Path) -> None:
+    """Write a text file atomically."""
+    path = Path(path)
+    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
+    try:
+        with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as handle:
+            handle.write(text)
+        os.chmod(temporary, FILE_MODE)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_csv(frame: pd.DataFrame, path: str | Path) -> None:
+    """Write a table atomically; NaN becomes an empty field."""
+    write_text(frame.to_csv(index=False, na_rep="", lineterminator="\n"), path)
+
+
+# -- reading -------------------------------------------------------------------------------------
+
+class ResultFolder:
+    """A result folder as figures see it: its CSV tables and its manifest, nothing else."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    def table(self, name: str) -> pd.DataFrame:
+        import pandas as pd
+
+        try:
+            # A cell key is 12 hex digits: read as text, or "120e45678901" would become a number.
+            return pd.read_csv(self.path / f"{name}.csv", dtype={"cell": str})
+        except pd.errors.EmptyDataError:
+            return pd.DataFrame()
+
+    @cached_property
+    def trials(self) -> pd.DataFrame:
+        return self.table("trials")
+
+    @cached_property
+    def steps(self) -> pd.DataFrame:
+        return self.table("steps")
+
+    @cached_property
+    def steps_summary(self) -> pd.DataFrame:
+        """steps_summary.csv: one row per (cell, step) over every trial of the cell.
+
+        A folder written before that table existed gets the same columns computed from the
+        traced trials of steps.csv instead (:attr:`steps_summary_covers_every_trial` is then
+        False, and a figure should say "traced trials"), so figures have one drawing path.
+        """
+        if (self.path / "steps_summary.csv").exists():
+            return self.table("steps_summary")
+        return self._steps_summary_from_traces()
+
+    @property
+    def steps_summary_covers_every_trial(self) -> bool:
+        """True when :attr:`steps_summary` is the run's own table, False when derived from steps.csv."""
+        return (self.path / "steps_summary.csv").exists()
+
+    @property
+    def state_names(self) -> list[str]:
+        """The model's state components in order (from the manifest's units, else steps.csv)."""
+        names = [key.removeprefix("state_") for key in self.units if key.startswith("state_")]
+        return names or [c.removeprefix("truth_") for c in self.steps.columns if c.startswith("truth_")]
+
+    def state_error(self, frame: pd.DataFrame, state: str) -> np.ndarray:
+        """estimate - truth of one state component in rows of steps.csv; an angle's (the
+        manifest's ``angular_states``) wrapped into half a turn either side, as
+        :func:`pfx.analysis.metrics.state_error` does."""
+        import numpy as np
+
+        from pfx.numerics.angles import wrap_difference
+
+        with np.errstate(over="ignore", invalid="ignore"):
+            error = (frame[f"estimate_{state}"] - frame[f"truth_{state}"]).to_numpy(dtype=float)
+        if state in self.manifest.get("angular_states", []):
+            return wrap_difference(error, self.manifest["full_turn"])
+        return error
+
+    def _steps_summary_from_traces(self) -> pd.DataFrame:
+        """steps_summary.csv's table computed from the traced trials in steps.csv (older folders).
+
+        Each cell's traces become (trials, steps) arrays of the per-step values, summarised by
+        the very function the run uses (:func:`pfx.analysis.step_summary.summarize_steps`).
+        """
+        import numpy as np
+        import pandas as pd
+
+        from pfx.analysis.step_summary import QUANTITIES, summarize_steps
+
+        steps = self.steps
+        if steps.empty:
+            return pd.DataFrame()
+        # steps.csv starts with the cell columns (cell, labels, swept keys), then "trial".
+        cell_columns = list(steps.columns[:steps.columns.get_loc("trial")])
+        states = [c.removeprefix("truth_") for c in steps.columns if c.startswith("truth_")]
+        summaries = []
+        for _, rows in steps.groupby("cell", sort=False):
+            values = {quantity: self._by_trial(rows, rows.get(quantity, np.nan))
+                      for quantity in QUANTITIES}
+            for state in states:
+                values[f"squared_error_{state}"] = self._by_trial(rows, self.state_error(rows, state) ** 2)
+            first = rows.iloc[0]
+            times = rows.groupby("step")["time"].first().to_numpy(dtype=float)
+            summaries.append(summarize_steps(values, states, {c: first[c] for c in cell_columns}, times))
+        return pd.concat(summaries, ignore_index=True)
+
+    @staticmethod
+    def _by_trial(rows: pd.DataFrame, values) -> np.ndarray:
+        """Per-step values of one cell's rows of steps.csv as an array: one row per trial, one column per step."""
+        table = rows.assign(_value=values).pivot(index="trial", columns="step", values="_value")
+        return table.to_numpy(dtype=float)
+
+    @cached_property
+    def summary(self) -> pd.DataFrame:
+        return self.table("summary")
+
+    @cached_property
+    def particles(self) -> pd.DataFrame:
+        """particles.csv: the kept particle clouds (empty if the config kept none)."""
+        return self.optional_table("particles")
+
+    @cached_property
+    def scene(self) -> pd.DataFrame:
+        """scene.csv: the model's fixed world (beacons, walls, path; empty if it has none)."""
+        return self.optional_table("scene")
+
+    def optional_table(self, name: str) -> pd.DataFrame:
+        import pandas as pd
+
+        return self.table(name) if (self.path / f"{name}.csv").exists() else pd.DataFrame()
+
+    @property
+    def position_states(self) -> list[str]:
+        """The state columns that form the position (the first two are drawn on maps)."""
+        return self.manifest.get("position_states", [])
+
+    @cached_property
+    def manifest(self) -> dict:
+        return json.loads((self.path / "manifest.json").read_text())
+
+    @property
+    def units(self) -> dict:
+        return self.manifest.get("units", {})
+
+    @property
+    def label_columns(self) -> list[str]:
+        return self.manifest.get("label_columns", ["arm"])
+
+    def cell_names(self, frame: pd.DataFrame) -> pd.Series:
+        """A legend label per row: the arm (if several) and the swept values, joined."""
+        columns = [c for c in self.manifest.get("legend_columns", []) if c in frame]
+        if not columns:
+            columns = ["arm"]
+        if columns == ["arm"]:
+            return frame["arm"].astype(str)
+        parts = [(c + "=") + frame[c].astype(str) if c != "arm" else frame[c].astype(str) for c in columns]
+        label = parts[0]
+        for part in parts[1:]:
+            label = label + ", " + part
+        return label
+
+
+# -- the state of a folder a run writes to --------------------------------------------------------
 
 @dataclass
 class FolderState:
@@ -75,9 +267,6 @@ def record_figures(out: Path, names: list[str]) -> None:
     """Add figures to a finished folder's record (manifest and config.yaml), so that ``pfx
     figures`` renders them again and a rerun of the config keeps or drops them knowingly."""
     import yaml
-
-    from pfx.config.plan import canonical_hash
-    from pfx.tables import write_text
 
     manifest = read_manifest(out)
     new = [name for name in names if name not in manifest.get("figures", [])]

@@ -13,11 +13,11 @@ import pytest
 from scipy import integrate, stats
 
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
-from pfx.gallery import VERDICTS, PaperResults, Table, Verdict, write_gallery
 from pfx.papers import REPORTS
-from pfx.runner import run_plan
+from pfx.papers.gallery import VERDICTS, PaperResults, Table, Verdict, write_gallery
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 from pfx.studies.empirical_cdf import KOLMOGOROV_MEAN, EmpiricalCdf, expected_ks_distance, ks_distance
 from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf
 

@@ -7,8 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from pfx.binary_bayes import (EPSILON, belief, binary_bayes_filter, corridor_example, inverse_range_sensor,
-                              log_odds, run_binary_bayes_filter)
+from pfx.filters.log_odds import (
+    EPSILON,
+    belief,
+    binary_bayes_filter,
+    corridor_example,
+    inverse_range_sensor,
+    log_odds,
+    run_binary_bayes_filter,
+)
 
 
 def test_a_short_sequence_by_hand():

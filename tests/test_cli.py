@@ -19,10 +19,10 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import REPO_ROOT, csv_fields, tiny_config_dict, write_config_file
 from scipy import stats
 
 import pfx
-from conftest import REPO_ROOT, csv_fields, tiny_config_dict, write_config_file
 
 EXAMPLES = sorted((REPO_ROOT / "configs" / "examples").glob("*.yaml"))
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -16,14 +16,14 @@ import numpy as np
 import pandas as pd
 import pytest
 import typer
+from conftest import tiny_config_dict, write_config_file
 from typer.testing import CliRunner
 
 import pfx
-from conftest import tiny_config_dict, write_config_file
+from pfx.analysis.compare import format_table, output_name, paired_comparison, relative_change_interval
 from pfx.cli import LISTABLE, _registries, app
-from pfx.compare import format_table, output_name, paired_comparison, relative_change_interval
-from pfx.config.yaml_loading import parse_yaml
 from pfx.errors import ConfigError
+from pfx.safe_yaml import parse_yaml
 
 COMMANDS = list(typer.main.get_command(app).commands)
 

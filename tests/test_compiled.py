@@ -1,12 +1,12 @@
 """The compiled loops (numba) give exactly what their NumPy definitions give.
 
-* pfx.ziggurat: TrialStreams.standard_normal is, draw for draw, each trial's
+* pfx.numerics.ziggurat: TrialStreams.standard_normal is, draw for draw, each trial's
   ``Generator.standard_normal``, and leaves every generator where NumPy would have left it
   (including the fallbacks: a margin of words that runs out, generators other than PCG64).
-* pfx.resampling.inverse_cdf (one merged pass) equals the binary search it replaced,
+* pfx.filters.particle.resampling.inverse_cdf (one merged pass) equals the binary search it replaced,
   ``searchsorted(guarded cumsum, u, 'right')`` clipped to N - 1, index for index.
-* pfx.engine.resample_rows equals ``take_along_axis``, whatever the memory layout.
-* pfx.engine.normalise_weights: weights are exp(log-weights), rows sum to 1.
+* pfx.filters.particle.engine.resample_rows equals ``take_along_axis``, whatever the memory layout.
+* pfx.filters.particle.engine.normalise_weights: weights are exp(log-weights), rows sum to 1.
 """
 
 from __future__ import annotations
@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pfx import ziggurat
-from pfx.engine import log_normalise, normalise_weights, resample_rows
-from pfx.resampling import inverse_cdf
-from pfx.seeding import TrialStreams
+from pfx.filters.particle.engine import log_normalise, normalise_weights, resample_rows
+from pfx.filters.particle.resampling import inverse_cdf
+from pfx.numerics import ziggurat
+from pfx.numerics.seeding import TrialStreams
 
 
 @pytest.mark.parametrize("count", [1, 2, 7, 300, 50_000])

@@ -31,7 +31,6 @@ from typing import Optional
 
 import pytest
 import yaml
-
 from conftest import tiny_config_dict, write_config_file
 
 CORPUS = Path(__file__).resolve().parent / "malformed_configs"

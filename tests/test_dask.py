@@ -23,14 +23,12 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-import yaml
-
 from conftest import REPO_ROOT, _environment, tiny_config_dict, write_config_file
 
 distributed = pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
 import dask.config  # noqa: E402  (after the skip: it comes with distributed)
 
-from pfx.dask_cluster import WORKER_SETTINGS  # noqa: E402
+from pfx.run.executors.dask import WORKER_SETTINGS  # noqa: E402
 
 CELLS = 8
 SWEEP = {

@@ -11,12 +11,12 @@ import copy
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import tiny_config_dict, write_config_file
+
 from pfx.config.plan import build_plan
-from pfx.engine import simulate_truth
-from pfx.runner import run_batch
-from pfx.seeding import TrialStreams, filter_seed, truth_seed
+from pfx.filters.particle.engine import simulate_truth
+from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
+from pfx.run.batch import run_batch
 
 SEED = 2024
 TRIALS = 25                     # > 20: the runner splits each cell into several batches

@@ -29,15 +29,15 @@ import numpy as np
 import pytest
 import yaml
 
-from pfx.diffusion import NoDiffusion, Roughening
-from pfx.engine import run_particle_filter, simulate_truth
 from pfx.errors import ModelNumericalError
-from pfx.initial_laws import GaussianLaw
+from pfx.filters.particle.diffusion import NoDiffusion, Roughening
+from pfx.filters.particle.engine import run_particle_filter, simulate_truth
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.laws.initial import GaussianLaw
 from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
-from pfx.resampling import RESAMPLERS
-from pfx.seeding import TrialStreams
-from pfx.weighting import GaussianWeighting
+from pfx.numerics.seeding import TrialStreams
 
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
 # empty = never converged; NEES/NIS not recorded (particle filters without metrics.consistency)

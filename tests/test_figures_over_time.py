@@ -1,6 +1,6 @@
 """The figures over time read every trial, lay sweeps out as small multiples, and keep legends off the data.
 
-Small real result folders (tiny linear-Gaussian runs through :func:`pfx.runner.run_plan`):
+Small real result folders (tiny linear-Gaussian runs through :func:`pfx.run.runner.run_plan`):
 
 * ``sweep``: 4 resamplers x 2 particle counts = 8 cells, 4 trials of which 2 are traced, with
   NEES recorded; its figures must draw steps_summary.csv (all 4 trials), not steps.csv (2);
@@ -22,15 +22,15 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import tiny_config_dict
+
 from pfx.config.plan import build_plan
 from pfx.figures.degeneracy import ess_decay
 from pfx.figures.layout import MOST_LINES_IN_ONE_PANEL, error_quantity, plan_panels, time_axis
-from pfx.figures.registry import ResultFolder
 from pfx.figures.state_errors import state_error_over_time
 from pfx.figures.traces import error_over_time, ess_over_time, nees_over_time
-from pfx.runner import run_plan
+from pfx.result_folder import ResultFolder
+from pfx.run.runner import run_plan
 
 matplotlib.use("Agg")                  # no screen: draw into memory
 

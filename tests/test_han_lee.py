@@ -16,12 +16,12 @@ import pandas as pd
 import pytest
 
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.figures.closeups import HELD_WEIGHT, closeup_window
 from pfx.figures.concept import likelihood_quadratic, offspring_stacks
-from pfx.gallery import VERDICTS, PaperResults, write_gallery
 from pfx.papers import han_lee
-from pfx.runner import run_plan
+from pfx.papers.gallery import VERDICTS, PaperResults, write_gallery
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "papers" / "han-lee"
 SMALL = {  # experiment -> overrides that keep its structure but make it fast
@@ -125,7 +125,7 @@ def test_ess_decay_is_on_a_log_scale_with_the_one_particle_floor(small_results):
     import matplotlib.pyplot as plt
 
     from pfx.figures.degeneracy import ess_decay
-    from pfx.figures.registry import ResultFolder
+    from pfx.result_folder import ResultFolder
 
     figure = ess_decay(ResultFolder(small_results / "han-lee" / "degeneracy"))
     axes = figure.axes[0]
@@ -170,7 +170,7 @@ def test_tracking_verdict_follows_its_criterion():
 
 
 def test_bias_verdict_on_the_exact_expectations():
-    from pfx.resampling import han_lee_iv_expected_counts
+    from pfx.filters.particle.resampling import han_lee_iv_expected_counts
 
     weights = np.array([0.3, 0.1, 0.2, 0.15, 0.25])
     draws, n = 10_000, weights.size

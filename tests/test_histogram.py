@@ -17,21 +17,21 @@ import pytest
 from scipy.special import logsumexp
 from scipy.stats import norm
 
-from pfx.diffusion import NoDiffusion
-from pfx.engine import SpreadCriterion, run_particle_filter, simulate_truth
 from pfx.errors import ConfigError
 from pfx.filters import FILTERS
 from pfx.filters.histogram import GridParameters, _Transition, axis_noises, plan_grid, run_histogram_filter
-from pfx.initial_laws import GaussianLaw
+from pfx.filters.particle.diffusion import NoDiffusion
+from pfx.filters.particle.engine import SpreadCriterion, run_particle_filter, simulate_truth
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.laws.initial import GaussianLaw
 from pfx.models import MODELS
 from pfx.models.base import bind_law
 from pfx.models.falling_body import FallingBody
 from pfx.models.growth import GrowthModel
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
-from pfx.resampling import RESAMPLERS
-from pfx.seeding import TrialStreams
-from pfx.weighting import GaussianWeighting
+from pfx.numerics.seeding import TrialStreams
 
 
 def kalman_filter(measurements, A, H, Q, R, m0, P0):
@@ -96,7 +96,9 @@ def test_growth_model_equations_on_hand_values():
     assert GrowthModel(forcing_offset=1).control(1)[0] == 8.0
     # analytic EKF Jacobians against central differences
     point, h = np.array([[1.7]]), 1e-6
-    f = lambda y: model.propagate(y, None, np.zeros_like(y))
+    def f(y):
+        return model.propagate(y, None, np.zeros_like(y))
+
     assert model.transition_jacobian(point, None)[0, 0, 0] == pytest.approx(
         (f(point + h) - f(point - h))[0, 0] / (2 * h), rel=1e-7)
     assert model.measurement_jacobian(point)[0, 0, 0] == pytest.approx(2 * 1.7 / 20)

@@ -8,7 +8,6 @@ tables identical to an uninterrupted run.
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -18,7 +17,6 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-
 from conftest import REPO_ROOT, _environment
 
 SLOW = {

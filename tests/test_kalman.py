@@ -17,23 +17,21 @@ and log-likelihoods; for means the reference size is ||m|| + sqrt(trace P), the 
 from __future__ import annotations
 
 import math
-import time
 import types
 
 import numpy as np
 import pytest
 
-from pfx.engine import simulate_truth
 from pfx.errors import ConfigError, ModelNumericalError
 from pfx.filters import FILTERS
-from pfx.filters.kalman import (UnscentedParameters, _robust_square_root, _unscented,
-                                finite_difference_jacobian)
-from pfx.initial_laws import GaussianLaw, PointLaw
+from pfx.filters.kalman import UnscentedParameters, _robust_square_root, _unscented, finite_difference_jacobian
+from pfx.filters.particle.engine import simulate_truth
+from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.models.base import bind_law
 from pfx.models.falling_body import FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
-from pfx.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams
 
 SETTINGS = types.SimpleNamespace(unscented=UnscentedParameters())
 SHAPES = [(d, m) for d in (1, 2, 4) for m in (1, 3)]

@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pfx.diffusion import NoDiffusion
-from pfx.engine import run_particle_filter, simulate_truth
-from pfx.initial_laws import GaussianLaw
+from pfx.filters.particle.diffusion import NoDiffusion
+from pfx.filters.particle.engine import run_particle_filter, simulate_truth
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.laws.initial import GaussianLaw
 from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
-from pfx.resampling import RESAMPLERS
-from pfx.seeding import TrialStreams
-from pfx.weighting import GaussianWeighting
+from pfx.numerics.seeding import TrialStreams
 
 A = [[0.9, 0.2], [0.0, 0.8]]
 H = [[1.0, 0.0]]

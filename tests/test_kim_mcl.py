@@ -11,13 +11,20 @@ import pytest
 import yaml
 
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.figures.arena import action_groups
 from pfx.figures.registry import render_figures
-from pfx.gallery import REPORTS, VERDICTS, PaperResults, Table, write_gallery
-from pfx.papers.kim_mcl import (VARIANCE, _verdicts, accuracy_verdict, error_slope, first_trials_coincide,
-                                per_count_verdict, trend_verdict)
-from pfx.runner import run_plan
+from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, Table, write_gallery
+from pfx.papers.kim_mcl import (
+    VARIANCE,
+    _verdicts,
+    accuracy_verdict,
+    error_slope,
+    first_trials_coincide,
+    per_count_verdict,
+    trend_verdict,
+)
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs" / "papers" / "kim-mcl"

@@ -9,11 +9,11 @@ import tracemalloc
 import pandas as pd
 import pytest
 import yaml
-
 from conftest import REPO_ROOT, _environment
+
 from pfx.config.plan import build_plan
-from pfx.memory import cell_trial_bytes, format_size, parse_size, trials_per_batch
-from pfx.runner import run_batch
+from pfx.run.batch import run_batch
+from pfx.run.memory import cell_trial_bytes, format_size, parse_size, trials_per_batch
 
 CONFIGS = {
     "falling_body": {"name": "m", "trials": 2, "model": {"kind": "falling_body", "variant": "simon", "substeps": 2,

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from pfx.engine import simulate_truth
+from pfx.filters.particle.engine import simulate_truth
 from pfx.models.falling_body import FOOT, FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
-from pfx.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams
 
 
 def _truth(model) -> np.ndarray:

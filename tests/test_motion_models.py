@@ -13,13 +13,26 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pfx.motion import (OdometryAlphas, VelocityAlphas, executed_velocities, motion_model_odometry,
-                        motion_model_velocity, prob, prob_normal, prob_triangular, relative_motion, sample,
-                        sample_motion_model_odometry, sample_motion_model_velocity, sample_normal,
-                        sample_triangular, wrap_angle)
+from pfx.motion import (
+    OdometryAlphas,
+    VelocityAlphas,
+    executed_velocities,
+    motion_model_odometry,
+    motion_model_velocity,
+    prob,
+    prob_normal,
+    prob_triangular,
+    relative_motion,
+    sample,
+    sample_motion_model_odometry,
+    sample_motion_model_velocity,
+    sample_normal,
+    sample_triangular,
+    wrap_to_pi,
+)
 from pfx.motion.odometry import move_by_odometry
 from pfx.motion.velocity import move_on_arc
-from pfx.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams
 
 KS_LEVEL = 1e-3
 # Excess-free kurtosis E[x^4]/sigma^4: the sum of 12 uniforms (Irwin-Hall: 3 - 6/(5*12)) and the
@@ -112,7 +125,7 @@ def test_trial_streams_draw_each_trial_from_its_own_generator():
 
 def test_wrap_angle():
     values = np.array([np.pi, -np.pi, 3 * np.pi, 0.0, 2 * np.pi, -0.5, 7.0])
-    wrapped = wrap_angle(values)
+    wrapped = wrap_to_pi(values)
     assert np.allclose(wrapped, [np.pi, np.pi, np.pi, 0.0, 0.0, -0.5, 7.0 - 2 * np.pi])
     assert np.all((wrapped > -np.pi) & (wrapped <= np.pi))
 
@@ -148,7 +161,7 @@ def book_table_5_1_velocities(before, now, dt):
         ((y - y1) * np.cos(theta) - (x - x1) * np.sin(theta))
     x_star, y_star = (x + x1) / 2 + mu * (y - y1), (y + y1) / 2 + mu * (x1 - x)
     r_star = np.hypot(x - x_star, y - y_star)
-    turn = wrap_angle(np.arctan2(y1 - y_star, x1 - x_star) - np.arctan2(y - y_star, x - x_star))
+    turn = wrap_to_pi(np.arctan2(y1 - y_star, x1 - x_star) - np.arctan2(y - y_star, x - x_star))
     return turn / dt * r_star, turn / dt, (theta1 - theta) / dt - turn / dt
 
 
@@ -159,7 +172,7 @@ def test_arc_equals_the_books_formula_and_its_straight_line_limit():
     v, w, gamma, dt = rng.uniform(-2, 2, n), rng.uniform(-3, 3, n), rng.normal(size=n), 0.7
     ours, book = move_on_arc(pose, v, w, gamma, dt), book_arc(pose, v, w, gamma, dt)
     assert np.allclose(ours[:, :2], book[:, :2], atol=1e-9)
-    assert np.allclose(wrap_angle(ours[:, 2] - book[:, 2]), 0.0, atol=1e-12)
+    assert np.allclose(wrap_to_pi(ours[:, 2] - book[:, 2]), 0.0, atol=1e-12)
     # w = 0 is the straight line, and w -> 0 approaches it continuously
     straight = move_on_arc(pose, v, 0.0, 0.0, dt)
     assert np.array_equal(straight[:, 0], pose[:, 0] + v * dt * np.cos(pose[:, 2]))
@@ -178,7 +191,7 @@ def test_executed_velocities_invert_the_arc_forward_and_backward():
     for recovered, expected_v in ((forward, v), (backward, -v)):
         assert np.allclose(recovered[0], expected_v, atol=1e-9)
         assert np.allclose(recovered[1], w, atol=1e-9)
-        assert np.allclose(wrap_angle((recovered[2] - gamma) * dt), 0.0, atol=1e-9)
+        assert np.allclose(wrap_to_pi((recovered[2] - gamma) * dt), 0.0, atol=1e-9)
     # straight ahead: w^ = 0 and v^ = distance / dt, exactly
     v_hat, w_hat, _ = executed_velocities([1.0, 2.0, 0.0], [4.0, 2.0, 0.0], 2.0)
     assert (v_hat, w_hat) == (1.5, 0.0)
@@ -263,8 +276,8 @@ def test_odometry_sampler_agrees_with_its_density(noise):
     variance_trans = a3 * translation ** 2 + a4 * rotation1 ** 2 + a4 * rotation2 ** 2
     variance2 = a1 * rotation2 ** 2 + a2 * translation ** 2
     rotation1_hat, translation_hat, rotation2_hat = relative_motion(before, poses)
-    errors = (wrap_angle(rotation1 - rotation1_hat), translation - translation_hat,
-              wrap_angle(rotation2 - rotation2_hat))
+    errors = (wrap_to_pi(rotation1 - rotation1_hat), translation - translation_hat,
+              wrap_to_pi(rotation2 - rotation2_hat))
     for error, variance in zip(errors, (variance1, variance_trans, variance2)):
         assert stats.kstest(error, reference_distribution(noise, variance).cdf).pvalue > KS_LEVEL
     density = motion_model_odometry(poses, reading_before, reading_after, before, ODOMETRY_ALPHAS, noise)

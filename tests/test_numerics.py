@@ -11,17 +11,17 @@ import pytest
 from pydantic import ValidationError
 from scipy import stats
 
-from pfx.diffusion import NoDiffusion
-from pfx.engine import effective_sample_size, log_normalise, run_particle_filter, simulate_truth
 from pfx.errors import ModelNumericalError
-from pfx.initial_laws import GaussianLaw
+from pfx.filters.particle.diffusion import NoDiffusion
+from pfx.filters.particle.engine import effective_sample_size, log_normalise, run_particle_filter, simulate_truth
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.laws.initial import GaussianLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import bind_law
 from pfx.models.falling_body import FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
-from pfx.noise import Noise
-from pfx.resampling import RESAMPLERS
-from pfx.seeding import TrialStreams
-from pfx.weighting import GaussianWeighting
+from pfx.numerics.seeding import TrialStreams
 
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz  # numpy < 2 has only trapz
 

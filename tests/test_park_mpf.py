@@ -12,14 +12,14 @@ import pandas as pd
 import pytest
 import yaml
 
-from pfx.compare import diverged, relative_change_interval
+from pfx.analysis.compare import diverged, relative_change_interval
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
-from pfx.gallery import REPORTS, VERDICTS, PaperResults, Table, Verdict, write_gallery
+from pfx.numerics.seeding import study_generator
+from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, Table, write_gallery
 from pfx.papers.park_mpf import claim_verdict
-from pfx.runner import run_plan
-from pfx.seeding import study_generator
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 from pfx.studies.mahalanobis_distances import MahalanobisDistances, sample_moments
 
 REPO = Path(__file__).resolve().parents[1]

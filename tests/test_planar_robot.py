@@ -13,12 +13,12 @@ import pytest
 import yaml
 
 from pfx.config.plan import build_plan
-from pfx.engine import simulate_truth
 from pfx.errors import ConfigError
 from pfx.filters.kalman import finite_difference_jacobian, noise_jacobian
+from pfx.filters.particle.engine import simulate_truth
 from pfx.models import MODELS
-from pfx.motion import wrap_angle
-from pfx.seeding import TrialStreams
+from pfx.motion import wrap_to_pi
+from pfx.numerics.seeding import TrialStreams
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO_ROOT / "configs" / "examples" / "planar-robot.yaml"
@@ -55,7 +55,7 @@ def test_noise_free_truth_follows_the_commanded_motion_exactly(motion):
     expected = np.array(expected)
     for trial in range(2):
         assert np.allclose(states[trial, :, :2], expected[:, :2], atol=1e-12)
-        assert np.allclose(wrap_angle(states[trial, :, 2] - expected[:, 2]), 0.0, atol=1e-12)
+        assert np.allclose(wrap_to_pi(states[trial, :, 2] - expected[:, 2]), 0.0, atol=1e-12)
         assert np.all(np.abs(states[trial, :, 2]) <= np.pi)
 
 

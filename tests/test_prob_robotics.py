@@ -12,12 +12,12 @@ import pytest
 import yaml
 from scipy import integrate, stats
 
+import pfx.papers  # noqa: F401  (registers the reports)
+from pfx.analysis.reference_gap import slope_summary, step_gaps, trial_gaps, trial_slopes
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
-import pfx.papers  # noqa: F401  (registers the reports)
-from pfx.gallery import REPORTS, VERDICTS, PaperResults, render_section
-from pfx.reference_gap import slope_summary, step_gaps, trial_gaps, trial_slopes
-from pfx.runner import run_plan
+from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, render_section
+from pfx.run.runner import run_plan
 from pfx.studies.importance_sampling import ImportanceSampling
 from pfx.studies.kalman_1d_steps import KalmanSteps, gaussian_density, kalman_predict, kalman_update
 from pfx.studies.nonlinear_transform import NonlinearTransform, chi_square

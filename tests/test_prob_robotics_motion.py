@@ -17,17 +17,29 @@ import yaml
 from scipy import stats
 from scipy.special import expit
 
-from pfx.binary_bayes import corridor_example
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
-from pfx.gallery import VERDICTS, PaperResults, Section, render_section
-from pfx.motion import arc_jacobian, motion_model_odometry, motion_model_velocity, pose_density_odometry, \
-    pose_density_velocity, prob
+from pfx.filters.log_odds import corridor_example
+from pfx.motion import (
+    arc_jacobian,
+    motion_model_odometry,
+    motion_model_velocity,
+    pose_density_odometry,
+    pose_density_velocity,
+    prob,
+)
 from pfx.motion.odometry import move_by_odometry
 from pfx.motion.velocity import executed_velocities, move_on_arc
-from pfx.papers.prob_robotics_motion import (BINARY_BAYES, ODOMETRY_DENSITY, ODOMETRY_SAMPLES, VELOCITY_DENSITY,
-                                             VELOCITY_SAMPLES, motion_sections)
-from pfx.runner import run_plan
+from pfx.papers.gallery import VERDICTS, PaperResults, Section, render_section
+from pfx.papers.prob_robotics_motion import (
+    BINARY_BAYES,
+    ODOMETRY_DENSITY,
+    ODOMETRY_SAMPLES,
+    VELOCITY_DENSITY,
+    VELOCITY_SAMPLES,
+    motion_sections,
+)
+from pfx.run.runner import run_plan
 from pfx.studies.robot_motion import histogram_agreement, spread_along_across
 from pfx.studies.velocity_motion import VelocityMotionDensity
 
@@ -192,7 +204,7 @@ def test_binary_bayes_study_against_exact_beliefs(tmp_path):
     final = pd.read_csv(out / "final.csv").set_index("cell")
     convergence = pd.read_csv(out / "convergence.csv")
     # the example is corridor_example with the study's generator
-    from pfx.seeding import study_generator
+    from pfx.numerics.seeding import study_generator
     expected = corridor_example(study_generator(config["seed"]))
     np.testing.assert_allclose(beliefs["belief"], expected["belief"])
     # cells far before the face are seen through in every scan (a range error of 4 standard

@@ -24,8 +24,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
+from pfx.safe_yaml import load_config_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "configs" / "examples"
 FILE = "mutated.yaml"

@@ -1,4 +1,4 @@
-"""Tests of pfx.resampling: unbiasedness, han-lee Algorithm IV's bias, offspring bounds,
+"""Tests of pfx.filters.particle.resampling: unbiasedness, han-lee Algorithm IV's bias, offspring bounds,
 the round-off guard of the inverse CDF, and batch invariance.
 
 Statistical tests draw R resamplings at once (one row and one seeded generator per
@@ -11,13 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pfx.resampling import (
+from pfx.filters.particle.resampling import (
     RESAMPLERS,
     han_lee_iv_expected_counts,
     inverse_cdf,
     offspring_counts,
 )
-from pfx.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams
 
 UNBIASED = ["multinomial", "stratified", "systematic", "residual"]
 ALL = UNBIASED + ["han_lee_iv"]

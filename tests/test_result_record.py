@@ -20,13 +20,13 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-
 from conftest import REPO_ROOT, tiny_config_dict, write_config_file
+
 from pfx.config.overrides import apply_overrides
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
-from pfx.runner import run_plan
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 
 SHIPPED = sorted(path for path in (REPO_ROOT / "configs").rglob("*.yaml") if path.name != "paper.yaml")
 

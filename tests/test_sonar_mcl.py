@@ -9,24 +9,24 @@ import math
 
 import numpy as np
 import pytest
+from conftest import REPO_ROOT, write_config_file
 from matplotlib.path import Path as PolygonPath
 from scipy import integrate, stats
 
-from conftest import REPO_ROOT, write_config_file
+from pfx.analysis.metrics import state_error
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
-from pfx.diffusion import NoDiffusion
-from pfx.engine import posterior_mean, run_particle_filter, simulate_truth, weighted_mean
 from pfx.errors import ConfigError
-from pfx.metrics import state_error
+from pfx.filters.particle.diffusion import NoDiffusion
+from pfx.filters.particle.engine import posterior_mean, run_particle_filter, simulate_truth, weighted_mean
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.laws.noise import NOISE_FAMILIES
 from pfx.models.range_beacons import RangeBeacons
 from pfx.models.sonar_mcl import FreeSpaceLaw, SonarMCL
 from pfx.models.walls import WallMap
-from pfx.noise import NOISE_FAMILIES
-from pfx.resampling import RESAMPLERS
-from pfx.runner import run_batch
-from pfx.seeding import TrialStreams
-from pfx.weighting import GaussianWeighting
+from pfx.numerics.seeding import TrialStreams
+from pfx.run.batch import run_batch
+from pfx.safe_yaml import load_config_file
 
 EXAMPLE = REPO_ROOT / "configs" / "examples" / "sonar-mcl.yaml"
 SQUARE = [[0.0, 0.0, 100.0, 0.0], [100.0, 0.0, 100.0, 100.0], [100.0, 100.0, 0.0, 100.0], [0.0, 100.0, 0.0, 0.0]]

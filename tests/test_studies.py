@@ -10,9 +10,9 @@ import pytest
 
 from pfx.config.plan import StudyPlan, build_plan
 from pfx.errors import ConfigError
-from pfx.gallery import format_number, markdown_table
-from pfx.resampling import han_lee_iv_expected_counts
-from pfx.runner import run_plan
+from pfx.filters.particle.resampling import han_lee_iv_expected_counts
+from pfx.papers.gallery import format_number, markdown_table
+from pfx.run.runner import run_plan
 
 
 def _study(**parameters):

@@ -31,8 +31,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
     from pfx.bench import report, scaling
     from pfx.bench.problem import STEPS, make_case
     from pfx.bench.timing import run_pfx, time_case
-    from pfx.compiled import warm_up
-    from pfx.memory import keep_freed_memory
+    from pfx.bench.warm_up import warm_up
+    from pfx.run.memory import keep_freed_memory
 
     allocator = keep_freed_memory()       # the same allocator for every implementation timed here
     echo(f"pfx bench: falling body (Simon, feet, Euler dt = 0.1 s), bootstrap filter, systematic "

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pfx.config.plan import Cell, build_plan
-from pfx.engine import simulate_truth
-from pfx.seeding import TrialStreams, filter_seed, truth_seed
+from pfx.filters.particle.engine import simulate_truth
+from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
 SEED = 20240611
 STEPS = 100

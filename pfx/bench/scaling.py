@@ -1,6 +1,6 @@
 """Local parallelism and memory, measured the way a user meets them.
 
-* :func:`workers_speedup`: the same sweep of 8 cells run by :func:`pfx.runner.run_plan` into
+* :func:`workers_speedup`: the same sweep of 8 cells run by :func:`pfx.run.runner.run_plan` into
   a temporary folder with ``workers=1`` and ``workers=2`` (best of ``repeats`` each,
   interleaved); the speed-up is the ratio of the wall times, CSV writing included (figures
   off, so that the serial rendering at the end does not hide the parallel part). The CPU
@@ -42,7 +42,7 @@ def sweep_config(particles: int, trials: int) -> dict:
 
 def workers_speedup(particles: int, trials: int, repeats: int = 2) -> dict:
     """Wall time of the sweep with 1 and with 2 worker processes; see the module docstring."""
-    from pfx.runner import run_plan
+    from pfx.run.runner import run_plan
 
     plan = build_plan(sweep_config(particles, trials), "<pfx bench>")
     best = {1: float("inf"), 2: float("inf")}
@@ -79,7 +79,7 @@ def bytes_per_particle(particles: int) -> float:
 def peak_rss(particles: int) -> int:
     """Peak resident bytes of a fresh Python process running one trial of N particles."""
     code = ("import resource, numpy\n"
-            "from pfx.memory import keep_freed_memory\n"
+            "from pfx.run.memory import keep_freed_memory\n"
             "keep_freed_memory()\n"
             "from pfx.bench.problem import make_case\n"
             "from pfx.bench.timing import run_pfx\n"

@@ -22,7 +22,7 @@ from pfx.bench.peers import ADAPTERS
 from pfx.bench.problem import Case, FallingBodyProblem
 from pfx.bench.reference import reference_filter
 from pfx.filters import FILTERS
-from pfx.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams
 
 
 def run_pfx(problem: FallingBodyProblem, case: Case) -> np.ndarray:

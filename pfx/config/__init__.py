@@ -1,6 +1,6 @@
 """Configs: YAML in, validated plan of cells out.
 
-* :mod:`pfx.config.yaml_loading` reads YAML safely (no object construction, no duplicate keys,
+* :mod:`pfx.safe_yaml` reads YAML safely (no object construction, no duplicate keys,
   no alias bombs) and applies ``--set`` overrides.
 * :mod:`pfx.config.schema` declares every section as pydantic models: validation, the JSON
   Schema of ``pfx schema`` and the config reference in the README all come from them.

@@ -22,8 +22,9 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from pfx.config.yaml_loading import parse_yaml, set_path, split_path
+from pfx.config.dotted_paths import set_path, split_path
 from pfx.errors import ConfigError
+from pfx.safe_yaml import parse_yaml
 
 SWEEP = "sweep"
 

@@ -9,7 +9,6 @@ error naming the arm or sweep entry responsible.
 from __future__ import annotations
 
 import copy
-import hashlib
 import itertools
 import json
 from dataclasses import dataclass, field
@@ -18,14 +17,15 @@ from typing import Any, Optional
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from pfx.analysis.metrics import MetricsConfig
+from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.schema import Experiment, FilterConfig, StudyExperiment
 from pfx.config.validation import validate
-from pfx.config.yaml_loading import deep_merge, set_path
 from pfx.errors import ConfigError, located_value_error
-from pfx.metrics import MetricsConfig
-from pfx.models import MODELS
 from pfx.filters import FILTERS
+from pfx.models import MODELS
 from pfx.models.base import Model, bind_law
+from pfx.numerics.hashing import canonical_hash
 
 DEFAULT_ARM = "default"
 # sweep keys that already have a column of their own in the tables
@@ -113,11 +113,6 @@ class StudyPlan:
     @property
     def size_text(self) -> str:
         return f"study {self.experiment.study.kind}"
-
-
-def canonical_hash(data: Any, length: int = 16) -> str:
-    text = json.dumps(data, sort_keys=True, separators=(",", ":"), default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:length]
 
 
 def identity_dump(value: Any) -> Any:

@@ -9,15 +9,15 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
+from pfx.analysis.metrics import ConvergenceCriterion
 from pfx.config.schema import Experiment, FilterConfig, OutputsConfig, ParticleSnapshots, StudyExperiment
 from pfx.config.validation import _union_members, _unwrap
-from pfx.diffusion import DIFFUSIONS
-from pfx.initial_laws import GaussianLaw, PointLaw, UniformLaw
-from pfx.metrics import ConvergenceCriterion
+from pfx.filters.particle.diffusion import DIFFUSIONS
+from pfx.filters.particle.weighting import WEIGHTINGS
+from pfx.laws.initial import GaussianLaw, PointLaw, UniformLaw
+from pfx.laws.noise import Noise
 from pfx.models import MODELS
-from pfx.noise import Noise
 from pfx.studies import STUDIES
-from pfx.weighting import WEIGHTINGS
 
 
 def _type_name(annotation: Any) -> str:

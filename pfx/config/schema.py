@@ -4,26 +4,26 @@ Every section is a pydantic model whose fields carry types, defaults, bounds and
 descriptions. From these declarations come validation (:func:`pfx.config.plan.build_plan`),
 the JSON Schema printed by ``pfx schema``, and the config reference in the README
 (``pfx schema --format markdown``). Model parameters are declared by the models themselves
-(:mod:`pfx.models`), weightings by :mod:`pfx.weighting`, and so on.
+(:mod:`pfx.models`), weightings by :mod:`pfx.filters.particle.weighting`, and so on.
 """
 
 from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
-from pfx.diffusion import Diffusion, NoDiffusion
+from pfx.analysis.metrics import MetricsConfig
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS, PARTICLE_KINDS
 from pfx.filters.histogram import GridParameters
 from pfx.filters.kalman import UnscentedParameters
-from pfx.initial_laws import InitialLaw
-from pfx.metrics import MetricsConfig
+from pfx.filters.particle.diffusion import Diffusion, NoDiffusion
+from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.weighting import GaussianWeighting, Weighting
+from pfx.laws.initial import InitialLaw
 from pfx.models import MODELS
-from pfx.resampling import RESAMPLERS
 from pfx.studies import STUDIES
-from pfx.weighting import GaussianWeighting, Weighting
 
 ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
 FilterKind = Literal[FILTERS.names()]  # type: ignore[valid-type]

@@ -6,20 +6,22 @@ in a module here and register it; ``pfx figures RESULT_DIR`` re-renders every fi
 folder's config asks for.
 """
 
-from pfx.figures.registry import FIGURES, render_figures
 # One import per figure module (each registers its figures).
-from pfx.figures import arena  # noqa: F401
-from pfx.figures import closeups  # noqa: F401
-from pfx.figures import concept  # noqa: F401
-from pfx.figures import degeneracy  # noqa: F401
-from pfx.figures import mahalanobis  # noqa: F401
-from pfx.figures import maps  # noqa: F401
-from pfx.figures import motion  # noqa: F401
-from pfx.figures import resampling  # noqa: F401
-from pfx.figures import sampling  # noqa: F401
-from pfx.figures import state_errors  # noqa: F401
-from pfx.figures import sweeps  # noqa: F401
-from pfx.figures import textbook  # noqa: F401
-from pfx.figures import traces  # noqa: F401
+from pfx.figures import (
+    arena,  # noqa: F401
+    closeups,  # noqa: F401
+    concept,  # noqa: F401
+    degeneracy,  # noqa: F401
+    mahalanobis,  # noqa: F401
+    maps,  # noqa: F401
+    motion,  # noqa: F401
+    resampling,  # noqa: F401
+    sampling,  # noqa: F401
+    state_errors,  # noqa: F401
+    sweeps,  # noqa: F401
+    textbook,  # noqa: F401
+    traces,  # noqa: F401
+)
+from pfx.figures.registry import FIGURES, render_figures
 
 __all__ = ["FIGURES", "render_figures"]

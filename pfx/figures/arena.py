@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.figures.maps import _axes_labels, draw_scene
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 ARROW_LENGTH = 18.0          # cm: the start-heading arrow, about a robot's length
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.figures.maps import MAX_PANELS, _first_cloud_series, _grid, _planar, draw_scene
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 HELD_WEIGHT = 0.99                 # the window holds the particles carrying this much weight
 

@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 STAGES = ("predicted", "weighted", "resampled")
 

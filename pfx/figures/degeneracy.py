@@ -18,7 +18,8 @@ their trials (han-lee's degeneracy experiment: ``trace_trials: 20``).
 from __future__ import annotations
 
 from pfx.figures.layout import small_multiples, time_axis
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 
 @FIGURES.register("ess_decay")

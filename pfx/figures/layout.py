@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pfx.figures.registry import ResultFolder
+from pfx.result_folder import ResultFolder
 
 MOST_LINES_IN_ONE_PANEL = 4           # more cells than this are split into small multiples
 COUNTED_TIME_UNITS = ("step", "action")   # a time axis in these units counts steps, not seconds

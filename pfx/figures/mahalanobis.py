@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 SIGMA_LEVELS = (1, 2, 3)          # ellipses at Mahalanobis distance 1, 2, 3 (not squared)
 

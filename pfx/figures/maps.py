@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 MAX_PANELS = 6
 MAX_FRAMES = 60

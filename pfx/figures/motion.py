@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 NOISE_STYLE = {"normal": {"color": "tab:blue", "marker": "o"}, "triangular": {"color": "tab:orange", "marker": "^"}}
 

@@ -16,7 +16,8 @@ import math
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 
 def _normal_name(mean: float, std: float) -> str:
@@ -119,7 +120,7 @@ def importance_sampling_cdf(result: ResultFolder):
     handles.append(Line2D([], [], color="tab:orange", linewidth=1))
     labels.append(f"{n:,} samples of q, stem = weight p/q (normalised)")
     top.legend(handles, labels, fontsize=8, loc="upper left", ncol=2)
-    top.set_title(f"the samples come from q; their weights $w = p/q$ make them represent p", fontsize=10)
+    top.set_title("the samples come from q; their weights $w = p/q$ make them represent p", fontsize=10)
     top.grid(alpha=0.3)
 
     middle.plot(cdf["x"], cdf["true_cdf"], color="black", linewidth=2.2, label="true CDF Φ")

@@ -8,10 +8,10 @@ r"""Figures of the error in every state component (park-mpf Figs. 4-6 and its ex
   wrapped into half a turn either side.
 * ``relative_change_by_state`` (trials.csv): for every state component, every arm's mean RMSE
   relative to the first arm's, paired by trial, with its 95% interval
-  (:func:`pfx.compare.relative_change_interval`); for experiments with one cell per arm.
+  (:func:`pfx.analysis.compare.relative_change_interval`); for experiments with one cell per arm.
 
 A filter that diverges (errors many orders of magnitude above the others'; see
-:func:`pfx.compare.diverged`) would flatten every other line to zero: over time, its line
+:func:`pfx.analysis.compare.diverged`) would flatten every other line to zero: over time, its line
 stops where it leaves the axes (a triangle marks the edge it crossed) and the panel names it
 with that time and its largest error (:func:`pfx.figures.layout.plot_within`); in the
 relative change, its count of diverged trials is written instead of an interval. The figure
@@ -22,10 +22,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.compare import diverged, relative_change_interval
-from pfx.figures.layout import (cell_labels, legend_columns_of, legend_outside, off_scale_limit, peak_text,
-                                plot_within, time_axis, time_text, trials_text)
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.analysis.compare import diverged, relative_change_interval
+from pfx.figures.layout import (
+    cell_labels,
+    legend_columns_of,
+    legend_outside,
+    off_scale_limit,
+    peak_text,
+    plot_within,
+    time_axis,
+    time_text,
+    trials_text,
+)
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 
 def _label(name: str, unit: str) -> str:

@@ -16,7 +16,8 @@ figure                            metric (summary.csv prefix)
 
 from __future__ import annotations
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 
 def _line_labels(result: ResultFolder, summary):

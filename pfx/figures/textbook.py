@@ -5,14 +5,15 @@
 * ``importance_weights`` (Fig. 4.2) from the ``importance_sampling`` study;
 * ``nonlinear_particles`` (Fig. 4.3) from the ``nonlinear_transform`` study;
 * ``reference_gap_vs_particles`` from a filter experiment whose arms are a histogram filter
-  and particle filters at several N (:mod:`pfx.reference_gap`).
+  and particle filters at several N (:mod:`pfx.analysis.reference_gap`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 BELIEF = "tab:blue"
 MEASUREMENT = "tab:red"
@@ -214,7 +215,7 @@ def reference_gap_vs_particles(result: ResultFolder):
     """Particle filter against the histogram filter's posterior mean: RMS gap vs N (log-log), and one trial."""
     import matplotlib.pyplot as plt
 
-    from pfx.reference_gap import REFERENCE_FILTER, gap_table, trial_gaps, trial_slopes, slope_summary
+    from pfx.analysis.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes
 
     steps = result.steps
     if steps.empty or "filter" not in steps or (steps["filter"] == REFERENCE_FILTER).sum() == 0:

@@ -9,7 +9,7 @@ r"""Figures of a quantity over time, one line per cell, over every trial (steps_
   state dimension, for a consistent filter.
 
 Each line is the mean over every trial of the cell, and its band the 95% t-interval of that
-mean (steps_summary.csv, :mod:`pfx.step_summary`): where two bands do not overlap, the cells
+mean (steps_summary.csv, :mod:`pfx.analysis.step_summary`): where two bands do not overlap, the cells
 differ by more than their trials' spread explains. A folder written before steps_summary.csv
 existed draws the same statistics over its traced trials (steps.csv; see
 :attr:`pfx.figures.registry.ResultFolder.steps_summary`), and its title says "traced trials".
@@ -23,9 +23,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.figures.layout import (cell_labels, error_quantity, legend_columns_of, off_scale_limit, peak_text,
-                                plot_within, small_multiples, time_axis, time_text, trials_text)
-from pfx.figures.registry import FIGURES, ResultFolder
+from pfx.figures.layout import (
+    cell_labels,
+    error_quantity,
+    legend_columns_of,
+    off_scale_limit,
+    peak_text,
+    plot_within,
+    small_multiples,
+    time_axis,
+    time_text,
+    trials_text,
+)
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
 
 STATISTICS = ("mean", "ci95_low", "ci95_high")
 

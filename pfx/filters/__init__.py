@@ -9,15 +9,17 @@ It may carry a plan-time check, ``run.check(model, settings, prior)``, raising
 on that model: configs are refused before anything runs.
 
 ``model`` is the model the filter assumes, ``measurements`` has shape (trials, T, m),
-``random`` is a :class:`~pfx.seeding.TrialStreams` (one stream per trial), ``settings`` the
+``random`` is a :class:`~pfx.numerics.seeding.TrialStreams` (one stream per trial), ``settings`` the
 cell's :class:`~pfx.config.schema.FilterConfig`, ``prior`` the bound initial law.
 To add a kind: write the function in a module of this package and register it below.
 """
 
+from pfx.filters import (
+    histogram,  # noqa: F401  (registers histogram)
+    kalman,  # noqa: F401  (registers kf, ekf, ukf)
+    particle,  # noqa: F401  (registers particle, sis)
+)
 from pfx.filters.registry import FILTERS
-from pfx.filters import particle  # noqa: F401  (registers particle, sis)
-from pfx.filters import histogram  # noqa: F401  (registers histogram)
-from pfx.filters import kalman  # noqa: F401  (registers kf, ekf, ukf)
 
 # kinds that carry particles (their cells have a particle count, resampler and weighting)
 PARTICLE_KINDS = frozenset({"particle", "sis"})

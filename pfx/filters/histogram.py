@@ -136,13 +136,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 from scipy.special import logsumexp
 
-from pfx.engine import log_normalise
 from pfx.errors import ConfigError, ModelNumericalError
+from pfx.filters.particle.engine import log_normalise
 from pfx.filters.registry import FILTERS
-from pfx.initial_laws import GaussianLaw, PointLaw, UniformLaw
-from pfx.noise import Noise
-from pfx.seeding import TrialStreams
-from pfx.trace import FilterTrace
+from pfx.filters.trace import FilterTrace
+from pfx.laws.initial import GaussianLaw, PointLaw, UniformLaw
+from pfx.laws.noise import Noise
+from pfx.numerics.seeding import TrialStreams
 
 DEFAULT_CELLS = {1: 2000, 2: 200}
 MAX_KERNEL_BYTES = 2 * 1024**3
@@ -177,7 +177,7 @@ class GridParameters(BaseModel):
     @model_validator(mode="after")
     def _ordered(self):
         if self.low is not None and self.high is not None and len(self.low) == len(self.high) \
-                and any(h <= l for l, h in zip(self.low, self.high)):
+                and any(high <= low for low, high in zip(self.low, self.high)):
             raise ValueError("@high: every high must exceed its low")
         return self
 

@@ -133,7 +133,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.errors import ConfigError, ModelNumericalError, located_value_error
 from pfx.filters.registry import FILTERS
-from pfx.trace import FilterTrace
+from pfx.filters.trace import FilterTrace
 
 FD_STEP = float(np.finfo(float).eps ** (1.0 / 3.0))   # ~6.06e-6: optimal relative step, central differences
 JITTERS = tuple(10.0 ** -e for e in range(12, 5, -1))  # 1e-12 .. 1e-6, relative to each variance

@@ -32,11 +32,11 @@ import math
 from typing import Any, ClassVar, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, model_validator, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
-from pfx.initial_laws import InitialLaw
-from pfx.noise import Noise
-from pfx.seeding import TrialStreams
+from pfx.laws.initial import InitialLaw
+from pfx.laws.noise import Noise
+from pfx.numerics.seeding import TrialStreams
 
 
 class Model(BaseModel):
@@ -97,7 +97,7 @@ class Model(BaseModel):
     def angular_components(self) -> tuple[int, ...]:
         """Indices of the state components that are angles, in units of :attr:`full_turn`.
 
-        The estimate averages them on the circle and errors are wrapped (:mod:`pfx.angles`).
+        The estimate averages them on the circle and errors are wrapped (:mod:`pfx.numerics.angles`).
         """
         return ()
 

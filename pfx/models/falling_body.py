@@ -41,11 +41,11 @@ from __future__ import annotations
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import Field, StrictInt, StrictFloat
+from pydantic import Field, StrictFloat, StrictInt
 
-from pfx.initial_laws import GaussianLaw, PointLaw
+from pfx.laws.initial import GaussianLaw, PointLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
-from pfx.noise import Noise
 
 FOOT = 0.3048
 # rho0 x3 / 2 must be the same physical number in both unit systems: 1e-3 1/ft = 3.2808e-3 1/m.

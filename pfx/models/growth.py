@@ -55,9 +55,9 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import Field, StrictFloat
 
-from pfx.initial_laws import GaussianLaw
+from pfx.laws.initial import GaussianLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
-from pfx.noise import Noise
 
 
 class GrowthModel(Model):

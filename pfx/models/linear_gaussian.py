@@ -18,9 +18,9 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import Field, PrivateAttr, StrictFloat
 
-from pfx.initial_laws import GaussianLaw
+from pfx.laws.initial import GaussianLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
-from pfx.noise import Noise
 
 Matrix = list[list[StrictFloat]]
 

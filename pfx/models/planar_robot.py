@@ -50,17 +50,15 @@ import math
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, \
-    model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, model_validator
 
-from pfx.initial_laws import PointLaw
+from pfx.laws.initial import PointLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
-from pfx.motion.angles import wrap_angle
 from pfx.motion.distributions import MotionNoise
-from pfx.motion.odometry import (OdometryAlphas, move_by_odometry, relative_motion,
-                                 sample_motion_model_odometry)
+from pfx.motion.odometry import OdometryAlphas, move_by_odometry, relative_motion, sample_motion_model_odometry
 from pfx.motion.velocity import VelocityAlphas, move_on_arc, sample_motion_model_velocity
-from pfx.noise import Noise
+from pfx.numerics.angles import wrap_to_pi
 from pfx.registry import kind_shorthand
 
 Point = tuple[StrictFloat, StrictFloat]
@@ -256,14 +254,14 @@ class PlanarRobot(Model):
         ranges = np.sqrt(np.sum(difference * difference, axis=-1))
         if not self.bearings:
             return ranges
-        bearings = wrap_angle(np.arctan2(difference[..., 1], difference[..., 0]) - state[..., None, 2])
+        bearings = wrap_to_pi(np.arctan2(difference[..., 1], difference[..., 0]) - state[..., None, 2])
         return np.concatenate([ranges, bearings], axis=-1)
 
     def _wrap_bearings(self, values):
         if self.bearings:
             count = len(self.landmarks)
             values = values.copy()
-            values[..., count:] = wrap_angle(values[..., count:])
+            values[..., count:] = wrap_to_pi(values[..., count:])
         return values
 
     def measure(self, state, noise):

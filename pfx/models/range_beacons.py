@@ -29,9 +29,9 @@ from typing import Annotated, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat
 
-from pfx.initial_laws import PointLaw, UniformLaw
+from pfx.laws.initial import PointLaw, UniformLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
-from pfx.noise import Noise
 
 Point = tuple[StrictFloat, StrictFloat]
 
@@ -103,7 +103,7 @@ class RangeBeacons(Model):
         }
 
     def check(self):
-        if self.region is not None and any(h <= l for l, h in zip(self.region.low, self.region.high)):
+        if self.region is not None and any(high <= low for low, high in zip(self.region.low, self.region.high)):
             raise ValueError("@region.high: every high must exceed its low")
 
     def setup(self):

@@ -2,7 +2,7 @@ r"""kim-mcl: Monte Carlo localisation of a robot with one forward sonar in a wal
 
 The state is the pose :math:`x = [x, y, \theta]`: position in centimetres, heading
 :math:`\theta` in degrees counter-clockwise from the :math:`+x` axis (an angle: the estimate
-averages it on the circle and its error is wrapped, :mod:`pfx.angles`). The robot follows a
+averages it on the circle and its error is wrapped, :mod:`pfx.numerics.angles`). The robot follows a
 ``route`` of actions, one per filter step (the time unit is the action). With the process
 noise :math:`w = [w_d, w_\alpha]`:
 
@@ -49,15 +49,23 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal, Optional
 
 import numpy as np
-from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, StrictFloat,
-                      ValidationInfo, model_validator)
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    StrictFloat,
+    ValidationInfo,
+    model_validator,
+)
 
-from pfx.angles import wrap_angle
 from pfx.errors import ModelNumericalError
-from pfx.initial_laws import GaussianLaw, InitialLaw, PointLaw
+from pfx.laws.initial import GaussianLaw, InitialLaw, PointLaw
+from pfx.laws.noise import Noise
 from pfx.models.base import Model
 from pfx.models.walls import WallMap, read_wall_file
-from pfx.noise import Noise
+from pfx.numerics.angles import wrap_into_turn
 
 FULL_TURN = 360.0
 RADIANS_PER_DEGREE = np.pi / 180.0
@@ -309,7 +317,7 @@ class SonarMCL(Model):
             for number, (distance, angle) in enumerate(self._controls, start=1):
                 cos, sin = _direction(np.asarray(heading))
                 x, y = x + distance * float(cos), y + distance * float(sin)
-                heading = float(wrap_angle(np.asarray(heading + angle), FULL_TURN))
+                heading = float(wrap_into_turn(np.asarray(heading + angle), FULL_TURN))
                 elements.append({"element": "path", "x": x, "y": y, "heading": heading, "label": str(number)})
         return elements
 
@@ -324,7 +332,7 @@ class SonarMCL(Model):
             cos, sin = _direction(heading)
             covered = self._stop_at_walls(x, y, cos, sin, self.move_bias * distance + noise[..., 0])
             return np.stack([x + covered * cos, y + covered * sin, heading], axis=-1)
-        turned = wrap_angle(heading + self.turn_bias * angle + noise[..., 1], FULL_TURN)
+        turned = wrap_into_turn(heading + self.turn_bias * angle + noise[..., 1], FULL_TURN)
         return np.stack([x, y, turned], axis=-1)
 
     def _stop_at_walls(self, x, y, cos, sin, distance):

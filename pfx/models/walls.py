@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pfx.config.yaml_loading import MAX_FILE_BYTES, parse_yaml
 from pfx.errors import ConfigError
+from pfx.safe_yaml import MAX_FILE_BYTES, parse_yaml
 
 CORNER_TOLERANCE = 1e-9     # relative slack on s in [0, 1], so a ray through a corner meets it
 CSV_HEADER = ["x1", "y1", "x2", "y2"]

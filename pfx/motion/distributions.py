@@ -11,7 +11,7 @@ Two families are offered, ``normal`` and ``triangular``.
     \mathrm{prob\_normal}(a, b) = \frac{1}{\sqrt{2\pi b}}\, e^{-a^2 / (2b)}, \qquad
     \mathrm{prob\_triangular}(a, b) = \max\Big(0,\ \frac{1}{\sqrt{6b}} - \frac{|a|}{6b}\Big).
 
-Both are pfx's own noise families (:mod:`pfx.noise`, ``gaussian`` and ``triangular``) at
+Both are pfx's own noise families (:mod:`pfx.laws.noise`, ``gaussian`` and ``triangular``) at
 variance :math:`b`: :math:`f(a/\sqrt b)/\sqrt b` with the family's unit-variance density
 :math:`f`. They are evaluated through that one definition, never written a second time.
 
@@ -37,7 +37,7 @@ stand still) is a point mass: ``sample(0)`` is exactly 0, and ``prob(a, 0)`` is 
 at :math:`a = 0` and 0 elsewhere (the limit of the densities). A negative variance is an error.
 
 Every draw comes from an explicit :class:`numpy.random.Generator`, or from a
-:class:`pfx.seeding.TrialStreams` (then the leading axis of the draw is the trial axis, and
+:class:`pfx.numerics.seeding.TrialStreams` (then the leading axis of the draw is the trial axis, and
 each trial's slice comes from its own generator).
 """
 
@@ -47,8 +47,8 @@ from typing import Literal, Union
 
 import numpy as np
 
-from pfx.noise import NOISE_FAMILIES
-from pfx.seeding import TrialStreams
+from pfx.laws.noise import NOISE_FAMILIES
+from pfx.numerics.seeding import TrialStreams
 
 MotionNoise = Literal["normal", "triangular"]
 Random = Union[np.random.Generator, TrialStreams]

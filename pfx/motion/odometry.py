@@ -73,8 +73,8 @@ from typing import Sequence, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
-from pfx.motion.angles import wrap_angle
 from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
+from pfx.numerics.angles import wrap_to_pi
 
 
 class OdometryAlphas(BaseModel):
@@ -126,8 +126,8 @@ def relative_motion(pose_before, pose_after) -> tuple[np.ndarray, np.ndarray, np
     dx = pose_after[..., 0] - pose_before[..., 0]
     dy = pose_after[..., 1] - pose_before[..., 1]
     translation = np.hypot(dx, dy)
-    rotation1 = np.where(translation > 0, wrap_angle(np.arctan2(dy, dx) - pose_before[..., 2]), 0.0)
-    rotation2 = wrap_angle(pose_after[..., 2] - pose_before[..., 2] - rotation1)
+    rotation1 = np.where(translation > 0, wrap_to_pi(np.arctan2(dy, dx) - pose_before[..., 2]), 0.0)
+    rotation2 = wrap_to_pi(pose_after[..., 2] - pose_before[..., 2] - rotation1)
     return rotation1, translation, rotation2
 
 
@@ -142,7 +142,7 @@ def move_by_odometry(pose, rotation1, translation, rotation2) -> np.ndarray:
     heading = pose[..., 2] + rotation1
     return np.stack(np.broadcast_arrays(pose[..., 0] + translation * np.cos(heading),
                                         pose[..., 1] + translation * np.sin(heading),
-                                        wrap_angle(heading + rotation2)), axis=-1)
+                                        wrap_to_pi(heading + rotation2)), axis=-1)
 
 
 def sample_motion_model_odometry(odometry_before, odometry_after, pose, alphas, noise: MotionNoise,
@@ -182,9 +182,9 @@ def log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_be
     for sign in (1.0, -1.0):     # the two preimages (see the module docstring)
         turn = 0.0 if sign > 0 else np.pi
         terms.append(log_product(
-            log_prob(wrap_angle(rotation1 - rotation1_hat - turn), variance1, noise),
+            log_prob(wrap_to_pi(rotation1 - rotation1_hat - turn), variance1, noise),
             log_prob(translation - sign * translation_hat, variance_trans, noise),
-            log_prob(wrap_angle(rotation2 - rotation2_hat + turn), variance2, noise)))
+            log_prob(wrap_to_pi(rotation2 - rotation2_hat + turn), variance2, noise)))
     return np.logaddexp(*terms)
 
 

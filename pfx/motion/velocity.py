@@ -100,8 +100,8 @@ from typing import Sequence, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
-from pfx.motion.angles import wrap_angle
 from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
+from pfx.numerics.angles import wrap_to_pi
 
 
 class VelocityAlphas(BaseModel):
@@ -161,7 +161,7 @@ def move_on_arc(pose, v, w, gamma, dt: float) -> np.ndarray:
     heading = theta + half_turn
     return np.stack(np.broadcast_arrays(pose[..., 0] + chord * np.cos(heading),
                                         pose[..., 1] + chord * np.sin(heading),
-                                        wrap_angle(theta + w * dt + gamma * dt)), axis=-1)
+                                        wrap_to_pi(theta + w * dt + gamma * dt)), axis=-1)
 
 
 def executed_velocities(pose_before, pose_now, dt: float, direction: int = 1):
@@ -183,11 +183,11 @@ def executed_velocities(pose_before, pose_now, dt: float, direction: int = 1):
     chord = np.hypot(ahead, left)
     chord_angle = np.arctan2(left, ahead)
     if direction < 0:
-        chord_angle = wrap_angle(chord_angle + np.pi)
+        chord_angle = wrap_to_pi(chord_angle + np.pi)
     with np.errstate(divide="ignore", invalid="ignore"):
         distance = np.where(chord > 0, np.sign(direction) * chord / _sinc(chord_angle), 0.0)
     turn = 2.0 * chord_angle
-    final_turn = wrap_angle(pose_now[..., 2] - theta - turn)
+    final_turn = wrap_to_pi(pose_now[..., 2] - theta - turn)
     return distance / dt, turn / dt, final_turn / dt
 
 

@@ -1,18 +1,15 @@
-"""Reports of the source documents, one module per paper (see :mod:`pfx.gallery`).
+"""Reports of the source documents, one module per paper (see :mod:`pfx.papers.gallery`).
 
 A report reads ``results/<paper>/`` (CSV, figure files, ``paper.yaml``) and returns the
-paper's gallery :class:`~pfx.gallery.Section`. To add one: write ``pfx/papers/<name>.py`` with
-a function decorated ``@REPORTS.register("<short-name>")`` and import it here.
+paper's gallery :class:`~pfx.papers.gallery.Section`. To add one: write
+``pfx/papers/<name>.py`` with a function decorated ``@REPORTS.register("<short-name>")``, import
+it here, and put its short name in :data:`GALLERY_ORDER`.
 """
 
-from pfx.gallery import REPORTS
+from pfx.papers import bayes_blog, han_lee, kim_mcl, park_mpf, prob_robotics  # noqa: F401  (register the reports)
+from pfx.papers.gallery import REPORTS
 
-# One import per paper (each registers its report), in the order of shared/papers/README.md,
-# which is the gallery's order.
-from pfx.papers import han_lee  # noqa: E402,F401
-from pfx.papers import park_mpf  # noqa: E402,F401
-from pfx.papers import bayes_blog  # noqa: E402,F401
-from pfx.papers import kim_mcl  # noqa: E402,F401
-from pfx.papers import prob_robotics  # noqa: E402,F401
+# The gallery's order: the order of the source documents' list, not of the imports above.
+GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics")
 
-__all__ = ["REPORTS"]
+__all__ = ["GALLERY_ORDER", "REPORTS"]

@@ -18,7 +18,7 @@ pfx reproduces from four result folders (``configs/papers/bayes-blog/``):
   range noise sigma (the filter knows the position better than one range measurement does).
 * ``resamplers`` (beyond the post): RMSE against N for the four unbiased resamplers. Claims:
   none is better than the others in every case (the post), and more particles help (the post:
-  practical filters use 1000 or more). Verdicts from paired comparisons (:mod:`pfx.compare`),
+  practical filters use 1000 or more). Verdicts from paired comparisons (:mod:`pfx.analysis.compare`),
   Holm-adjusted over the whole family of comparisons.
 
 Every number in a caption, table or verdict is read from the folders' CSV files.
@@ -32,8 +32,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from pfx.compare import holm_adjusted, paired_comparison
-from pfx.gallery import REPORTS, Figure, PaperResults, Section, Table, Verdict, markdown_table
+from pfx.analysis.compare import holm_adjusted, paired_comparison
+from pfx.papers.gallery import REPORTS, Figure, PaperResults, Section, Table, Verdict, markdown_table
 
 Z_LIMIT = 3.0             # |z| beyond which a mean disagrees with its exact expectation
 ALPHA = 0.05              # family-wise error rate of every test here

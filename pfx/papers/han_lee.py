@@ -18,7 +18,7 @@ verdict is on a qualitative claim, decided by a criterion stated here and comput
   :data:`Z_BOUND` (5: a false alarm has probability below 1e-5 per particle).
 * ``resamplers``: "Algorithm IV, the simulation's resampler, tracks as well as Algorithm II":
   the paired 95% interval of the difference of position RMSE (IV - II,
-  :func:`pfx.compare.paired_comparison`) lies within :data:`EQUIVALENCE_MARGIN` (10%) of
+  :func:`pfx.analysis.compare.paired_comparison`) lies within :data:`EQUIVALENCE_MARGIN` (10%) of
   Algorithm II's mean: reproduced (the bias is too small to matter at this N); the interval
   entirely beyond +10%: not reproduced; otherwise partly reproduced (a smaller but detectable
   change, or an inconclusive interval).
@@ -37,8 +37,18 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from pfx.compare import paired_comparison
-from pfx.gallery import REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number, markdown_table
+from pfx.analysis.compare import paired_comparison
+from pfx.papers.gallery import (
+    REPORTS,
+    Figure,
+    PaperResults,
+    Section,
+    Table,
+    Text,
+    Verdict,
+    format_number,
+    markdown_table,
+)
 
 PAPER = "han-lee"
 LOST_FACTOR = 5.0              # a final error above 5 sigma: the filter lost the robot

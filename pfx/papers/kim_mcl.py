@@ -14,7 +14,7 @@ The paper prints no values for Figs. 6 and 7, only what they show; its finding h
 and each gets a verdict per filter sensor variance, from the extended runs:
 
 1. *noise-free converges faster*: per particle count N, the paired difference (trial t of both
-   arms sees the same truth, :func:`pfx.compare.paired_comparison`) of the convergence time,
+   arms sees the same truth, :func:`pfx.analysis.compare.paired_comparison`) of the convergence time,
    noise-free - noisy, with its 95% t-interval; the claim holds at N when the interval lies
    below 0.
 2. *noise-free lands farther from the truth*: the same for the error at convergence, holding
@@ -23,7 +23,7 @@ and each gets a verdict per filter sensor variance, from the extended runs:
    *not reproduced* at none (:func:`per_count_verdict`).
 3. *noisy is far more accurate*: the relative change of the mean error at convergence, noisy /
    noise-free - 1, over all N pooled (pairs: same N and trial;
-   :func:`pfx.compare.relative_change_interval`); "far" is read as at least halving it:
+   :func:`pfx.analysis.compare.relative_change_interval`); "far" is read as at least halving it:
    *reproduced* when the interval's upper end is below -50 %, *partly reproduced* when it is
    below 0 only, else *not reproduced* (:func:`accuracy_verdict`).
 4. *noisy improves with N*: the least-squares slope of the noisy arm's error at convergence
@@ -44,9 +44,19 @@ import pandas as pd
 import yaml
 from scipy import stats
 
-from pfx.compare import paired_comparison, relative_change_interval
+from pfx.analysis.compare import paired_comparison, relative_change_interval
 from pfx.errors import ConfigError
-from pfx.gallery import REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number, markdown_table
+from pfx.papers.gallery import (
+    REPORTS,
+    Figure,
+    PaperResults,
+    Section,
+    Table,
+    Text,
+    Verdict,
+    format_number,
+    markdown_table,
+)
 
 PAPER = "kim-mcl"
 VARIANCE = "filter_model_measurement_noise_variance"

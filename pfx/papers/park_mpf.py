@@ -10,11 +10,11 @@ Reads ``results/park-mpf/`` (made by ``pfx reproduce park-mpf`` from
   Bonferroni bound :math:`z_{1 - 0.05 / (2K)}` for K values (a 5% family-wise level).
 * ``one-run`` (Table 2, Figs. 4-6), ``ten-runs`` (Table 3): the paper's numbers beside ours.
 * ``extended`` (100 paired trials, PF, MPF-paper, MPF-innovation, EKF, UKF): per state, every
-  filter's RMSE and its paired comparison with the PF (:func:`pfx.compare.paired_comparison`
-  for the difference, :func:`pfx.compare.relative_change_interval` for the relative change).
+  filter's RMSE and its paired comparison with the PF (:func:`pfx.analysis.compare.paired_comparison`
+  for the difference, :func:`pfx.analysis.compare.relative_change_interval` for the relative change).
 
 **Divergence.** A trial's RMSE counts as diverged when it is infinite or above 1000 times the
-PF's median RMSE of that state (:func:`pfx.compare.diverged`); diverged trials are counted,
+PF's median RMSE of that state (:func:`pfx.analysis.compare.diverged`); diverged trials are counted,
 left out of means and paired comparisons (which say so), and decide a claim about mean RMSE
 on their own: a filter that diverges has no finite mean error.
 
@@ -35,9 +35,19 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from pfx.analysis.compare import diverged, paired_comparison, relative_change_interval
 from pfx.errors import ConfigError
-from pfx.compare import diverged, paired_comparison, relative_change_interval
-from pfx.gallery import REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number, markdown_table
+from pfx.papers.gallery import (
+    REPORTS,
+    Figure,
+    PaperResults,
+    Section,
+    Table,
+    Text,
+    Verdict,
+    format_number,
+    markdown_table,
+)
 
 PAPER = "park-mpf"
 STATES = ("altitude", "velocity", "ballistic_coefficient")
@@ -107,7 +117,7 @@ def compare_with_pf(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFr
     """One row per (state, arm): RMSE statistics, diverged count, paired comparison with the PF.
 
     Diverged values (see the module docstring) are set to infinity before pairing, so that
-    :func:`pfx.compare.paired_comparison` leaves them out and counts them in ``excluded_pairs``.
+    :func:`pfx.analysis.compare.paired_comparison` leaves them out and counts them in ``excluded_pairs``.
     """
     roles = _arms(trials)
     baseline = _baseline(roles)
@@ -273,7 +283,7 @@ def _table2(results: PaperResults, numbers: dict, items: list, verdicts: list) -
                        markdown_table(pd.DataFrame(rows)),
                        "The paper states no unit for its RMSEs; ours are in the model's units (ft, ft/s, 1/ft). "
                        "Our run is trial 0 of the ten runs and of the extended comparison (same seed and settings). "
-                       f"MPF-paper is eq. (6) as printed, MPF-innovation the principled form (README of the papers); "
+                       "MPF-paper is eq. (6) as printed, MPF-innovation the principled form (README of the papers); "
                        "an RMSE written ∞ or of order 1e100 means the filter diverged."))
     items.append(Figure("one-run", "state_error_over_time.png",
                         "Figs. 4-6 (ours): estimation error (estimate - truth) of altitude [ft], velocity [ft/s] "
@@ -354,7 +364,7 @@ def _table3(results: PaperResults, numbers: dict, items: list) -> None:
                        markdown_table(pd.DataFrame(rows)),
                        "The paper's change is computed from its per-run values (altitude, velocity) or its printed "
                        "means (ballistic coefficient: 4.9e-11 and 3.4e-11, from its text). Ours: relative change of mean RMSE over the runs that did not "
-                       "diverge, paired by run, with the delta-method t-interval (`pfx.compare.relative_change_interval`)."))
+                       "diverge, paired by run, with the delta-method t-interval (`pfx.analysis.compare.relative_change_interval`)."))
     items.append(Figure("ten-runs", "state_error_over_time.png",
                         f"Ours, the {len(trials['trial'].unique())} runs of Table 3: RMS over the runs of the estimation "
                         "error of each state over time, PF and the two MPF forms."))
@@ -392,7 +402,7 @@ def _extended(results: PaperResults, numbers: dict, items: list, verdicts: list)
             f"Mean, CI and differences over the trials that did not diverge (RMSE infinite or above "
             f"{DIVERGENCE_FACTOR:g} x the PF's median; the 'diverged' column counts them); the median is over all "
             f"trials. Differences are paired by trial (same truth and measurements), value - {baseline}, with the "
-            f"paired t-interval and p-value (`pfx.compare`); the relative change is mean / {baseline} mean - 1 "
+            f"paired t-interval and p-value (`pfx.analysis.compare`); the relative change is mean / {baseline} mean - 1 "
             f"with its delta-method interval; wins = trials where the filter's RMSE is lower."))
     items.append(Figure("extended", "relative_change_by_state.png",
                         f"Ours, beyond the paper: change of each filter's mean RMSE against the PF over {n} paired "

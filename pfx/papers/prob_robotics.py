@@ -23,12 +23,21 @@ from typing import Callable, Union
 import numpy as np
 import pandas as pd
 
-from pfx.compare import paired_comparison
-from pfx.figures.registry import ResultFolder
-from pfx.gallery import (REPORTS, Figure, PaperResults, Section, Table, Text, Verdict, format_number,
-                         markdown_table)
+from pfx.analysis.compare import paired_comparison
+from pfx.analysis.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes
+from pfx.papers.gallery import (
+    REPORTS,
+    Figure,
+    PaperResults,
+    Section,
+    Table,
+    Text,
+    Verdict,
+    format_number,
+    markdown_table,
+)
 from pfx.papers.prob_robotics_motion import motion_sections
-from pfx.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes
+from pfx.result_folder import ResultFolder
 
 PAPER = "prob-robotics"
 
@@ -309,6 +318,6 @@ def reference_part(results: PaperResults, folder: ResultFolder) -> Part:
                      f"each step, RMS over the trial's steps, paired by trial (the arms share the truth and the "
                      f"measurements). Posterior sd: RMS over trials and steps of the grid posterior's standard "
                      f"deviation, {_number(posterior_sd)}. RMSE increase: paired over trials with "
-                     f"`pfx.compare` (t-interval), against the grid filter's RMSE {_number(grid_rmse)}. "
+                     f"`pfx.analysis.compare` (t-interval), against the grid filter's RMSE {_number(grid_rmse)}. "
                      f"The book runs no such experiment: no numbers to print beside ours.")],
         verdicts=verdicts)

@@ -26,8 +26,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from pfx.figures.registry import ResultFolder
-from pfx.gallery import Figure, PaperResults, Table, Verdict, format_number, markdown_table
+from pfx.papers.gallery import Figure, PaperResults, Table, Verdict, format_number, markdown_table
+from pfx.result_folder import ResultFolder
 
 VELOCITY_DENSITY = "fig-5.3-velocity-density"
 VELOCITY_SAMPLES = "fig-5.4-velocity-samples"

@@ -35,8 +35,8 @@ __all__ = ["STUDIES", "Study"]
 from pfx.studies.offspring_counts import OffspringCounts  # noqa: E402
 
 STUDIES.add("offspring_counts", OffspringCounts)
-from pfx.studies.kalman_1d_steps import KalmanSteps  # noqa: E402
 from pfx.studies.importance_sampling import ImportanceSampling  # noqa: E402
+from pfx.studies.kalman_1d_steps import KalmanSteps  # noqa: E402
 from pfx.studies.nonlinear_transform import NonlinearTransform  # noqa: E402
 
 STUDIES.add("kalman_1d_steps", KalmanSteps)
@@ -50,8 +50,8 @@ from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf  # noqa: E
 
 STUDIES.add("empirical_cdf", EmpiricalCdf)
 STUDIES.add("importance_sampling_cdf", ImportanceSamplingCdf)
-from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
 from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
+from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
 
 STUDIES.add("velocity_motion_density", VelocityMotionDensity)
 STUDIES.add("velocity_motion_samples", VelocityMotionSamples)

@@ -3,7 +3,7 @@ r"""The binary Bayes filter's example (Probabilistic Robotics, Table 4.2): a cor
 A row of ``cells`` cells of width ``cell_size`` lies in front of a range sensor at 0; cells
 ``obstacle[0] .. obstacle[1] - 1`` are occupied. Each scan measures the distance to the
 obstacle's near face with N(0, ``range_std``^2) noise; the inverse sensor model
-(:func:`pfx.binary_bayes.inverse_range_sensor`) gives p(occupied | z) = ``free`` to cells before
+(:func:`pfx.filters.log_odds.inverse_range_sensor`) gives p(occupied | z) = ``free`` to cells before
 the measured range, ``occupied`` to the cell just behind it, and the ``prior`` (no information) to
 the cells further behind, which the beam never reached. Each cell's log odds accumulate
 (Table 4.2):
@@ -15,7 +15,7 @@ the cells further behind, which the beam never reached. Each cell's log odds acc
 
 The cells the sensor sees are those up to the face, ``cell <= obstacle[0]`` (**visible**); the
 others are occluded and should keep the prior. The study runs ``runs`` independent corridors
-(:func:`pfx.binary_bayes.corridor_runs`); the first is the worked example. Tables:
+(:func:`pfx.filters.log_odds.corridor_runs`); the first is the worked example. Tables:
 
 * ``beliefs``: the example, one row per (scan, cell): ``scan``, ``cell``, ``position`` (m),
   ``occupied``, ``measured_range`` (m), ``inverse_probability``, ``log_odds``, ``belief``;
@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 
-from pfx.binary_bayes import belief, corridor_runs
+from pfx.filters.log_odds import belief, corridor_runs
 from pfx.studies.base import Study
 
 

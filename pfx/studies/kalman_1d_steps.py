@@ -108,7 +108,9 @@ class KalmanSteps(Study):
         """(curve, panel, role, mean, variance, gain) of every curve, by Table 3.1."""
         q = self.measurement_variance
         z1, z2 = self.measurements
-        as_density = (lambda z: (z / self.c, q / self.c ** 2))       # p(z | x) normalised over x
+        def as_density(z):                  # p(z | x) normalised over x
+            return z / self.c, q / self.c ** 2
+
         mean, variance = self.prior_mean, self.prior_variance
         rows = [("prior", "a", "belief", mean, variance, math.nan)]
         rows.append(("measurement_1", "b", "measurement", *as_density(z1), math.nan))

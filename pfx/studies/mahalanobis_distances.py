@@ -39,8 +39,8 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, PrivateAttr, StrictFloat, StrictInt, ValidationError, model_validator
 
-from pfx.initial_laws import GaussianLaw
-from pfx.seeding import TrialStreams
+from pfx.laws.initial import GaussianLaw
+from pfx.numerics.seeding import TrialStreams
 from pfx.studies.base import Study
 
 REPLICATION_CHUNK = 250           # replications drawn at once (bounds memory; same numbers whatever the chunk)

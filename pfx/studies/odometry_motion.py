@@ -35,8 +35,13 @@ import numpy as np
 from pydantic import Field
 
 from pfx.motion.distributions import MotionNoise
-from pfx.motion.odometry import (OdometryAlphas, log_densities_odometry, move_by_odometry, relative_motion,
-                                 sample_motion_model_odometry)
+from pfx.motion.odometry import (
+    OdometryAlphas,
+    log_densities_odometry,
+    move_by_odometry,
+    relative_motion,
+    sample_motion_model_odometry,
+)
 from pfx.studies.robot_motion import MotionDensity, MotionSamples, NamedSetting, Pose, RobotMotion
 
 

@@ -4,7 +4,7 @@ For fixed normalised weights :math:`w_1..w_N`, each resampler is run ``draws`` t
 offspring count :math:`N_j` of every particle is averaged. An unbiased scheme has
 :math:`E[N_j] = N w_j`; han-lee's Algorithm IV as printed (the N smallest of N + 1 sorted
 uniforms) has :math:`E[N_j] = (N+1) w_j - (C_j^{N+1} - C_{j-1}^{N+1})` instead
-(:func:`pfx.resampling.han_lee_iv_expected_counts`; REFERENCE section 3). The default weights
+(:func:`pfx.filters.particle.resampling.han_lee_iv_expected_counts`; REFERENCE section 3). The default weights
 are REFERENCE's example, w = (.3, .1, .2, .15, .25), whose Algorithm IV expectation is
 (1.799, 0.597, 1.157, 0.769, 0.678) instead of (1.5, 0.5, 1, 0.75, 1.25).
 
@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, field_validator
 
-from pfx.resampling import RESAMPLERS, han_lee_iv_expected_counts, offspring_counts
-from pfx.seeding import TrialStreams
+from pfx.filters.particle.resampling import RESAMPLERS, han_lee_iv_expected_counts, offspring_counts
+from pfx.numerics.seeding import TrialStreams
 from pfx.studies.base import Study
 
 ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]

@@ -5,7 +5,7 @@ transition + measurement, i.e. the k-th action in kim-mcl's counting).
 
 * **RMSE** of component :math:`j`: :math:`\sqrt{\tfrac1T \sum_k (\hat x_{k,j} - x_{k,j})^2}`;
   of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below. The error
-  of an angular component (a heading) is wrapped into half a turn either side (:mod:`pfx.angles`).
+  of an angular component (a heading) is wrapped into half a turn either side (:mod:`pfx.numerics.angles`).
 * **Error distance** :math:`e_k = \lVert \hat p_k - p_k \rVert_2` over the model's position
   components; reported time-averaged (:math:`\tfrac1T\sum_k e_k`) and final (:math:`e_T`).
 * **Convergence step**, two criteria (the table using it must say which):
@@ -36,7 +36,7 @@ from typing import Callable, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
-from pfx.angles import wrap_difference
+from pfx.numerics.angles import wrap_difference
 from pfx.registry import Registry
 
 NEVER = -1
@@ -67,7 +67,7 @@ class MetricsConfig(BaseModel):
 
 def state_error(truth: np.ndarray, estimate: np.ndarray, model) -> np.ndarray:
     """estimate - truth per component, the model's angular components wrapped into
-    (-full turn / 2, full turn / 2] (:mod:`pfx.angles`); other components bit-for-bit as is."""
+    (-full turn / 2, full turn / 2] (:mod:`pfx.numerics.angles`); other components bit-for-bit as is."""
     error = estimate - truth
     angular = list(model.angular_components)
     if angular:
@@ -123,7 +123,7 @@ class MetricInputs:
     """Everything a metric may read: truth at steps 1..T, the filter trace, the model."""
 
     truth: np.ndarray              # (trials, T, d)
-    trace: "object"                # pfx.engine.FilterTrace
+    trace: "object"                # pfx.filters.particle.engine.FilterTrace
     model: "object"                # the truth model (names, position components)
     config: MetricsConfig
 

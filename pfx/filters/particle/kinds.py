@@ -1,13 +1,13 @@
 """The particle filter kinds: ``particle`` (SIR with the ESS rule) and ``sis`` (never resample).
 
-Both run :func:`pfx.engine.run_particle_filter`; ``sis`` forces the ESS threshold to 0.
+Both run :func:`pfx.filters.particle.engine.run_particle_filter`; ``sis`` forces the ESS threshold to 0.
 """
 
 from __future__ import annotations
 
-from pfx.engine import run_particle_filter
+from pfx.filters.particle.engine import run_particle_filter
+from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.registry import FILTERS
-from pfx.resampling import RESAMPLERS
 
 
 def _run(model, measurements, random, *, settings, prior, spread_criterion, consistency=False, snapshot=None):

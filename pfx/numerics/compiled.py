@@ -2,9 +2,9 @@
 
 A few steps of the engine are loops that NumPy cannot express without extra passes over the
 particles or a Python loop per trial: the merged walk of the inverse CDF
-(:func:`pfx.resampling.inverse_cdf`), the gather of resampled particles
-(:func:`pfx.engine.resample_rows`) and the ziggurat that turns random 64-bit words into
-normal draws (:mod:`pfx.ziggurat`). Each is an ordinary Python function decorated with
+(:func:`pfx.filters.particle.resampling.inverse_cdf`), the gather of resampled particles
+(:func:`pfx.filters.particle.engine.resample_rows`) and the ziggurat that turns random 64-bit words into
+normal draws (:mod:`pfx.numerics.ziggurat`). Each is an ordinary Python function decorated with
 :func:`compiled`; it stays next to the mathematics it implements.
 
 Why numba, and what it costs (measured by ``pfx bench``, see the README's Performance section):
@@ -48,32 +48,3 @@ def _jit(function: Callable):
 
     # nogil: a compiled loop releases the GIL, so threads (a Dask worker's, say) can overlap.
     return numba.njit(cache=True, nogil=True)(function)
-
-
-def warm_up() -> dict:
-    """Compile (or load from the cache) every compiled loop of the engine; report how.
-
-    Returns ``{"seconds": time taken, "compiled": count, "loaded": count}``, for the benchmark
-    to show what numba costs on first use.
-    """
-    import time
-
-    import numpy as np
-
-    from pfx import engine, resampling, ziggurat
-    from pfx.seeding import TrialStreams
-
-    started = time.perf_counter()
-    streams = TrialStreams.from_seeds([0, 1])
-    weights = np.full((2, 4), 0.25)
-    indices = resampling.systematic(weights, streams)
-    # Particle arrays come both row-major and component by component (Noise.sample's layout).
-    for state in (np.zeros((2, 4, 3)), np.moveaxis(streams.standard_normal((3, 4)), 1, -1)):
-        engine.resample_rows(state, np.arange(2), indices)
-    seconds = time.perf_counter() - started
-    counts = {"compiled": 0, "loaded": 0}
-    for function in (resampling.inverse_cdf_walk, engine.gather_particles, ziggurat.normals_from_words):
-        stats = function.dispatcher().stats
-        counts["loaded"] += sum(stats.cache_hits.values())
-        counts["compiled"] += sum(stats.cache_misses.values())
-    return {"seconds": seconds, **counts}

@@ -12,6 +12,13 @@ state, so two operations differ from their linear forms:
 
   so a cloud straddling 0 / 360 degrees averages near 0, not near 180.
 
+Two wrappings, named for their ranges: :func:`wrap_into_turn` reduces an angle into
+:math:`[0, \tau)` (a heading as a state), :func:`wrap_to_pi` maps radians into
+:math:`(-\pi, \pi]`, as Probabilistic Robotics asks of every angle difference of its motion
+models (a change of heading, a bearing, the rotation error :math:`\hat\gamma`):
+
+.. math:: \operatorname{wrap}(a) = \pi - \big((\pi - a) \bmod 2\pi\big) \in (-\pi, \pi].
+
 A model names its angular components (:attr:`pfx.models.base.Model.angular_components`) and its
 full turn (:attr:`pfx.models.base.Model.full_turn`); the engine's estimate and the metrics' errors
 use these functions for those components only.
@@ -22,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def wrap_angle(angle: np.ndarray, full_turn: float) -> np.ndarray:
+def wrap_into_turn(angle: np.ndarray, full_turn: float) -> np.ndarray:
     """An angle reduced into [0, full_turn)."""
     reduced = np.mod(angle, full_turn)
     # mod of a tiny negative angle rounds up to full_turn itself
@@ -35,9 +42,14 @@ def wrap_difference(difference: np.ndarray, full_turn: float) -> np.ndarray:
     return half - np.mod(half - difference, full_turn)
 
 
+def wrap_to_pi(angle):
+    """An angle in radians (any shape) mapped into (-pi, pi]: both -pi and pi become pi."""
+    return wrap_difference(np.asarray(angle, dtype=float), 2.0 * np.pi)
+
+
 def circular_mean(weights: np.ndarray, angles: np.ndarray, full_turn: float) -> np.ndarray:
     """Weighted circular mean per row, in [0, full_turn): (R, N), (R, N, k) -> (R, k)."""
     radians = angles * (2.0 * np.pi / full_turn)
     sine = np.einsum("rn,rnk->rk", weights, np.sin(radians))
     cosine = np.einsum("rn,rnk->rk", weights, np.cos(radians))
-    return wrap_angle(np.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)
+    return wrap_into_turn(np.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)

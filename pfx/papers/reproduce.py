@@ -3,23 +3,23 @@
 Each paper has a folder ``configs/papers/<short-name>/`` of ordinary configs (see
 ``../shared/papers/README.md`` for the short names) and a ``paper.yaml`` holding the
 document's own numbers; reproducing a paper is running its configs, copying ``paper.yaml``
-beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.gallery`).
+beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.papers.gallery`).
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-
-import yaml
 from typing import Callable
 
+import yaml
+
 from pfx.config.plan import build_plan
-from pfx.config.yaml_loading import load_config_file
 from pfx.errors import ConfigError
 from pfx.registry import closest_name
-from pfx.runner import run_plan
-from pfx.tables import write_text
+from pfx.result_folder import write_text
+from pfx.run.runner import run_plan
+from pfx.safe_yaml import load_config_file
 
 PAPER_FILE = "paper.yaml"      # the document's own numbers, not an experiment
 
@@ -57,6 +57,6 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
-    from pfx.gallery import write_gallery
+    from pfx.papers.gallery import write_gallery
 
     report(f"gallery: {write_gallery(out)}")

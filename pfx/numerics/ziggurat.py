@@ -1,6 +1,6 @@
 r"""NumPy's normal generator, compiled: ``Generator.standard_normal`` of many trials in one call.
 
-Every trial owns a NumPy generator (:mod:`pfx.seeding`). Filling trial after trial with
+Every trial owns a NumPy generator (:mod:`pfx.numerics.seeding`). Filling trial after trial with
 ``generator.standard_normal`` costs, on the machines pfx is benchmarked on, about 10 ns a
 draw, four times the cost of the 64-bit word underneath it (about 2.2 ns for PCG64), and a
 Python call per trial; the falling-body filter needs three draws per particle and step.
@@ -29,12 +29,16 @@ from __future__ import annotations
 from typing import Optional, Sequence
 
 import numpy as np
+
 # NumPy's ziggurat tables, as numba ships them (this module is imported on a first normal draw,
 # when numba is needed anyway).
-from numba.np.random._constants import (fi_double as _FI, ki_double as _KI, wi_double as _WI,
-                                        ziggurat_nor_inv_r as _INVERSE_R, ziggurat_nor_r as _R)
+from numba.np.random._constants import fi_double as _FI
+from numba.np.random._constants import ki_double as _KI
+from numba.np.random._constants import wi_double as _WI
+from numba.np.random._constants import ziggurat_nor_inv_r as _INVERSE_R
+from numba.np.random._constants import ziggurat_nor_r as _R
 
-from pfx.compiled import compiled
+from pfx.numerics.compiled import compiled
 
 _STRIP = np.uint64(0xFF)
 _EIGHT = np.uint64(8)

@@ -1,6 +1,6 @@
 """The Dask executor: a run's tasks on a Dask distributed cluster (``--executor dask|dask-local``).
 
-The client (the ``pfx run`` process) submits every task, a :func:`pfx.runner.run_batch`
+The client (the ``pfx run`` process) submits every task, a :func:`pfx.run.batch.run_batch`
 argument tuple, with :meth:`distributed.Client.submit` and takes the results back with
 :func:`distributed.as_completed`; the runner writes each cell when its batches are back, so
 the CSV files are written by the client alone, atomically and resumably as for local runs.
@@ -18,7 +18,7 @@ the CSV files are written by the client alone, atomically and resumably as for l
   result), readable on the Dask dashboard. Earlier tasks get higher priority, so cells
   finish, and are saved, roughly in order.
 
-This module imports Dask; :mod:`pfx.executors` imports it only when a Dask executor is asked for.
+This module imports Dask; :mod:`pfx.run.executors` imports it only when a Dask executor is asked for.
 """
 
 from __future__ import annotations
@@ -32,8 +32,7 @@ import distributed
 
 import pfx
 from pfx.errors import ExecutorError, UsageError
-from pfx.executors import Executor, Results, Task, ignore_interrupts
-
+from pfx.run.executors.base import Executor, Results, Task, ignore_interrupts
 
 # Dask settings for the workers of the clusters pfx starts (README: the same for your own).
 # Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their workers, which turns off glibc's adaptive

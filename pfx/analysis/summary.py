@@ -1,51 +1,20 @@
-"""The one CSV writer, and the summary table.
+"""summary.csv: per cell, the statistics of every metric over its trials.
 
-CSV files are written atomically: to a temporary file in the same folder, then renamed over
-the target, so a reader (or an interrupted run) never sees half a file. Missing values (a
-trial that never converged) are written as empty fields, never as ``nan``; a diverged value is
-written as ``inf`` (pandas reads it back as infinity).
+Only finite values count (``n`` says how many): a never-converged trial has no convergence
+step. The interval is the t-interval mean +- t_{0.975, n-1} * sem; empty when n < 2.
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-SUMMARY_STATISTICS = ("n", "mean", "std", "sem", "ci95_low", "ci95_high", "median")
+if TYPE_CHECKING:          # pandas is imported where a table is read
+    import pandas as pd
+
 # trials.csv columns that are identifiers or settings, not metrics to summarise
 NON_METRIC_COLUMNS = {"cell", "trial", "seed", "truth_seed", "filter_seed", "steps"}
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-# mkstemp creates files readable by their owner only; results get the usual permissions.
-FILE_MODE = 0o666 & ~_current_umask()
-
-
-def write_text(text: str, path: str | Path) -> None:
-    """Write a text file atomically."""
-    path = Path(path)
-    descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
-    try:
-        with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
-        os.chmod(temporary, FILE_MODE)
-        os.replace(temporary, path)
-    finally:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-
-
-def write_csv(frame: pd.DataFrame, path: str | Path) -> None:
-    """Write a table atomically; NaN becomes an empty field."""
-    write_text(frame.to_csv(index=False, na_rep="", lineterminator="\n"), path)
 
 
 def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:

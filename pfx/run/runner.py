@@ -1,7 +1,7 @@
 """Run a plan: every cell, every trial, in batches; write the result folder.
 
-Work is split into tasks of (cell, batch of trials). A batch runs all its trials at once in
-the engine; an executor (:mod:`pfx.executors`: this process, local worker processes, or a
+Work is split into tasks of (cell, batch of trials). A batch (:func:`pfx.run.batch.run_batch`)
+runs all its trials at once in the engine; an executor (:mod:`pfx.run.executors`: this process, local worker processes, or a
 Dask cluster) computes the tasks. Because every trial has its own random streams, batching,
 the executor and the number of workers change nothing in the results. Each finished cell is
 written atomically to ``cells/`` inside the result folder, by this process alone; when every
@@ -19,7 +19,6 @@ import subprocess
 import sys
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Optional
@@ -29,123 +28,30 @@ import pandas as pd
 import yaml
 
 import pfx
+from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
+from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
-from pfx.config.schema import ParticleSnapshots
-from pfx.engine import SnapshotRequest, SpreadCriterion, simulate_truth
-from pfx.filters import FILTERS
-from pfx.executors import Executor, make_executor
 from pfx.figures import render_figures
-from pfx.figures.registry import ResultFolder
-from pfx.memory import check_fits, default_budget, trials_per_batch
-from pfx.result_folder import (CELLS, LOCK_FILE, MANIFEST, FolderState, clear_outputs, folder_lock,
-                               inspect_folder)
-from pfx.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
-from pfx.seeding import TrialStreams, filter_seed, study_generator, truth_seed
-from pfx.step_summary import merge_step_summaries, step_values, summarize_steps
-from pfx.tables import summarize, write_csv, write_text
+from pfx.numerics.seeding import study_generator
+from pfx.result_folder import (
+    CELLS,
+    LOCK_FILE,
+    MANIFEST,
+    FolderState,
+    ResultFolder,
+    clear_outputs,
+    folder_lock,
+    inspect_folder,
+    write_csv,
+    write_text,
+)
+from pfx.run.batch import BatchResult, run_batch
+from pfx.run.executors import Executor, make_executor
+from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
 OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "scene.csv",
                 "config.yaml", "manifest.json")
 CELL_TABLES = ("steps", "steps_summary", "particles", "trials")     # per cell in cells/; trials last
-
-
-@dataclass
-class BatchResult:
-    cell_key: str
-    trials: pd.DataFrame
-    steps: pd.DataFrame
-    wall_time: float
-    particles: Optional[pd.DataFrame] = None
-    step_values: Optional[dict] = None        # every trial's per-step values (pfx.step_summary)
-
-
-def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
-              snapshots: Optional[ParticleSnapshots] = None) -> BatchResult:
-    """Simulate the truth and run the filter for some trials of one cell; return table rows."""
-    truth_seeds = [truth_seed(seed, t) for t in trials]
-    filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
-    states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
-    criterion = cell.metrics.convergence
-    spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
-    snapshot = None
-    if snapshots is not None and snapshots.steps and cell.filter.uses_particles:
-        rows = np.array([i for i, t in enumerate(trials) if t < snapshots.trials], dtype=np.intp)
-        if rows.size:
-            steps_kept = "all" if snapshots.steps == "all" else frozenset(snapshots.steps)
-            snapshot = SnapshotRequest(rows=rows, steps=steps_kept, stages=frozenset(snapshots.stages))
-    options = {"snapshot": snapshot} if snapshot is not None else {}
-    started = time.perf_counter()
-    trace = FILTERS[cell.filter.kind](
-        cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
-        prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency, **options)
-    elapsed = time.perf_counter() - started
-    truth = states[:, 1:]
-    with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
-        metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
-                                               config=cell.metrics))
-    model = cell.truth_model
-    rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
-                         "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
-                         **metrics, "run_time_s": elapsed / len(trials)})
-    traced = [i for i, t in enumerate(trials) if t < trace_trials]
-    with np.errstate(over="ignore", invalid="ignore"):
-        steps = _steps_frame(cell, trials, traced, truth, trace)
-    particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
-    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model))
-
-
-def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
-    """particles.csv rows: one per kept particle (cell, labels, trial, step, stage, particle, state, weight)."""
-    names = cell.filter_model.state_names
-    frames = []
-    for cloud in snapshot.clouds:
-        rows, n = cloud["state"].shape[:2]
-        columns = {"cell": cell.key, **cell.labels,
-                   "trial": np.repeat([trials[r] for r in cloud["rows"]], n),
-                   "step": cloud["step"], "stage": cloud["stage"], "particle": np.tile(np.arange(n), rows)}
-        for j, name in enumerate(names):
-            columns[name] = cloud["state"][..., j].ravel()
-        columns["weight"] = cloud["weights"].ravel()
-        frames.append(pd.DataFrame(columns))
-    return pd.concat(frames, ignore_index=True)
-
-
-def steps_columns(cell: Cell) -> list[str]:
-    """The columns of steps.csv for a cell (so that an empty table still has its header)."""
-    states = cell.truth_model.state_names
-    columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
-                                                               for kind in ("truth", "estimate")],
-               "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis"]
-    return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
-
-
-def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
-    if not traced:
-        return pd.DataFrame(columns=steps_columns(cell))
-    model = cell.truth_model
-    steps = model.steps
-    position = list(model.position_components)
-    frames = []
-    for i in traced:
-        error = trace.estimates[i][:, position] - truth[i][:, position]
-        columns = {"cell": cell.key, **cell.labels, "trial": trials[i], "step": np.arange(1, steps + 1),
-                   "time": model.times()}
-        for j, name in enumerate(model.state_names):
-            columns[f"truth_{name}"] = truth[i, :, j]
-            columns[f"estimate_{name}"] = trace.estimates[i, :, j]
-        columns["error_distance"] = np.sqrt(np.sum(error * error, axis=-1))
-        columns["ess"] = trace.ess[i]
-        columns["resampled"] = trace.resampled[i]
-        columns["degenerate"] = trace.degenerate[i]
-        columns["spread"] = trace.spread[i]
-        columns["nees"] = (normalised_squares(state_error(truth[i], trace.estimates[i], model),
-                                              trace.covariances[i])
-                           if trace.covariances is not None else np.nan)
-        columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
-        if cell.metrics.convergence.criterion == "spread":
-            columns["within_radius"] = trace.within_radius[i] if trace.within_radius is not None else np.nan
-        frames.append(pd.DataFrame(columns))
-    return pd.concat(frames, ignore_index=True)[steps_columns(cell)]
 
 
 def _git_revision() -> Optional[str]:
@@ -172,7 +78,7 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
              progress: bool = False, memory_budget: Optional[int] = None) -> Path:
     """Run every unfinished cell of the plan into ``out``; assemble tables and figures.
 
-    The batches are computed by ``executor`` (see :mod:`pfx.executors`; the caller starts and
+    The batches are computed by ``executor`` (see :mod:`pfx.run.executors`; the caller starts and
     closes it), or by ``workers`` local processes when none is given. What happens with a
     folder that already holds results is :mod:`pfx.result_folder`'s table: resume, extend with
     more trials, only re-render the outputs, or refuse.
@@ -350,8 +256,14 @@ def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
     if not enabled or total == 0:
         return nullcontext()
     from rich.console import Console
-    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                               TimeElapsedColumn, TimeRemainingColumn)
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn(counts),
                     TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True,

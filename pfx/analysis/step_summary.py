@@ -31,7 +31,7 @@ def step_values(truth: np.ndarray, trace, model) -> dict[str, np.ndarray]:
 
     ``squared_error_<state>`` holds the squared error of each state component.
     """
-    from pfx.metrics import error_distance, normalised_squares, state_error
+    from pfx.analysis.metrics import error_distance, normalised_squares, state_error
 
     trials, steps = truth.shape[:2]
     missing = np.full((trials, steps), np.nan)

@@ -2,7 +2,7 @@
 
 ``pfx compare RESULT_DIR --metric M --by FIELD [--baseline VALUE]`` reads ``trials.csv`` and
 compares every value of the column ``FIELD`` (default ``arm``) with a baseline value. It
-prints the table on stdout and writes it atomically (:func:`pfx.tables.write_csv`) to
+prints the table on stdout and writes it atomically (:func:`pfx.result_folder.write_csv`) to
 ``RESULT_DIR/compare_<M>_by_<FIELD>.csv``, named on stderr. Options: ``--baseline VALUE``,
 ``--higher-is-better``, ``--bootstrap B`` (B >= 100).
 
@@ -68,13 +68,16 @@ aligned text (readable in CI logs; an empty label shows as ``(empty)``, a missin
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Optional
+from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 import numpy as np
 
+from pfx.analysis.summary import NON_METRIC_COLUMNS
 from pfx.errors import ConfigError
 from pfx.registry import closest_name
-from pfx.tables import NON_METRIC_COLUMNS
+
+if TYPE_CHECKING:          # pandas is imported where a table is read
+    import pandas as pd
 
 BOOTSTRAP_SEED = 20240611          # the fixed seed of every bootstrap interval
 BOOTSTRAP_CHUNK = 1000             # resamples drawn at once (bounds memory; same result whatever the count)

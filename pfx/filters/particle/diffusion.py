@@ -17,8 +17,8 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
 
+from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry, kind_shorthand
-from pfx.seeding import TrialStreams
 
 
 class _Diffusion(BaseModel):

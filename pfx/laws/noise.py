@@ -37,11 +37,11 @@ from dataclasses import dataclass
 from typing import Callable, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, model_validator
 from scipy.special import gammaln, log_ndtr, stdtr
 
+from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
-from pfx.seeding import TrialStreams
 
 
 @dataclass(frozen=True)

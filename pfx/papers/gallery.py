@@ -18,9 +18,8 @@ from typing import Callable, Literal, Optional, Union
 
 import yaml
 
-from pfx.figures.registry import ResultFolder
 from pfx.registry import Registry
-from pfx.tables import write_text
+from pfx.result_folder import ResultFolder, write_text
 
 VERDICTS = ("reproduced", "partly reproduced", "not reproduced", "not comparable")
 
@@ -152,10 +151,13 @@ def render_section(section: Section, results: PaperResults, root: Path) -> str:
 def write_gallery(results_dir: str | Path) -> Path:
     """Rewrite ``results/README.md`` from every paper folder that has a report and results."""
     root = Path(results_dir)
-    import pfx.papers  # noqa: F401  (registers the reports)
+    from pfx.papers import GALLERY_ORDER  # importing the package registers the reports
 
+    unordered = [paper for paper in REPORTS if paper not in GALLERY_ORDER]
+    if unordered:
+        raise ValueError(f"reports missing from pfx.papers.GALLERY_ORDER: {', '.join(unordered)}")
     sections = []
-    for paper in REPORTS:
+    for paper in GALLERY_ORDER:
         folder = root / paper
         if not folder.is_dir():
             continue

@@ -11,7 +11,7 @@ Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..
    If every weight of a trial underflows (:math:`L_k = -\infty`), the step is *degenerate*:
    the policy is to reset that trial's weights to uniform and go on (counted per trial).
 4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling;
-   a model's angular components by the circular mean, :mod:`pfx.angles`), and
+   a model's angular components by the circular mean, :mod:`pfx.numerics.angles`), and
    :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
 5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
@@ -31,11 +31,11 @@ from typing import Optional
 
 import numpy as np
 
-from pfx.angles import circular_mean
-from pfx.compiled import compiled
 from pfx.errors import ModelNumericalError
-from pfx.trace import FilterTrace
-from pfx.seeding import TrialStreams
+from pfx.filters.trace import FilterTrace
+from pfx.numerics.angles import circular_mean
+from pfx.numerics.compiled import compiled
+from pfx.numerics.seeding import TrialStreams
 
 
 @dataclass
@@ -140,7 +140,7 @@ def gather_particles(state, rows, indices, out):
 
 def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
     """The estimate: the weighted mean, with the model's angular components (if any) averaged
-    on the circle (:func:`pfx.angles.circular_mean`)."""
+    on the circle (:func:`pfx.numerics.angles.circular_mean`)."""
     mean = weighted_mean(weights, particles)
     angular = list(model.angular_components)
     if angular:

@@ -14,10 +14,10 @@ from __future__ import annotations
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, model_validator, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, ValidationError, model_validator
 
-from pfx.noise import Noise, Variance
-from pfx.seeding import TrialStreams
+from pfx.laws.noise import Noise, Variance
+from pfx.numerics.seeding import TrialStreams
 
 
 class _InitialLaw(BaseModel):
@@ -108,7 +108,7 @@ class UniformLaw(_InitialLaw):
 
     @model_validator(mode="after")
     def _ordered(self):
-        if len(self.low) == len(self.high) and any(h <= l for l, h in zip(self.low, self.high)):
+        if len(self.low) == len(self.high) and any(high <= low for low, high in zip(self.low, self.high)):
             raise ValueError("@high: every high must exceed its low")
         return self
 

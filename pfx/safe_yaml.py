@@ -1,4 +1,4 @@
-"""Safe YAML reading for configs, and the dotted-path helpers ``--set`` and the plan use.
+"""Safe YAML reading, for configs and the data files they name (a wall map).
 
 Only YAML's plain data types are constructed (``yaml.SafeLoader``, reading YAML 1.2 floats): tags that would build
 Python objects are errors. Duplicate keys are errors (plain PyYAML keeps the last one
@@ -8,7 +8,6 @@ silently). Aliases are allowed, but a document whose expansion would exceed
 
 from __future__ import annotations
 
-import copy
 import re
 from pathlib import Path
 from typing import Any
@@ -202,39 +201,3 @@ def load_config_file(path: str | Path) -> dict:
             raise ConfigError("file holds no settings (expected a YAML mapping)", file=file)
         raise ConfigError(f"top level must be a mapping of sections, not {kind}", file=file)
     return document
-
-
-def split_path(dotted: str) -> list[str]:
-    parts = dotted.split(".")
-    if not dotted or any(not part for part in parts):
-        raise ConfigError(f"invalid key path {dotted!r}")
-    return parts
-
-
-def set_path(config: dict, dotted: str, value: Any) -> None:
-    """Set ``config[a][b][c] = value`` for ``dotted = 'a.b.c'``, creating mappings on the way."""
-    parts = split_path(dotted)
-    node = config
-    for index, part in enumerate(parts[:-1]):
-        child = node.get(part)
-        if child is None:
-            child = node[part] = {}
-        elif isinstance(child, str) and index + 1 < len(parts):
-            # shorthand such as `weighting: gaussian` becomes a mapping when a field is set
-            child = node[part] = {"kind": child}
-        if not isinstance(child, dict):
-            raise ConfigError(f"cannot set {dotted}: {'.'.join(parts[:index + 1])} is not a mapping",
-                              key=dotted)
-        node = child
-    node[parts[-1]] = value
-
-
-def deep_merge(base: dict, override: dict) -> dict:
-    """A copy of ``base`` with ``override`` merged in, mapping by mapping."""
-    result = copy.deepcopy(base)
-    for key, value in override.items():
-        if isinstance(value, dict) and isinstance(result.get(key), dict) and "kind" not in value:
-            result[key] = deep_merge(result[key], value)
-        else:
-            result[key] = copy.deepcopy(value)
-    return result

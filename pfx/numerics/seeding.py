@@ -16,7 +16,7 @@ Each stream is reduced to one 63-bit integer (written to ``trials.csv`` as ``tru
 Because each trial owns its generator, a batch of trials draws exactly the numbers those trials
 would draw one by one: :class:`TrialStreams` hands each trial's slice of a batched array to that
 trial's own generator. Normal draws are exactly ``Generator.standard_normal``'s, made by a
-compiled loop from each generator's 64-bit words (:mod:`pfx.ziggurat`), several times faster.
+compiled loop from each generator's 64-bit words (:mod:`pfx.numerics.ziggurat`), several times faster.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ class TrialStreams:
     def __init__(self, generators: Sequence[np.random.Generator]):
         self.generators = list(generators)
         bit_generators = [generator.bit_generator for generator in self.generators]
-        # PCG64 generators (all of pfx's own) get the compiled normal loop of pfx.ziggurat.
+        # PCG64 generators (all of pfx's own) get the compiled normal loop of pfx.numerics.ziggurat.
         self._pcg64 = bit_generators if all(type(b) is np.random.PCG64 for b in bit_generators) else None
 
     @classmethod
@@ -89,8 +89,8 @@ class TrialStreams:
         return out
 
     def standard_normal(self, shape) -> np.ndarray:
-        """Standard normal draws: each trial's ``generator.standard_normal``, compiled (pfx.ziggurat)."""
-        from pfx.ziggurat import standard_normal_rows
+        """Standard normal draws: each trial's ``generator.standard_normal``, compiled (pfx.numerics.ziggurat)."""
+        from pfx.numerics.ziggurat import standard_normal_rows
 
         shape = tuple(shape)
         draws = standard_normal_rows(self.generators, self._pcg64, math.prod(shape))

@@ -23,7 +23,7 @@ uniforms, and :math:`E[N_j] = (N+1) w_j - (C_j^{N+1} - C_{j-1}^{N+1})`
 :math:`N w_j`, not from :math:`w_j` (the bug of filterpy issue 290).
 
 Each resampler has the signature ``resampler(weights, random) -> indices`` with ``weights`` of
-shape (trials, N) (rows sum to 1) and ``random`` a :class:`~pfx.seeding.TrialStreams` with one
+shape (trials, N) (rows sum to 1) and ``random`` a :class:`~pfx.numerics.seeding.TrialStreams` with one
 stream per row; ``indices`` has shape (trials, N).
 """
 
@@ -34,9 +34,9 @@ from typing import Callable
 
 import numpy as np
 
-from pfx.compiled import compiled
+from pfx.numerics.compiled import compiled
+from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
-from pfx.seeding import TrialStreams
 
 
 def inverse_cdf(weights: np.ndarray, points: np.ndarray) -> np.ndarray:

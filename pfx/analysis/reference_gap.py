@@ -18,7 +18,7 @@ falls like :math:`N^{-1/2}`: :math:`\log G_N = c - \tfrac12 \log N` plus noise w
 not depend on N. The slope of :math:`\log G_N` against :math:`\log N`, fitted per trial by
 least squares over the particle counts, is then an unbiased estimate of -1/2 in the
 asymptotic regime; trials are independent, so the mean slope gets a t-interval
-(:func:`pfx.tables.describe`). Trials whose posterior has a mode the particles miss at small
+(:func:`pfx.analysis.summary.describe`). Trials whose posterior has a mode the particles miss at small
 N (a rare measurement far in the prediction's tail) reach that regime later: their gaps make
 the mean square heavy-tailed, which is why the per-trial log-log slope, not the slope of the
 pooled root-mean-square, carries the interval.
@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pfx.tables import describe
+from pfx.analysis.summary import describe
 
 REFERENCE_FILTER = "histogram"
 UNSERIES_COLUMNS = {"cell", "arm", "n_particles"}

@@ -1,0 +1,124 @@
+"""One task of a run: some trials of one cell, all at once.
+
+:func:`run_batch` simulates the truth of each trial from its own stream, runs the cell's filter
+on all of them in one call, and returns the batch's table rows: one row per trial
+(trials.csv), the full per-step traces of the traced trials (steps.csv), the kept particle
+clouds (particles.csv) and every trial's per-step values (for steps_summary.csv). It is what an
+executor sends to a worker, so it depends on nothing but its arguments.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import pandas as pd
+
+from pfx.analysis.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
+from pfx.analysis.step_summary import step_values
+from pfx.config.plan import Cell
+from pfx.config.schema import ParticleSnapshots
+from pfx.filters import FILTERS
+from pfx.filters.particle.engine import SnapshotRequest, SpreadCriterion, simulate_truth
+from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
+
+
+@dataclass
+class BatchResult:
+    cell_key: str
+    trials: pd.DataFrame
+    steps: pd.DataFrame
+    wall_time: float
+    particles: Optional[pd.DataFrame] = None
+    step_values: Optional[dict] = None        # every trial's per-step values (pfx.analysis.step_summary)
+
+
+def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
+              snapshots: Optional[ParticleSnapshots] = None) -> BatchResult:
+    """Simulate the truth and run the filter for some trials of one cell; return table rows."""
+    truth_seeds = [truth_seed(seed, t) for t in trials]
+    filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
+    states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
+    criterion = cell.metrics.convergence
+    spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
+    snapshot = None
+    if snapshots is not None and snapshots.steps and cell.filter.uses_particles:
+        rows = np.array([i for i, t in enumerate(trials) if t < snapshots.trials], dtype=np.intp)
+        if rows.size:
+            steps_kept = "all" if snapshots.steps == "all" else frozenset(snapshots.steps)
+            snapshot = SnapshotRequest(rows=rows, steps=steps_kept, stages=frozenset(snapshots.stages))
+    options = {"snapshot": snapshot} if snapshot is not None else {}
+    started = time.perf_counter()
+    trace = FILTERS[cell.filter.kind](
+        cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
+        prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency, **options)
+    elapsed = time.perf_counter() - started
+    truth = states[:, 1:]
+    with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
+        metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
+                                               config=cell.metrics))
+    model = cell.truth_model
+    rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
+                         "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
+                         **metrics, "run_time_s": elapsed / len(trials)})
+    traced = [i for i, t in enumerate(trials) if t < trace_trials]
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = _steps_frame(cell, trials, traced, truth, trace)
+    particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
+    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model))
+
+
+def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
+    """particles.csv rows: one per kept particle (cell, labels, trial, step, stage, particle, state, weight)."""
+    names = cell.filter_model.state_names
+    frames = []
+    for cloud in snapshot.clouds:
+        rows, n = cloud["state"].shape[:2]
+        columns = {"cell": cell.key, **cell.labels,
+                   "trial": np.repeat([trials[r] for r in cloud["rows"]], n),
+                   "step": cloud["step"], "stage": cloud["stage"], "particle": np.tile(np.arange(n), rows)}
+        for j, name in enumerate(names):
+            columns[name] = cloud["state"][..., j].ravel()
+        columns["weight"] = cloud["weights"].ravel()
+        frames.append(pd.DataFrame(columns))
+    return pd.concat(frames, ignore_index=True)
+
+
+def steps_columns(cell: Cell) -> list[str]:
+    """The columns of steps.csv for a cell (so that an empty table still has its header)."""
+    states = cell.truth_model.state_names
+    columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
+                                                               for kind in ("truth", "estimate")],
+               "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis"]
+    return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
+
+
+def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
+    if not traced:
+        return pd.DataFrame(columns=steps_columns(cell))
+    model = cell.truth_model
+    steps = model.steps
+    position = list(model.position_components)
+    frames = []
+    for i in traced:
+        error = trace.estimates[i][:, position] - truth[i][:, position]
+        columns = {"cell": cell.key, **cell.labels, "trial": trials[i], "step": np.arange(1, steps + 1),
+                   "time": model.times()}
+        for j, name in enumerate(model.state_names):
+            columns[f"truth_{name}"] = truth[i, :, j]
+            columns[f"estimate_{name}"] = trace.estimates[i, :, j]
+        columns["error_distance"] = np.sqrt(np.sum(error * error, axis=-1))
+        columns["ess"] = trace.ess[i]
+        columns["resampled"] = trace.resampled[i]
+        columns["degenerate"] = trace.degenerate[i]
+        columns["spread"] = trace.spread[i]
+        columns["nees"] = (normalised_squares(state_error(truth[i], trace.estimates[i], model),
+                                              trace.covariances[i])
+                           if trace.covariances is not None else np.nan)
+        columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
+        if cell.metrics.convergence.criterion == "spread":
+            columns["within_radius"] = trace.within_radius[i] if trace.within_radius is not None else np.nan
+        frames.append(pd.DataFrame(columns))
+    return pd.concat(frames, ignore_index=True)[steps_columns(cell)]
