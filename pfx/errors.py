@@ -6,6 +6,11 @@ line (file, key path, reason), exits with status 2 and writes nothing.
 
 from __future__ import annotations
 
+import re
+
+# A component's check locates its error below the component: ValueError("@sub.key: reason").
+_LOCATED = re.compile(r"@([\w.\[\]]+): (.*)", re.S)
+
 
 class ConfigError(Exception):
     """A problem with the user's input, located by file, key path and (for YAML) position."""
@@ -41,15 +46,19 @@ class ConfigError(Exception):
         return f"{where}: {self.reason}"
 
 
-def located_value_error(error: ValueError, *, prefix: str, file: str | None = None) -> ConfigError:
-    """The ConfigError for a component check's ``ValueError("@sub.key: reason")`` under ``prefix``.
+def split_location(text: str) -> tuple[str, str]:
+    """``"@sub.key: reason"`` -> ``("sub.key", "reason")``; any other text -> ``("", text)``.
 
-    Components (noises, laws, diffusions, filter kinds) locate their own errors this way.
+    The one reader of the convention by which components (noises, laws, diffusions, filter
+    kinds, model checks) say which key below them an error is about.
     """
-    text = str(error)
-    sub, reason = ("", text)
-    if text.startswith("@"):
-        sub, _, reason = text[1:].partition(": ")
+    match = _LOCATED.match(text)
+    return (match.group(1), match.group(2)) if match else ("", text)
+
+
+def located_value_error(error: ValueError, *, prefix: str, file: str | None = None) -> ConfigError:
+    """The ConfigError for a component check's ``ValueError("@sub.key: reason")`` under ``prefix``."""
+    sub, reason = split_location(str(error))
     return ConfigError(reason, file=file, key=f"{prefix}.{sub}" if sub else prefix)
 
 

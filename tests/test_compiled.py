@@ -126,3 +126,21 @@ def test_normalise_weights():
     legacy, legacy_normaliser = log_normalise(log_weights)
     np.testing.assert_array_equal(legacy, normalised)
     np.testing.assert_array_equal(legacy_normaliser, normaliser)
+
+
+def test_ziggurat_tables_satisfy_their_definitions():
+    """The frozen tables are the ziggurat of e^{-x^2/2}: strip edges x_i = width_i 2^52 with
+    densities e^{-x_i^2/2}; each rectangle bound is 2^52 x_{i-1} / x_i (the base strip's r / x_0);
+    and they equal, bit for bit, the copy numba ships (which they were written from)."""
+    from pfx.numerics import ziggurat_tables as tables
+
+    edges = tables.STRIP_WIDTHS * 2.0**52
+    assert edges[-1] == tables.TAIL_START and tables.TAIL_START * tables.TAIL_START_INVERSE == pytest.approx(1.0)
+    np.testing.assert_allclose(tables.DENSITIES[1:], np.exp(-0.5 * edges[1:] ** 2), rtol=1e-15)
+    bounds = tables.STRIP_BOUNDS.astype(float) / 2.0**52
+    np.testing.assert_allclose(bounds[2:], edges[1:-1] / edges[2:], rtol=0, atol=1e-15)
+    assert bounds[0] == pytest.approx(tables.TAIL_START / edges[0], abs=1e-15) and bounds[1] == 0
+    shipped = pytest.importorskip("numba.np.random._constants")
+    assert np.array_equal(tables.STRIP_BOUNDS, shipped.ki_double)
+    assert np.array_equal(tables.STRIP_WIDTHS, shipped.wi_double)
+    assert np.array_equal(tables.DENSITIES, shipped.fi_double)

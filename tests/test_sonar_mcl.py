@@ -186,7 +186,7 @@ def test_noise_free_motion_is_the_commanded_action_and_draws_nothing():
     """motion: noise-free moves exactly d along the heading and turns exactly alpha, whatever
     move_bias, turn_bias and process_noise say, and draws no random numbers."""
     model = _model(motion="noise-free", move_bias=0.5, turn_bias=2.0, process_noise={"variance": [9.0, 13.0]})
-    assert model.move_bias == 1.0 and model.turn_bias == 1.0 and model.process_noise.is_zero
+    assert model.move_bias == 1.0 and model.turn_bias == 1.0 and not model.process_noise.covariance().any()
     streams = TrialStreams.from_seeds([7])
     before = copy.deepcopy(streams.generators[0].bit_generator.state)
     moved = _transition(model, 1, [[50.0, 50.0, 0.0], [40.0, 10.0, 90.0], [70.0, 60.0, 225.0]], streams)

@@ -194,6 +194,14 @@ def lost_particle_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"lost_particles": inputs.trace.lost_particles}
 
 
+@METRICS.register("grid_lost_mass")
+def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Grid filter: the largest probability mass that left the grid in one step (empty for
+    other filters); near 0 when the grid covers where the state goes."""
+    lost = inputs.trace.grid_lost_mass
+    return {"grid_lost_mass": lost.max(axis=1) if lost is not None else np.full(inputs.truth.shape[0], np.nan)}
+
+
 def normalised_squares(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """e' P^-1 e for every leading index: (..., d), (..., d, d) -> (...).
 

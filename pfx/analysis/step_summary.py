@@ -1,18 +1,18 @@
 r"""Per-step summaries over every trial of a cell: ``steps_summary.csv``.
 
 ``steps.csv`` keeps the full traces of a few trials; figures of a quantity over time need all
-of them. For every cell and step, over the cell's :math:`R` trials, this table holds
+of them. For every cell and step, over the cell's :math:`n` trials, this table holds
 
-* ``trials`` (:math:`R`), and for each of ``error_distance``, ``ess``, ``nees`` and ``nis``:
-  ``<q>_mean`` :math:`\bar q_k = \tfrac1R \sum_r q_{k,r}`, ``<q>_std`` (sample standard deviation)
+* ``trials`` (:math:`n`), and for each of ``error_distance``, ``ess``, ``nees`` and ``nis``:
+  ``<q>_mean`` :math:`\bar q_k = \tfrac1n \sum_r q_{k,r}`, ``<q>_std`` (sample standard deviation)
   and the 95% t-interval of the mean ``<q>_ci95_low``/``_high``
-  (:math:`\bar q_k \pm t_{0.975,R-1}\, s_k/\sqrt R`);
+  (:math:`\bar q_k \pm t_{0.975,n-1}\, s_k/\sqrt n`);
 * ``rms_error_<state>`` for every state component:
-  :math:`\sqrt{\tfrac1R \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped).
+  :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped).
 
 Every statistic is one a run extended with more trials can update without the old trials'
 traces: means and squared deviations merge exactly in exact arithmetic (Chan, Golub and LeVeque's
-pairwise update), so a summary extended from R to R' trials equals a fresh run's to rounding
+pairwise update), so a summary extended from n to n' trials equals a fresh run's to rounding
 (about 1e-15 relative); a fresh run computes it from every trial's values at once, the same
 whatever the batching. A diverged trial makes its cell's mean infinite at that step: it is not
 hidden. ``nees`` and ``nis`` are empty where the filter records no covariance.

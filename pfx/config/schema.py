@@ -94,9 +94,6 @@ class ParticleSnapshots(BaseModel):
         description="predicted (after the transition), weighted (after the weight update, before "
                     "resampling), resampled (after resampling and diffusion)")
 
-    def wanted(self, step: int) -> bool:
-        return self.steps == "all" or step in self.steps
-
 
 class FigureOutputs(BaseModel):
     """Which figures to render, in which formats."""

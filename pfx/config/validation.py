@@ -15,7 +15,7 @@ from typing import Any, Union
 
 from pydantic import BaseModel, ValidationError
 
-from pfx.errors import ConfigError
+from pfx.errors import ConfigError, split_location
 from pfx.registry import closest_name
 
 
@@ -142,13 +142,9 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
         suggestion = f" (did you mean {hint!r}?)" if hint else f" (expected one of: {', '.join(expected)})"
         return location, f"unknown value {_short(error.get('input'))}{suggestion}"
     if kind == "value_error":
-        text = message.removeprefix("Value error, ")
-        match = re.match(r"@([\w.\[\]]+): (.*)", text, re.S)
-        if match:
-            extra = tuple(int(p) if p.isdigit() else p
-                          for p in re.split(r"\.|\[|\]", match.group(1)) if p)
-            return location + extra, match.group(2)
-        return location, text
+        sub, reason = split_location(message.removeprefix("Value error, "))
+        extra = tuple(int(p) if p.isdigit() else p for p in re.split(r"\.|\[|\]", sub) if p)
+        return location + extra, reason
     if kind.endswith("_type") or kind.endswith("_parsing") or kind in ("model_type", "dict_type", "list_type"):
         return location, f"{message[0].lower()}{message[1:]} (got {_short(error.get('input'))})"
     return location, f"{message[0].lower()}{message[1:]} (got {_short(error.get('input'))})"

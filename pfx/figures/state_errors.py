@@ -2,8 +2,8 @@ r"""Figures of the error in every state component (park-mpf Figs. 4-6 and its ex
 
 * ``state_error_over_time``: one panel per state component, one line per cell. A folder of
   one trial draws that trial's error :math:`\hat x_{k,j} - x_{k,j}` over time (steps.csv);
-  a folder of :math:`R` trials draws the RMS error over all of them at each time,
-  :math:`\sqrt{\tfrac1R \sum_r (\hat x_{k,j} - x_{k,j})^2}` (``rms_error_<state>`` of
+  a folder of :math:`n` trials draws the RMS error over all of them at each time,
+  :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,j} - x_{k,j})^2}` (``rms_error_<state>`` of
   steps_summary.csv; an older folder's traced trials, said in the title). An angle's error is
   wrapped into half a turn either side.
 * ``relative_change_by_state`` (trials.csv): for every state component, every arm's mean RMSE

@@ -1,7 +1,7 @@
 r"""Figures of a quantity over time, one line per cell, over every trial (steps_summary.csv).
 
 * ``error_over_time``: the mean error distance :math:`\bar e_k` at each step over the cell's
-  :math:`R` trials (named after the model's position: ``|error| of x`` for one state
+  :math:`n` trials (named after the model's position: ``|error| of x`` for one state
   component, ``position error distance`` for several);
 * ``ess_over_time``: the mean effective sample size before resampling as a share of the
   particles, :math:`\overline{N_{\mathrm{eff}}}_k / N`;

@@ -70,8 +70,8 @@ is constant (or absent) and again every step otherwise (the growth model's forci
 once per batch of trials the runner hands over.
 
 * 1-D: the kernel is a :math:`G \times G` matrix (``8 G^2`` bytes: 32 MB for the default 2000
-  cells; ~20 ms to build, ~20 ms per trial and step on the growth model) and the predict an :math:`(R \times G)(G \times G)` product for
-  the R trials of a batch.
+  cells; ~20 ms to build, ~20 ms per trial and step on the growth model) and the predict an :math:`(\text{trials} \times G)(G \times G)` product for
+  the trials of a batch.
 * 2-D: the process noise must have a diagonal covariance, so its density factorises over the
   axes, :math:`p_w(w) = p_1(w_1)\,p_2(w_2)`, and
   :math:`q_{(j_1, j_2)} = \sum_i \pi_i K^{(1)}_{i j_1} K^{(2)}_{i j_2}` with one factor per axis
@@ -113,7 +113,7 @@ deviations (to about :math:`\pm 30` from a prior of standard deviation 3.2).
 **Mass leaving the grid** is lost: the prior's mass outside the grid (counted at step 1) and,
 each step, the predicted mass that lands outside. The filter renormalises and goes on (the
 posterior is then the posterior *given that the state stayed in the grid*); the lost mass per
-trial and step is returned as ``trace.grid_lost_mass`` (R, T). It is measured before the
+trial and step is returned as ``trace.grid_lost_mass`` (trials, T). It is measured before the
 update, so it overstates the effect on the posterior when the measurement rules the lost
 region out anyway (on the growth model a grid over [-34, 34] lost up to 1e-6 per step, yet its posterior
 and log-likelihood agreed to 1e-14 with a grid over [-60, 60]; the default grid, [-53, 53],
@@ -495,9 +495,9 @@ class _Transition:
         return sums
 
     def predict(self, kernel: _Kernel, log_weights: np.ndarray, log_likelihood_of) -> tuple[np.ndarray, np.ndarray]:
-        """log q (R, G) for source log-probabilities (R, n); certified, see the module docstring.
+        """log q (trials, G) for source log-probabilities (trials, n); certified, see the module docstring.
 
-        ``log_likelihood_of`` gives the log-likelihood (R, G) used to decide which uncertain
+        ``log_likelihood_of`` gives the log-likelihood (trials, G) used to decide which uncertain
         entries matter; returns (log q, log-likelihood).
         """
         d = self.grid.dimension
@@ -570,7 +570,7 @@ def _prior_masses(prior, grid: Grid) -> np.ndarray:
 
 def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
                          spread_criterion=None) -> FilterTrace:
-    """Run the grid filter on measurements (R, T, m); see the module docstring."""
+    """Run the grid filter on measurements (trials, T, m); see the module docstring."""
     trials, steps, m = measurements.shape
     d = grid.dimension
     noises = axis_noises(model)
@@ -660,7 +660,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
 
 
 def _grid_log_likelihood(model, measurement: np.ndarray, points: np.ndarray, chunk: int, step: int) -> np.ndarray:
-    """log p(z | x_j) for every trial's measurement (R, m) and grid point: (R, G), in chunks of trials."""
+    """log p(z | x_j) for every trial's measurement (trials, m) and grid point: (trials, G), in chunks of trials."""
     out = np.empty((len(measurement), len(points)))
     for start in range(0, len(measurement), chunk):
         z = measurement[start:start + chunk, None, :]

@@ -1,7 +1,7 @@
 r"""Gaussian filters: the Kalman filter (``kf``), the extended (``ekf``) and the unscented (``ukf``).
 
 Each carries, per trial, a Gaussian belief :math:`N(\hat x_k, P_k)` instead of particles, batched
-over the R trials like the particle engine (means (R, d), covariances (R, d, d)). Every step
+over the trials of a batch like the particle engine (means (trials, d), covariances (trials, d, d)). Every step
 k = 1..T has two halves.
 
 **Predict** through the transition :math:`x_k = f(x_{k-1}, u_k, w_k)`, :math:`w_k \sim (0, Q)`:
@@ -336,10 +336,10 @@ def _innovation(kind: str, model, k: int, innovation: np.ndarray, innovation_cov
 
 
 def _linear_update(kind, model, k, mean, covariance, z, predicted_measurement, H, noise_r):
-    """Kalman update with measurement matrix H (R, m, d), Joseph form; returns (mean, P, NIS, log p(z_k))."""
+    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS, log p(z_k))."""
     innovation = z - predicted_measurement
     S, nis, log_density = _innovation(kind, model, k, innovation, H @ covariance @ _transpose(H) + noise_r)
-    cross = covariance @ _transpose(H)                                   # P H'  (R, d, m)
+    cross = covariance @ _transpose(H)                                   # P H'  (trials, d, m)
     gain = _transpose(np.linalg.solve(S, _transpose(cross)))             # P H' S^-1 (S symmetric)
     mean = mean + np.einsum("rdm,rm->rd", gain, innovation)
     complement = np.eye(mean.shape[-1]) - gain @ H
@@ -413,7 +413,7 @@ def noise_jacobian(model, mean: np.ndarray, control) -> np.ndarray:
 
 
 def process_noise_in_state(model, mean: np.ndarray, control) -> np.ndarray:
-    """L Q L' (R, d, d): the process noise covariance in state coordinates (0 when Q = 0)."""
+    """L Q L' (trials, d, d): the process noise covariance in state coordinates (0 when Q = 0)."""
     Q = model.process_noise.covariance()
     d = mean.shape[-1]
     if not np.any(Q):

@@ -10,22 +10,23 @@ import numpy as np
 
 @dataclass
 class FilterTrace:
-    """A filter run over R trials and steps 1..T.
+    """A filter run over a batch of trials and steps 1..T (shapes: ``trials`` first).
 
     Fields that do not apply to a filter kind (ESS for a Kalman filter) hold NaN, and become
     empty fields in the CSV; ``covariances`` and ``nis`` are None where not computed.
     """
 
-    estimates: np.ndarray            # (R, T, d) posterior mean (PF: weighted mean before resampling)
-    ess: np.ndarray                  # (R, T) effective sample size before resampling
-    resampled: np.ndarray            # (R, T) bool
-    degenerate: np.ndarray           # (R, T) bool: every weight underflowed
-    spread: np.ndarray               # (R, T) RMS distance of the position from its mean
-    log_likelihood: np.ndarray       # (R,) estimate of log p(z_1:T)
-    lost_particles: np.ndarray       # (R,) particles whose state became non-finite
-    within_radius: Optional[np.ndarray] = None  # (R, T) share of particles within the radius
-    covariances: Optional[np.ndarray] = None    # (R, T, d, d) posterior covariance
-    nis: Optional[np.ndarray] = None            # (R, T) normalised innovation squared
+    estimates: np.ndarray            # (trials, T, d) posterior mean (PF: weighted mean before resampling)
+    ess: np.ndarray                  # (trials, T) effective sample size before resampling
+    resampled: np.ndarray            # (trials, T) bool
+    degenerate: np.ndarray           # (trials, T) bool: every weight underflowed
+    spread: np.ndarray               # (trials, T) RMS distance of the position from its mean
+    log_likelihood: np.ndarray       # (trials,) estimate of log p(z_1:T)
+    lost_particles: np.ndarray       # (trials,) particles whose state became non-finite
+    within_radius: Optional[np.ndarray] = None  # (trials, T) share of particles within the radius
+    covariances: Optional[np.ndarray] = None    # (trials, T, d, d) posterior covariance
+    nis: Optional[np.ndarray] = None            # (trials, T) normalised innovation squared
+    grid_lost_mass: Optional[np.ndarray] = None  # (trials, T) grid filter: probability mass leaving the grid
 
     @classmethod
     def for_gaussian_filter(cls, estimates, covariances, nis, log_likelihood, position) -> "FilterTrace":

@@ -16,6 +16,7 @@ from typing import Annotated, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, ValidationError, model_validator
 
+from pfx.errors import split_location
 from pfx.laws.noise import Noise, Variance
 from pfx.numerics.seeding import TrialStreams
 
@@ -77,7 +78,7 @@ class GaussianLaw(_InitialLaw):
         try:
             self._noise = Noise(family="gaussian", variance=self.covariance)
         except ValidationError as error:
-            reason = error.errors()[0]["msg"].removeprefix("Value error, ").removeprefix("@variance: ")
+            _, reason = split_location(error.errors()[0]["msg"].removeprefix("Value error, "))
             raise ValueError(f"@covariance: {reason}") from None
         return self
 

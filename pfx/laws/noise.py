@@ -231,12 +231,6 @@ class Noise(BaseModel):
             return np.diag(self._scale ** 2)
         return self._factor @ self._factor.T
 
-    @property
-    def is_zero(self) -> bool:
-        if self._scale is not None:
-            return not np.any(self._scale)
-        return not np.any(self._factor)
-
     # -- the two operations -------------------------------------------------------------------
 
     def sample(self, random: TrialStreams, shape=()) -> np.ndarray:

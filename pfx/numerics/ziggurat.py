@@ -9,10 +9,9 @@ normal draws by a compiled loop: about 2 ns a draw on top of the word.
 
 The loop is NumPy's own algorithm (``random_standard_normal`` in NumPy's
 ``distributions.c``): the ziggurat method of Marsaglia & Tsang (2000) with 256 strips, on
-NumPy's tables (shipped with numba, whose ``Generator`` support implements the same
-algorithm). A 64-bit word gives the strip (bits 0-7), the sign (bit 8) and a 52-bit
-uniform; the point is accepted at once when it lies in the strip's rectangle (99 % of the
-draws), else the tail beyond :math:`r = 3.6541528853610088` is sampled by Marsaglia's
+NumPy's tables (:mod:`pfx.numerics.ziggurat_tables`). A 64-bit word gives the strip (bits 0-7),
+the sign (bit 8) and a 52-bit uniform; the point is accepted at once when it lies in the
+strip's rectangle (99 % of the draws), else the tail beyond :math:`r = 3.6541528853610088` is sampled by Marsaglia's
 method or the wedge is tested against :math:`e^{-x^2/2}`, with further words as uniforms
 :math:`(w \gg 11) \cdot 2^{-53}`, which is how PCG64 makes a double.
 
@@ -30,15 +29,12 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-# NumPy's ziggurat tables, as numba ships them (this module is imported on a first normal draw,
-# when numba is needed anyway).
-from numba.np.random._constants import fi_double as _FI
-from numba.np.random._constants import ki_double as _KI
-from numba.np.random._constants import wi_double as _WI
-from numba.np.random._constants import ziggurat_nor_inv_r as _INVERSE_R
-from numba.np.random._constants import ziggurat_nor_r as _R
-
 from pfx.numerics.compiled import compiled
+from pfx.numerics.ziggurat_tables import DENSITIES as _FI
+from pfx.numerics.ziggurat_tables import STRIP_BOUNDS as _KI
+from pfx.numerics.ziggurat_tables import STRIP_WIDTHS as _WI
+from pfx.numerics.ziggurat_tables import TAIL_START as _R
+from pfx.numerics.ziggurat_tables import TAIL_START_INVERSE as _INVERSE_R
 
 _STRIP = np.uint64(0xFF)
 _EIGHT = np.uint64(8)

@@ -44,10 +44,6 @@ from pydantic import Field, StrictFloat, StrictInt, model_validator
 
 from pfx.studies.base import Study
 
-# Curves of Fig. 3.2, in order: (column of ``densities``, panel that introduces it, role).
-CURVES = (("prior", "a", "belief"), ("measurement_1", "b", "measurement"),
-          ("posterior_1", "c", "belief"), ("predicted", "d", "belief"),
-          ("measurement_2", "e", "measurement"), ("posterior_2", "f", "belief"))
 CHECK_POINTS = 2001           # grid of the numerical Bayes check (cells far narrower than any curve)
 DISPLAY_POINTS = 601          # grid of the densities table
 GRID_STDS = 10.0              # the check grid spans every curve's mean +- 10 standard deviations
