@@ -231,10 +231,10 @@ def _registries() -> dict:
 @_guarded
 def schema(output_format: str = typer.Option("json", "--format", help="json (JSON Schema) or markdown")):
     """Print the JSON Schema of the config format (or the Markdown config reference)."""
-    from pfx.config.schema import Experiment
+    from pfx.config.schema import config_json_schema
 
     if output_format == "json":
-        typer.echo(json.dumps(Experiment.model_json_schema(), indent=2))
+        typer.echo(json.dumps(config_json_schema(), indent=2))
     elif output_format == "markdown":
         from pfx.config.reference import markdown_reference
 

@@ -9,7 +9,7 @@ one ``register`` call; nothing else in pfx needs to change.
 from __future__ import annotations
 
 import difflib
-from typing import Callable, Generic, Iterator, TypeVar
+from typing import Annotated, Callable, Generic, Iterator, Literal, TypeVar, Union
 
 T = TypeVar("T")
 
@@ -31,6 +31,29 @@ def closest_name(name: str, candidates) -> str | None:
 def kind_shorthand(value):
     """Let a config write ``weighting: gaussian`` for ``weighting: {kind: gaussian}``."""
     return {"kind": value} if isinstance(value, str) else value
+
+
+def kind_union(*members):
+    """The config type of a component chosen by ``kind``: one of ``members`` (pydantic models
+    with a ``kind`` literal), written ``{kind: name, ...}`` or, for its defaults, just ``name``.
+
+    The JSON Schema (``pfx schema``) says both forms, so editors accept the shorthand too.
+    """
+    from pydantic import BeforeValidator, Field
+
+    union = Annotated[Union[members], Field(discriminator="kind")]
+    names = tuple(member.model_fields["kind"].default for member in members)
+    return Annotated[union, BeforeValidator(kind_shorthand, json_schema_input_type=Union[Literal[names], union])]
+
+
+def list_form(minimum: int, maximum: int):
+    """For a model that also accepts a list of ``minimum``..``maximum`` numbers (``[v, w]``,
+    ``[alpha1, ..., alpha6]``): its JSON Schema, the mapping or that list. Assign it to the
+    model's ``__get_pydantic_json_schema__``."""
+    def schema(cls, core_schema, handler):
+        return {"anyOf": [handler(core_schema), {"type": "array", "items": {"type": "number"},
+                                                  "minItems": minimum, "maxItems": maximum}]}
+    return classmethod(schema)
 
 
 class Registry(Generic[T]):

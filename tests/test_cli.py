@@ -344,8 +344,12 @@ def test_schema_is_json_schema_of_the_config(cli):
     result = cli["schema"]
     assert result.returncode == 0, result.output
     schema = json.loads(result.stdout)
-    assert {"model", "filter", "arms", "sweep", "trials", "seed", "metrics", "outputs"} <= set(schema["properties"])
-    assert "name" in schema["required"] and "model" in schema["required"]
+    # a config is an experiment or a study
+    assert [choice["$ref"] for choice in schema["anyOf"]] == ["#/$defs/Experiment", "#/$defs/StudyExperiment"]
+    experiment = schema["$defs"]["Experiment"]
+    assert {"model", "filter", "arms", "sweep", "trials", "seed", "metrics", "outputs"} <= set(experiment["properties"])
+    assert "name" in experiment["required"] and "model" in experiment["required"]
+    assert "study" in schema["$defs"]["StudyExperiment"]["required"]
 
 
 def test_schema_markdown_is_the_config_reference(cli):

@@ -2,7 +2,7 @@
 
 Every section is a pydantic model whose fields carry types, defaults, bounds and
 descriptions. From these declarations come validation (:func:`pfx.config.plan.build_plan`),
-the JSON Schema printed by ``pfx schema``, and the config reference in the README
+the JSON Schema printed by ``pfx schema``, and the config reference in docs/configuration.md
 (``pfx schema --format markdown``). Model parameters are declared by the models themselves
 (:mod:`pfx.models`), weightings by :mod:`pfx.filters.particle.weighting`, and so on.
 """
@@ -149,3 +149,18 @@ class StudyExperiment(ExperimentHeader):
 
     study: StudyConfig = Field(description="the computation and its parameters (`pfx list studies`)")
     outputs: FigureOutputs = Field(default_factory=FigureOutputs, description="figures")
+
+
+def config_json_schema() -> dict:
+    """The JSON Schema of a config file: an experiment or a study (``pfx schema``).
+
+    It describes what pfx accepts, shorthands included (``weighting: gaussian``, a route's
+    ``turn 90``, ``alphas: [...]``); cross-field checks (a covariance that is not positive
+    definite, a sweep key that names no setting) are pfx's own and only ``pfx validate`` makes them.
+    """
+    from pydantic import TypeAdapter
+
+    schema = TypeAdapter(Union[Experiment, StudyExperiment]).json_schema()
+    schema["title"] = "pfx config"
+    schema["description"] = "A pfx experiment (model, filter, arms, sweep, ...) or a study (study: {kind: ...})."
+    return schema

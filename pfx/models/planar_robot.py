@@ -47,10 +47,10 @@ measurement's. The histogram filter refuses this model (its noise is not additiv
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal, Optional, Union
+from typing import Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, model_validator
 
 from pfx.laws.initial import PointLaw
 from pfx.laws.noise import Noise
@@ -59,7 +59,7 @@ from pfx.motion.distributions import MotionNoise
 from pfx.motion.odometry import OdometryAlphas, move_by_odometry, relative_motion, sample_motion_model_odometry
 from pfx.motion.velocity import VelocityAlphas, move_on_arc, sample_motion_model_velocity
 from pfx.numerics.angles import wrap_to_pi
-from pfx.registry import kind_shorthand
+from pfx.registry import kind_union, list_form
 
 Point = tuple[StrictFloat, StrictFloat]
 
@@ -95,8 +95,7 @@ class OdometryMotion(BaseModel):
     noise: MotionNoise = Field("normal", description="error distribution: normal or triangular (Table 5.4)")
 
 
-Motion = Annotated[Annotated[Union[VelocityMotion, OdometryMotion], Field(discriminator="kind")],
-                   BeforeValidator(kind_shorthand)]
+Motion = kind_union(VelocityMotion, OdometryMotion)
 
 
 class ControlSegment(BaseModel):
@@ -106,6 +105,8 @@ class ControlSegment(BaseModel):
     v: StrictFloat = Field(description="translational velocity (length unit per second)")
     w: StrictFloat = Field(description="rotational velocity (rad per second, positive = left)")
     steps: StrictInt = Field(1, ge=1, le=1_000_000, description="steps the command is held")
+
+    __get_pydantic_json_schema__ = list_form(2, 3)
 
     @model_validator(mode="before")
     @classmethod

@@ -46,7 +46,7 @@ uniform prior is far from Gaussian: the model is here for particle filters.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Optional
+from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
 import numpy as np
 from pydantic import (
@@ -56,6 +56,7 @@ from pydantic import (
     Field,
     PrivateAttr,
     StrictFloat,
+    StringConstraints,
     ValidationInfo,
     model_validator,
 )
@@ -70,6 +71,7 @@ from pfx.numerics.angles import wrap_into_turn
 FULL_TURN = 360.0
 RADIANS_PER_DEGREE = np.pi / 180.0
 ACTIONS = ("move", "turn")
+ACTION_PATTERN = r"^(move|turn)\s+[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?$"   # "move 30", "turn -90"
 MOMENT_GRID = 256           # grid points per axis for the prior's moments (Gaussian filters only)
 MAX_REJECTION_ROUNDS = 1000   # the prior's rejection sampling gives up (free space < ~0.1 % of the box)
 
@@ -91,7 +93,9 @@ def _action(value: Any) -> Any:
     return value
 
 
-Action = Annotated[dict[Literal["move", "turn"], StrictFloat], BeforeValidator(_action)]
+Action = Annotated[dict[Literal["move", "turn"], StrictFloat], BeforeValidator(
+    _action, json_schema_input_type=Union[Annotated[str, StringConstraints(pattern=ACTION_PATTERN)],
+                                          dict[Literal["move", "turn"], float]])]
 
 
 def _direction(heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

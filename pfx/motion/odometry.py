@@ -75,6 +75,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
 from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
 from pfx.numerics.angles import wrap_to_pi
+from pfx.registry import list_form
 
 
 class OdometryAlphas(BaseModel):
@@ -90,6 +91,8 @@ class OdometryAlphas(BaseModel):
     alpha3: StrictFloat = Field(
         ge=0, description="variance of the translation per its own square (translation from translation)")
     alpha4: StrictFloat = Field(ge=0, description="variance of the translation per rotation^2 (m^2/rad^2)")
+
+    __get_pydantic_json_schema__ = list_form(4, 4)
 
     @model_validator(mode="before")
     @classmethod

@@ -102,6 +102,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
 from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
 from pfx.numerics.angles import wrap_to_pi
+from pfx.registry import list_form
 
 
 class VelocityAlphas(BaseModel):
@@ -120,6 +121,8 @@ class VelocityAlphas(BaseModel):
     alpha4: StrictFloat = Field(ge=0, description="variance of w^ per w^2 (rotational error from rotation)")
     alpha5: StrictFloat = Field(ge=0, description="variance of the final rotation g^ per v^2 (rad^2/m^2)")
     alpha6: StrictFloat = Field(ge=0, description="variance of the final rotation g^ per w^2")
+
+    __get_pydantic_json_schema__ = list_form(6, 6)
 
     @model_validator(mode="before")
     @classmethod

@@ -15,10 +15,10 @@ from __future__ import annotations
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.numerics.seeding import TrialStreams
-from pfx.registry import Registry, kind_shorthand
+from pfx.registry import Registry, kind_union
 
 
 class _Diffusion(BaseModel):
@@ -73,7 +73,4 @@ DIFFUSIONS: Registry[type[_Diffusion]] = Registry("diffusion")
 for _class in (NoDiffusion, GaussianDiffusion, Roughening):
     DIFFUSIONS.add(_class.model_fields["kind"].default, _class)
 
-Diffusion = Annotated[
-    Annotated[Union[NoDiffusion, GaussianDiffusion, Roughening], Field(discriminator="kind")],
-    BeforeValidator(kind_shorthand),
-]
+Diffusion = kind_union(NoDiffusion, GaussianDiffusion, Roughening)

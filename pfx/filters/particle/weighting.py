@@ -26,12 +26,12 @@ implemented as described and named honestly in every table.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Optional, Union
+from typing import Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictFloat
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
-from pfx.registry import Registry, kind_shorthand
+from pfx.registry import Registry, kind_union
 
 
 class _Weighting(BaseModel):
@@ -125,8 +125,4 @@ for _class in (GaussianWeighting, EuclideanWeighting, ManhattanWeighting, Mahala
     WEIGHTINGS.add(_class.model_fields["kind"].default, _class)
 
 
-Weighting = Annotated[
-    Annotated[Union[GaussianWeighting, EuclideanWeighting, ManhattanWeighting, MahalanobisWeighting],
-              Field(discriminator="kind")],
-    BeforeValidator(kind_shorthand),
-]
+Weighting = kind_union(GaussianWeighting, EuclideanWeighting, ManhattanWeighting, MahalanobisWeighting)
