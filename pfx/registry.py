@@ -79,6 +79,16 @@ class Registry(Generic[T]):
     def add(self, name: str, item: T, description: str | None = None) -> T:
         return self.register(name, description)(item)
 
+    def register_kind(self, component: T) -> T:
+        """Class decorator: register a component (a pydantic model) under the name its ``kind``
+        field declares, so that the name is written once, at the definition."""
+        return self.add(component.model_fields["kind"].default, component)
+
+    def kind_union(self):
+        """The config type choosing one of the registered components by ``kind`` (see
+        :func:`kind_union`)."""
+        return kind_union(*self._items.values())
+
     def __getitem__(self, name: str) -> T:
         try:
             return self._items[name]

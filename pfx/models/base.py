@@ -37,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model
 from pfx.laws.initial import InitialLaw
 from pfx.laws.noise import Noise
 from pfx.numerics.seeding import TrialStreams
+from pfx.registry import Registry
 
 
 class Model(BaseModel):
@@ -212,3 +213,7 @@ def bind_law(law, dimension: int, key: str):
     """Bind an initial law to a dimension, locating errors under ``key``."""
     _bind(law, dimension, key)
     return law
+
+
+# Every model, under its ``kind``: a model module decorates its class with ``@MODELS.register_kind``.
+MODELS: Registry[type[Model]] = Registry("model")

@@ -5,7 +5,7 @@ horizontal distance :math:`M` and altitude :math:`H` measures the range
 
 .. math:: z = \sqrt{M^2 + (x_1 - H)^2} + v, \qquad v \sim \text{noise}(R).
 
-Two published parameterisations (see the README's references):
+Two published parameterisations (sources and reference values: docs/reference-facts.md#falling-body):
 
 ``variant: jud`` (Athans, Wishner & Bertolini 1968; Julier, Uhlmann & Durrant-Whyte 2000):
 :math:`\dot x_1 = -x_2,\ \dot x_2 = -e^{-\gamma x_1} x_2^2 x_3,\ \dot x_3 = 0` with
@@ -45,7 +45,7 @@ from pydantic import Field, StrictFloat, StrictInt
 
 from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 
 FOOT = 0.3048
 # rho0 x3 / 2 must be the same physical number in both unit systems: 1e-3 1/ft = 3.2808e-3 1/m.
@@ -69,6 +69,7 @@ _PRESETS = {
 }
 
 
+@MODELS.register_kind
 class FallingBody(Model):
     """Falling body re-entry benchmark (variants jud and simon, feet or SI)."""
 

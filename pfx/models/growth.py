@@ -57,9 +57,10 @@ from pydantic import Field, StrictFloat
 
 from pfx.laws.initial import GaussianLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 
 
+@MODELS.register_kind
 class GrowthModel(Model):
     """Univariate nonstationary growth model (Gordon, Salmond & Smith 1993)."""
 

@@ -20,11 +20,12 @@ from pydantic import Field, PrivateAttr, StrictFloat
 
 from pfx.laws.initial import GaussianLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 
 Matrix = list[list[StrictFloat]]
 
 
+@MODELS.register_kind
 class LinearGaussian(Model):
     """Linear model x' = A x + B u + w, z = H x + v (any dimension)."""
 

@@ -54,7 +54,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, Str
 
 from pfx.laws.initial import PointLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 from pfx.motion.distributions import MotionNoise
 from pfx.motion.odometry import OdometryAlphas, move_by_odometry, relative_motion, sample_motion_model_odometry
 from pfx.motion.velocity import VelocityAlphas, move_on_arc, sample_motion_model_velocity
@@ -118,6 +118,7 @@ class ControlSegment(BaseModel):
         return data
 
 
+@MODELS.register_kind
 class PlanarRobot(Model):
     """Planar robot (x, y, theta) moved by the velocity or odometry motion model; landmark ranges."""
 

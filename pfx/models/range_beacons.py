@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat
 
 from pfx.laws.initial import PointLaw, UniformLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 
 Point = tuple[StrictFloat, StrictFloat]
 
@@ -80,6 +80,7 @@ class Region(BaseModel):
     high: Point
 
 
+@MODELS.register_kind
 class RangeBeacons(Model):
     """Planar position from ranges to known beacons; odometry-driven or random-walk motion."""
 

@@ -64,7 +64,7 @@ from pydantic import (
 from pfx.errors import ModelNumericalError
 from pfx.laws.initial import GaussianLaw, InitialLaw, PointLaw
 from pfx.laws.noise import Noise
-from pfx.models.base import Model
+from pfx.models.base import MODELS, Model
 from pfx.models.walls import WallMap, read_wall_file
 from pfx.numerics.angles import wrap_into_turn
 
@@ -169,6 +169,7 @@ class FreeSpaceLaw(BaseModel):
         return covariance
 
 
+@MODELS.register_kind
 class SonarMCL(Model):
     """kim-mcl: pose <x, y, heading> in a walled arena, moves and turns, one forward sonar."""
 

@@ -22,41 +22,24 @@ tables. ``pfx run`` writes each table as ``<name>.csv`` in the result folder, wi
 files only, exactly as for a filter experiment.
 
 To add a study: write ``pfx/studies/<name>.py`` with a :class:`Study` subclass whose ``kind``
-is a ``Literal`` of its name, and register it in :data:`STUDIES` at the bottom of this file.
+is a ``Literal`` of its name, decorated with ``@STUDIES.register_kind``, and import the module
+below.
 """
 
 from __future__ import annotations
 
+from pfx.studies import (  # noqa: F401  (each module registers its studies)
+    binary_bayes,
+    empirical_cdf,
+    importance_sampling,
+    importance_sampling_cdf,
+    kalman_1d_steps,
+    mahalanobis_distances,
+    nonlinear_transform,
+    odometry_motion,
+    offspring_counts,
+    velocity_motion,
+)
 from pfx.studies.base import STUDIES, Study
 
 __all__ = ["STUDIES", "Study"]
-
-# Registered studies (import and add; one line each).
-from pfx.studies.offspring_counts import OffspringCounts  # noqa: E402
-
-STUDIES.add("offspring_counts", OffspringCounts)
-from pfx.studies.importance_sampling import ImportanceSampling  # noqa: E402
-from pfx.studies.kalman_1d_steps import KalmanSteps  # noqa: E402
-from pfx.studies.nonlinear_transform import NonlinearTransform  # noqa: E402
-
-STUDIES.add("kalman_1d_steps", KalmanSteps)
-STUDIES.add("importance_sampling", ImportanceSampling)
-STUDIES.add("nonlinear_transform", NonlinearTransform)
-from pfx.studies.mahalanobis_distances import MahalanobisDistances  # noqa: E402
-
-STUDIES.add("mahalanobis_distances", MahalanobisDistances)
-from pfx.studies.empirical_cdf import EmpiricalCdf  # noqa: E402
-from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf  # noqa: E402
-
-STUDIES.add("empirical_cdf", EmpiricalCdf)
-STUDIES.add("importance_sampling_cdf", ImportanceSamplingCdf)
-from pfx.studies.odometry_motion import OdometryMotionDensity, OdometryMotionSamples  # noqa: E402
-from pfx.studies.velocity_motion import VelocityMotionDensity, VelocityMotionSamples  # noqa: E402
-
-STUDIES.add("velocity_motion_density", VelocityMotionDensity)
-STUDIES.add("velocity_motion_samples", VelocityMotionSamples)
-STUDIES.add("odometry_motion_density", OdometryMotionDensity)
-STUDIES.add("odometry_motion_samples", OdometryMotionSamples)
-from pfx.studies.binary_bayes import BinaryBayesCorridor  # noqa: E402
-
-STUDIES.add("binary_bayes", BinaryBayesCorridor)

@@ -39,9 +39,10 @@ import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 
 from pfx.filters.log_odds import belief, corridor_runs
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 
+@STUDIES.register_kind
 class BinaryBayesCorridor(Study):
     """Table 4.2: a corridor of cells scanned repeatedly by a range sensor, beliefs in log odds."""
 

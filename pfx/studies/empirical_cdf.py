@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, field_validator
 
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 KOLMOGOROV_MEAN = math.sqrt(math.pi / 2) * math.log(2)    # E of the limit law of sqrt(n) D_n
 EXACT_EXPECTATION_LIMIT = 5000                           # exact E[D_n] up to this n (its cost grows with n)
@@ -73,6 +73,7 @@ def expected_ks_distance(n: int) -> tuple[float, str]:
     return float(grid[0] + integrate.simpson(stats.kstwo.sf(grid, n), x=grid)), "exact"
 
 
+@STUDIES.register_kind
 class EmpiricalCdf(Study):
     """Empirical CDFs of normal samples at several sizes against the true CDF, with KS distances."""
 

@@ -50,11 +50,12 @@ import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 from scipy import stats
 
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 DISPLAY_POINTS = 601
 
 
+@STUDIES.register_kind
 class ImportanceSampling(Study):
     """Samples of a Gaussian proposal g weighted by f/g against a mixture target f (Fig. 4.2)."""
 

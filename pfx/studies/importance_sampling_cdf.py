@@ -56,11 +56,12 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 ESTIMATORS = ("self_normalised", "plain")
 
 
+@STUDIES.register_kind
 class ImportanceSamplingCdf(Study):
     """The normal CDF estimated by importance sampling from a uniform proposal (plain and self-normalised)."""
 

@@ -42,7 +42,7 @@ import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 CHECK_POINTS = 2001           # grid of the numerical Bayes check (cells far narrower than any curve)
 DISPLAY_POINTS = 601          # grid of the densities table
@@ -75,6 +75,7 @@ def moments(x: np.ndarray, density: np.ndarray) -> tuple[float, float]:
     return mean, float(((x - mean) ** 2 * density).sum() / mass)
 
 
+@STUDIES.register_kind
 class KalmanSteps(Study):
     """The 1-D Kalman filter's prior, measurement, update, motion, measurement, update (Fig. 3.2)."""
 

@@ -41,7 +41,7 @@ from pydantic import Field, PrivateAttr, StrictFloat, StrictInt, ValidationError
 
 from pfx.laws.initial import GaussianLaw
 from pfx.numerics.seeding import TrialStreams
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 REPLICATION_CHUNK = 250           # replications drawn at once (bounds memory; same numbers whatever the chunk)
 
@@ -67,6 +67,7 @@ def sample_moments(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, covariance
 
 
+@STUDIES.register_kind
 class MahalanobisDistances(Study):
     """Squared Euclidean and Mahalanobis distances of test points from a Gaussian sample (park-mpf Table 1)."""
 

@@ -45,7 +45,7 @@ from numpy.polynomial.hermite_e import hermegauss
 from pydantic import Field, StrictFloat, StrictInt, model_validator
 from scipy import optimize, stats
 
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 QUADRATURE_NODES = 40
 DISPLAY_POINTS = 801
@@ -53,6 +53,7 @@ MINIMUM_EXPECTED = 5.0         # Pearson's rule: merge bins expected to hold few
 ROOT_IMAGINARY = 1e-7          # roots with a smaller imaginary part (relative) count as real
 
 
+@STUDIES.register_kind
 class NonlinearTransform(Study):
     """Particles of a Gaussian through a polynomial g against the exact law of g(X) and the EKF's Gaussian."""
 

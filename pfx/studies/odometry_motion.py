@@ -42,6 +42,7 @@ from pfx.motion.odometry import (
     relative_motion,
     sample_motion_model_odometry,
 )
+from pfx.studies.base import STUDIES
 from pfx.studies.robot_motion import MotionDensity, MotionSamples, NamedSetting, Pose, RobotMotion
 
 
@@ -85,12 +86,14 @@ class OdometryMotion(RobotMotion):
         return math.sqrt(float(setting.alphas.variances(rotation1, translation, rotation2)[2]))
 
 
+@STUDIES.register_kind
 class OdometryMotionDensity(MotionDensity, OdometryMotion):
     """Fig. 5.8: the odometry model's pose density in x-y for named alpha settings, checked against the sampler."""
 
     kind: Literal["odometry_motion_density"] = "odometry_motion_density"
 
 
+@STUDIES.register_kind
 class OdometryMotionSamples(MotionSamples, OdometryMotion):
     """Fig. 5.9: poses drawn by sample_motion_model_odometry (normal and triangular) and their spread."""
 

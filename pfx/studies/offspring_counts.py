@@ -4,8 +4,8 @@ For fixed normalised weights :math:`w_1..w_N`, each resampler is run ``draws`` t
 offspring count :math:`N_j` of every particle is averaged. An unbiased scheme has
 :math:`E[N_j] = N w_j`; han-lee's Algorithm IV as printed (the N smallest of N + 1 sorted
 uniforms) has :math:`E[N_j] = (N+1) w_j - (C_j^{N+1} - C_{j-1}^{N+1})` instead
-(:func:`pfx.filters.particle.resampling.han_lee_iv_expected_counts`; REFERENCE section 3). The default weights
-are REFERENCE's example, w = (.3, .1, .2, .15, .25), whose Algorithm IV expectation is
+(:func:`pfx.filters.particle.resampling.han_lee_iv_expected_counts`; docs/reference-facts.md#resampling). The default weights
+are the worked example there, w = (.3, .1, .2, .15, .25), whose Algorithm IV expectation is
 (1.799, 0.597, 1.157, 0.769, 0.678) instead of (1.5, 0.5, 1, 0.75, 1.25).
 
 Table ``offspring``: one row per (resampler, particle) with the weight, the unbiased target
@@ -24,11 +24,12 @@ from pydantic import Field, StrictFloat, StrictInt, field_validator
 
 from pfx.filters.particle.resampling import RESAMPLERS, han_lee_iv_expected_counts, offspring_counts
 from pfx.numerics.seeding import TrialStreams
-from pfx.studies.base import Study
+from pfx.studies.base import STUDIES, Study
 
 ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
 
 
+@STUDIES.register_kind
 class OffspringCounts(Study):
     """Mean offspring count per particle for each resampler, against N w (bias check)."""
 

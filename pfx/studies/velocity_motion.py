@@ -33,6 +33,7 @@ from pydantic import Field, StrictFloat
 
 from pfx.motion.distributions import MotionNoise
 from pfx.motion.velocity import VelocityAlphas, log_densities_velocity, move_on_arc, sample_motion_model_velocity
+from pfx.studies.base import STUDIES
 from pfx.studies.robot_motion import MotionDensity, MotionSamples, NamedSetting, RobotMotion
 
 
@@ -68,12 +69,14 @@ class VelocityMotion(RobotMotion):
         return math.sqrt(float(setting.alphas.variances(v, w)[2])) * self.dt
 
 
+@STUDIES.register_kind
 class VelocityMotionDensity(MotionDensity, VelocityMotion):
     """Fig. 5.3: the velocity model's pose density in x-y for named alpha settings, checked against the sampler."""
 
     kind: Literal["velocity_motion_density"] = "velocity_motion_density"
 
 
+@STUDIES.register_kind
 class VelocityMotionSamples(MotionSamples, VelocityMotion):
     """Fig. 5.4: poses drawn by sample_motion_model_velocity (normal and triangular) and their spread."""
 

@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.numerics.seeding import TrialStreams
-from pfx.registry import Registry, kind_union
+from pfx.registry import Registry
 
 
 class _Diffusion(BaseModel):
@@ -31,6 +31,10 @@ class _Diffusion(BaseModel):
         """Raise ValueError('@key: reason') if the parameters do not fit the state dimension."""
 
 
+DIFFUSIONS: Registry[type["_Diffusion"]] = Registry("diffusion")
+
+
+@DIFFUSIONS.register_kind
 class NoDiffusion(_Diffusion):
     """No post-resampling noise."""
 
@@ -40,6 +44,7 @@ class NoDiffusion(_Diffusion):
         return particles
 
 
+@DIFFUSIONS.register_kind
 class GaussianDiffusion(_Diffusion):
     """Add N(0, std^2) to every component after resampling."""
 
@@ -56,6 +61,7 @@ class GaussianDiffusion(_Diffusion):
         return particles + std * random.standard_normal(particles.shape[1:])
 
 
+@DIFFUSIONS.register_kind
 class Roughening(_Diffusion):
     """Roughening: std_j = factor * range_j * N^(-1/d) (Gordon et al. 1993)."""
 
@@ -69,8 +75,4 @@ class Roughening(_Diffusion):
         return particles + std * random.standard_normal(particles.shape[1:])
 
 
-DIFFUSIONS: Registry[type[_Diffusion]] = Registry("diffusion")
-for _class in (NoDiffusion, GaussianDiffusion, Roughening):
-    DIFFUSIONS.add(_class.model_fields["kind"].default, _class)
-
-Diffusion = kind_union(NoDiffusion, GaussianDiffusion, Roughening)
+Diffusion = DIFFUSIONS.kind_union()

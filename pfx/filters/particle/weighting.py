@@ -31,7 +31,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
-from pfx.registry import Registry, kind_union
+from pfx.registry import Registry
 
 
 class _Weighting(BaseModel):
@@ -55,6 +55,10 @@ def _mean_measurement_variance(model) -> float:
     return float(np.mean(np.diag(model.measurement_noise.covariance())))
 
 
+WEIGHTINGS: Registry[type["_Weighting"]] = Registry("weighting")
+
+
+@WEIGHTINGS.register_kind
 class GaussianWeighting(_Weighting):
     """The model's measurement likelihood p(z | x) (the Bayesian weight)."""
 
@@ -64,6 +68,7 @@ class GaussianWeighting(_Weighting):
         return model.log_likelihood(measurement, particles)
 
 
+@WEIGHTINGS.register_kind
 class EuclideanWeighting(_Weighting):
     """Gaussian kernel of the Euclidean (L2) innovation distance, isotropic."""
 
@@ -76,6 +81,7 @@ class EuclideanWeighting(_Weighting):
         return -0.5 * np.sum(innovation * innovation, axis=-1) / variance
 
 
+@WEIGHTINGS.register_kind
 class ManhattanWeighting(_Weighting):
     """Laplace kernel of the Manhattan (L1) innovation distance."""
 
@@ -88,6 +94,7 @@ class ManhattanWeighting(_Weighting):
         return -np.sum(np.abs(innovation), axis=-1) / scale
 
 
+@WEIGHTINGS.register_kind
 class MahalanobisWeighting(_Weighting):
     """Mahalanobis weighting of park-mpf: form paper (eq. 6 as printed) or innovation."""
 
@@ -120,9 +127,4 @@ class MahalanobisWeighting(_Weighting):
         return np.where(usable, log_weights, -np.inf)
 
 
-WEIGHTINGS: Registry[type[_Weighting]] = Registry("weighting")
-for _class in (GaussianWeighting, EuclideanWeighting, ManhattanWeighting, MahalanobisWeighting):
-    WEIGHTINGS.add(_class.model_fields["kind"].default, _class)
-
-
-Weighting = kind_union(GaussianWeighting, EuclideanWeighting, ManhattanWeighting, MahalanobisWeighting)
+Weighting = WEIGHTINGS.kind_union()
