@@ -15,7 +15,8 @@ from scipy import integrate, stats
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.papers import REPORTS
-from pfx.papers.gallery import VERDICTS, PaperResults, Table, Verdict, write_gallery
+from pfx.papers.base import VERDICTS, PaperResults, Table, Verdict
+from pfx.papers.gallery import write_gallery
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 from pfx.studies.empirical_cdf import KOLMOGOROV_MEAN, EmpiricalCdf, expected_ks_distance, ks_distance

@@ -19,7 +19,8 @@ from pfx.config.plan import build_plan
 from pfx.figures.closeups import HELD_WEIGHT, closeup_window
 from pfx.figures.concept import likelihood_quadratic, offspring_stacks
 from pfx.papers import han_lee
-from pfx.papers.gallery import VERDICTS, PaperResults, write_gallery
+from pfx.papers.base import VERDICTS, PaperResults
+from pfx.papers.gallery import write_gallery
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 

@@ -13,7 +13,8 @@ import yaml
 from pfx.config.plan import build_plan
 from pfx.figures.arena import action_groups
 from pfx.figures.registry import render_figures
-from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, Table, write_gallery
+from pfx.papers.base import REPORTS, VERDICTS, PaperResults, Table
+from pfx.papers.gallery import write_gallery
 from pfx.papers.kim_mcl import (
     VARIANCE,
     _verdicts,

@@ -16,7 +16,8 @@ from pfx.analysis.compare import diverged, relative_change_interval
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.numerics.seeding import study_generator
-from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, Table, write_gallery
+from pfx.papers.base import REPORTS, VERDICTS, PaperResults, Table
+from pfx.papers.gallery import write_gallery
 from pfx.papers.park_mpf import claim_verdict
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file

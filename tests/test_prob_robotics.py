@@ -16,7 +16,8 @@ import pfx.papers  # noqa: F401  (registers the reports)
 from pfx.analysis.reference_gap import slope_summary, step_gaps, trial_gaps, trial_slopes
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
-from pfx.papers.gallery import REPORTS, VERDICTS, PaperResults, render_section
+from pfx.papers.base import REPORTS, VERDICTS, PaperResults
+from pfx.papers.gallery import render_section
 from pfx.run.runner import run_plan
 from pfx.studies.importance_sampling import ImportanceSampling
 from pfx.studies.kalman_1d_steps import KalmanSteps, gaussian_density, kalman_predict, kalman_update

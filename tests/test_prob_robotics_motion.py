@@ -30,7 +30,8 @@ from pfx.motion import (
 )
 from pfx.motion.odometry import move_by_odometry
 from pfx.motion.velocity import executed_velocities, move_on_arc
-from pfx.papers.gallery import VERDICTS, PaperResults, Section, render_section
+from pfx.papers.base import VERDICTS, PaperResults, Section
+from pfx.papers.gallery import render_section
 from pfx.papers.prob_robotics_motion import (
     BINARY_BAYES,
     ODOMETRY_DENSITY,

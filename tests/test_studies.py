@@ -11,7 +11,7 @@ import pytest
 from pfx.config.plan import StudyPlan, build_plan
 from pfx.errors import ConfigError
 from pfx.filters.particle.resampling import han_lee_iv_expected_counts
-from pfx.papers.gallery import format_number, markdown_table
+from pfx.papers.base import format_number, markdown_table
 from pfx.run.runner import run_plan
 
 

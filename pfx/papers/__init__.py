@@ -1,13 +1,15 @@
-"""Reports of the source documents, one module per paper (see :mod:`pfx.papers.gallery`).
+"""Reports of the source documents, one module per paper; the gallery renders them.
 
 A report reads ``results/<paper>/`` (CSV, figure files, ``paper.yaml``) and returns the
-paper's gallery :class:`~pfx.papers.gallery.Section`. To add one: write
-``pfx/papers/<name>.py`` with a function decorated ``@REPORTS.register("<short-name>")``, import
-it here, and put its short name in :data:`GALLERY_ORDER`.
+paper's gallery :class:`~pfx.papers.base.Section`. Each report is an ordered tuple of part
+functions put together by :func:`pfx.papers.base.assemble` (see :mod:`pfx.papers.base`). To
+add one: write ``pfx/papers/<name>.py`` in that shape, importing :mod:`pfx.papers.base` only,
+with its report function decorated ``@REPORTS.register("<short-name>")``; import it here; put
+its short name in :data:`GALLERY_ORDER`; describe the document in ``docs/papers/<short-name>.md``.
 """
 
 from pfx.papers import bayes_blog, han_lee, kim_mcl, park_mpf, prob_robotics  # noqa: F401  (register the reports)
-from pfx.papers.gallery import REPORTS
+from pfx.papers.base import REPORTS
 
 # The gallery's order: the order of the source documents' list, not of the imports above.
 GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics")

@@ -1,7 +1,8 @@
 """bayes-blog: "Bayes filter and particle filter" (blog post, 2024): the gallery section.
 
-The post derives the Bayes filter and the particle filter and illustrates three things, which
-pfx reproduces from four result folders (``configs/papers/bayes-blog/``):
+The post is described in docs/papers/bayes-blog.md. It derives the Bayes filter and the
+particle filter and illustrates three things, which pfx reproduces from four result folders
+(``configs/papers/bayes-blog/``):
 
 * ``empirical-cdf`` (study ``empirical_cdf``): the empirical CDF of normal samples against the
   true CDF. Claim: it converges as the sample grows. Verdict from the Kolmogorov-Smirnov
@@ -30,42 +31,38 @@ import math
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from pfx.analysis.compare import holm_adjusted, paired_comparison
-from pfx.papers.gallery import REPORTS, Figure, PaperResults, Section, Table, Verdict, markdown_table
+from pfx.papers.base import (
+    REPORTS,
+    Figure,
+    PaperResults,
+    Part,
+    Section,
+    Table,
+    Verdict,
+    assemble,
+    markdown_table,
+    percent,
+    verdict_from_checks,
+)
 
 Z_LIMIT = 3.0             # |z| beyond which a mean disagrees with its exact expectation
 ALPHA = 0.05              # family-wise error rate of every test here
 RESAMPLERS = ("multinomial", "stratified", "systematic", "residual")
 
 
-@REPORTS.register("bayes-blog")
-def bayes_blog(results: PaperResults) -> Section:
-    numbers = results.numbers
-    section = Section(
-        paper="bayes-blog",
-        title="bayes-blog: Bayes filter and particle filter (blog post, 2024)",
-        summary=(f"{numbers.get('citation', 'Unknownpgr, blog post, 2024')} The post derives the Bayes filter, "
-                 "the empirical distribution function, importance sampling, SIS and resampling, and shows two "
-                 "sampling figures and a live landmark-tracking demo. It prints no numeric results, so each claim "
-                 "is checked against theory or against a stated bar, from our CSV files. The set-ups it leaves "
-                 "open (the normal's parameters, sample sizes, the proposal's interval, landmark positions, the "
-                 "path, the random walk's spread) are chosen in `configs/papers/bayes-blog/`, each with its reason."))
-    for part in (_empirical_cdf, _importance_sampling, _landmark_demo, _resamplers):
-        part(results, section)
-    return section
-
-
 # -- the empirical CDF ------------------------------------------------------------------------
 
-def _empirical_cdf(results: PaperResults, section: Section) -> None:
+def empirical_cdf_part(results: PaperResults) -> Part:
+    """The empirical-distribution figure: the Kolmogorov-Smirnov distance against its exact law."""
     if not results.has("empirical-cdf"):
-        return
+        return Part()
+    items, verdicts = [], []
     distances = results.folder("empirical-cdf").table("ks_distance").sort_values("size")
     sizes = ", ".join(f"{int(n):,}" for n in distances["size"])
     repetitions = int(distances["repetitions"].iloc[0])
-    section.items.append(Figure(
+    items.append(Figure(
         "empirical-cdf", "empirical_cdf.png",
         f"The post's empirical-distribution figure: the empirical CDF of one sample of a standard normal at "
         f"n = {sizes} (blue steps) against the true CDF (black); red: the largest gap D_n. Last panel: the "
@@ -79,7 +76,7 @@ def _empirical_cdf(results: PaperResults, section: Section) -> None:
         "exact E[D_n] (theory)": distances["expected_ks"],
         "z": distances["z_score"],
         "√n · mean D_n": distances["scaled_ks_mean"]})
-    section.items.append(Table(
+    items.append(Table(
         "Kolmogorov-Smirnov distance sup|F_n − F| of the empirical CDF (dimensionless)",
         markdown_table(table, digits=4),
         "The post gives no numbers for this figure. ± is one standard error over the samples; the exact "
@@ -98,9 +95,10 @@ def _empirical_cdf(results: PaperResults, section: Section) -> None:
     if verdict == "not reproduced":
         evidence += ("; the means disagree with theory" if not agrees else "") + \
             ("; the distance does not fall at every step of n" if not falls else "")
-    section.verdicts.append(Verdict(
+    verdicts.append(Verdict(
         "The empirical CDF of samples converges to the true CDF as the sample grows (empirical-distribution figure)",
         verdict, evidence + "."))
+    return Part(items, verdicts)
 
 
 def _log_log_slope(x, y) -> float:
@@ -113,18 +111,20 @@ def _log_log_slope(x, y) -> float:
 ESTIMATOR_NAMES = {"self_normalised": "self-normalised Σ w̄ᵢ 1{xᵢ ≤ x}", "plain": "the post's (1/n) Σ wᵢ 1{xᵢ ≤ x}"}
 
 
-def _importance_sampling(results: PaperResults, section: Section) -> None:
+def importance_sampling_part(results: PaperResults) -> Part:
+    """The importance-sampling figure: the normal CDF from weighted uniform samples."""
     if not results.has("importance-sampling"):
-        return
+        return Part()
     from scipy import stats
 
+    items, verdicts = [], []
     folder = results.folder("importance-sampling")
     summary, cdf = folder.table("summary"), folder.table("cdf")
     setup = summary.iloc[0]
     n, repetitions = int(setup["samples"]), int(setup["repetitions"])
     proposal = f"U({setup['proposal_low']:g}, {setup['proposal_high']:g})"
     target = f"N({setup['target_mean']:g}, {setup['target_std']:g}²)"
-    section.items.append(Figure(
+    items.append(Figure(
         "importance-sampling", "importance_sampling_cdf.png",
         f"The post's importance-sampling figure: {n:,} samples of the proposal {proposal}, each weighted by "
         f"p/q, estimate the CDF of {target}. Top: densities and the weights (stems); middle: the estimates "
@@ -140,7 +140,7 @@ def _importance_sampling(results: PaperResults, section: Section) -> None:
                      f"bound (Bonferroni, {points} points)": bounds[row["estimator"]],
                      f"mean sup error over {repetitions} samples": row["mean_sup_error"],
                      "ESS of the weights": row["ess"], "ESS (theory)": row["expected_ess"]})
-    section.items.append(Table(
+    items.append(Table(
         f"Importance-sampling estimates of the CDF of {target} from {n:,} samples of {proposal} "
         "(errors in probability)", markdown_table(pd.DataFrame(rows)),
         "The post gives no numbers for this figure. SE: the estimator's theoretical standard error at each x "
@@ -148,7 +148,7 @@ def _importance_sampling(results: PaperResults, section: Section) -> None:
         "proposal wastes samples where the normal has little mass."))
     at = [x for x in (-2.0, -1.0, 0.0, 1.0, 2.0) if cdf["x"].min() <= x <= cdf["x"].max()]
     picked = cdf.iloc[[int((cdf["x"] - x).abs().idxmin()) for x in at]]
-    section.items.append(Table(
+    items.append(Table(
         f"Error against its standard error at a few points: the drawn sample, and the RMS over {repetitions} samples",
         markdown_table(pd.DataFrame({
             "x": picked["x"], "true CDF": picked["true_cdf"],
@@ -164,31 +164,29 @@ def _importance_sampling(results: PaperResults, section: Section) -> None:
         f"{ESTIMATOR_NAMES.get(row['estimator'], row['estimator'])}: largest |error| {row['max_abs_error']:.3g} "
         f"at x = {row['x_at_max']:.2g}, i.e. {row['max_abs_z']:.2f} standard errors "
         f"(bound {bounds[row['estimator']]:.2f})" for _, row in summary.iterrows())
-    verdict = "reproduced" if all(passed.values()) else "partly reproduced" if any(passed.values()) else "not reproduced"
-    section.verdicts.append(Verdict(
+    verdicts.append(Verdict(
         "Importance sampling from a uniform proposal recovers the normal CDF (importance-sampling figure)",
-        verdict, f"{n:,} samples of {proposal}: {evidence}; the weights' ESS is {setup['ess']:.0f} of {n:,} "
-                 f"(theory {setup['expected_ess']:.0f})."))
+        verdict_from_checks(passed.values()),
+        f"{n:,} samples of {proposal}: {evidence}; the weights' ESS is {setup['ess']:.0f} of {n:,} "
+        f"(theory {setup['expected_ess']:.0f})."))
+    return Part(items, verdicts)
 
 
 # -- the landmark demo ------------------------------------------------------------------------
-
-def _demo_config(results: PaperResults, experiment: str) -> dict:
-    path = results.path / experiment / "config.yaml"
-    return yaml.safe_load(path.read_text()) if path.exists() else {}
-
 
 def _range_sigma(config: dict) -> float:
     variance = config.get("model", {}).get("measurement_noise", {}).get("variance", float("nan"))
     return math.sqrt(float(variance)) if isinstance(variance, (int, float)) else float("nan")
 
 
-def _landmark_demo(results: PaperResults, section: Section) -> None:
+def landmark_demo_part(results: PaperResults) -> Part:
+    """The post's landmark demo, run over many trials: does the filter track the target?"""
     if not results.has("landmark-demo"):
-        return
+        return Part()
+    items, verdicts = [], []
     demo = results.numbers.get("demo", {})
     folder = results.folder("landmark-demo")
-    config = _demo_config(results, "landmark-demo")
+    config = results.config("landmark-demo")
     model, filter_settings = config.get("model", {}), config.get("filter", {})
     sigma = _range_sigma(config)
     for name, caption in (
@@ -199,7 +197,7 @@ def _landmark_demo(results: PaperResults, section: Section) -> None:
             ("particle_animation.gif", "The demo as an animation: trial 0, the weighted particles step by step."),
             ("error_over_time.png", "Position error over time: the mean over all {trials} trials, with its "
                                     "95% confidence band.")):
-        section.items.append(Figure("landmark-demo", name, caption.format(trials=len(folder.trials))))
+        items.append(Figure("landmark-demo", name, caption.format(trials=len(folder.trials))))
     trials = folder.trials
     summary = folder.summary.iloc[0]
     steps = int(trials["steps"].iloc[0])
@@ -224,7 +222,7 @@ def _landmark_demo(results: PaperResults, section: Section) -> None:
          f"{path.get('kind', '')} curve" + (f" (frequencies {frequencies})" if frequencies else "")
          + f", {steps} steps"),
     ], columns=["", "post", "pfx"])
-    section.items.append(Table("The landmark demo: the post's set-up and ours", markdown_table(setup)))
+    items.append(Table("The landmark demo: the post's set-up and ours", markdown_table(setup)))
     share_below = float((trials["rmse_position"] < sigma).mean())
     tracking = pd.DataFrame([{
         "trials": int(summary["rmse_position_n"]),
@@ -235,20 +233,21 @@ def _landmark_demo(results: PaperResults, section: Section) -> None:
         "trials with RMSE < σ": f"{share_below:.0%}",
         "mean ESS / N": f"{summary['ess_mean_mean'] / trials['n_particles'].iloc[0]:.2f}",
         "steps resampled": f"{summary['resample_count_mean'] / steps:.0%}"}])
-    section.items.append(Table(
+    items.append(Table(
         "The landmark demo over many trials: tracking error", markdown_table(tracking),
         "The post shows one live run and no error figures. RMSE: root mean square position error over the "
         f"{steps} steps of a trial, averaged over trials, with its 95% confidence interval."))
     high = summary["rmse_position_ci95_high"]
     verdict = "reproduced" if high < sigma else "partly reproduced" if summary["rmse_position_mean"] < sigma \
         else "not reproduced"
-    section.verdicts.append(Verdict(
+    verdicts.append(Verdict(
         "The particle filter tracks the target with 100 particles (the landmark demo)", verdict,
         f"position RMSE {summary['rmse_position_mean']:.3f} m (95% CI {summary['rmse_position_ci95_low']:.3f} to "
         f"{high:.3f} m) over {int(summary['rmse_position_n'])} trials, "
         + ("below" if high < sigma else "not below") + f" the range noise σ = {sigma:.3f} m; "
         f"{share_below:.0%} of the trials stay below σ, and the final error averages "
         f"{summary['error_distance_final_mean']:.3f} m."))
+    return Part(items, verdicts)
 
 
 # -- the four resamplers ----------------------------------------------------------------------
@@ -276,16 +275,18 @@ def _beats(significant: pd.DataFrame, winner: str, loser: str, n_particles: int)
     return bool((as_value | as_baseline).any())
 
 
-def _resamplers(results: PaperResults, section: Section) -> None:
+def resamplers_part(results: PaperResults) -> Part:
+    """Beyond the post: the four resamplers against the particle count, paired comparisons."""
     if not results.has("resamplers"):
-        return
+        return Part()
+    items, verdicts = [], []
     folder = results.folder("resamplers")
     trials, summary = folder.trials, folder.summary
     labels = folder.label_columns
     counts = sorted(int(n) for n in summary["n_particles"].unique())
     present = [name for name in RESAMPLERS if name in set(summary["resampler"])]
     trial_count = int(summary["trials"].max())
-    section.items.append(Figure(
+    items.append(Figure(
         "resamplers", "rmse_vs_particles.png",
         f"Beyond the post: position RMSE against the particle count for the four unbiased resamplers on the "
         f"landmark demo (half its lap; mean over {trial_count} trials, band: 95% CI; resampling when "
@@ -295,11 +296,11 @@ def _resamplers(results: PaperResults, section: Section) -> None:
         rows = summary[summary["resampler"] == name].set_index("n_particles")
         table[name] = [f"{rows.loc[n, 'rmse_position_mean']:.4f} ({rows.loc[n, 'rmse_position_ci95_low']:.4f}, "
                        f"{rows.loc[n, 'rmse_position_ci95_high']:.4f})" for n in counts]
-    section.items.append(Table(
+    items.append(Table(
         f"Position RMSE [m] by particle count and resampler: mean (95% CI) over {trial_count} trials",
         markdown_table(table)))
     if len(present) < 2 or trial_count < 2:
-        return
+        return Part(items)
     pairs = _pairwise(trials, labels)
     significant = pairs[pairs["p_holm"] < ALPHA]
     against = pairs[pairs["baseline"] == present[0]]
@@ -309,7 +310,7 @@ def _resamplers(results: PaperResults, section: Section) -> None:
         difference[f"{name} − {present[0]}"] = [
             f"{rows.loc[n, 'mean_difference']:+.4f} ({rows.loc[n, 'ci95_low']:+.4f}, {rows.loc[n, 'ci95_high']:+.4f})"
             + (" *" if rows.loc[n, "p_holm"] < ALPHA else "") for n in counts]
-    section.items.append(Table(
+    items.append(Table(
         f"Paired RMSE differences against {present[0]} [m]: mean (95% CI) over trials with the same truth",
         markdown_table(difference),
         f"A trailing asterisk marks a difference significant after Holm's adjustment over all {len(pairs)} "
@@ -322,25 +323,25 @@ def _resamplers(results: PaperResults, section: Section) -> None:
     largest = pairs.loc[pairs["relative_change"].abs().idxmax()]
     evidence = (f"{len(significant)} of {len(pairs)} pairwise differences are significant after Holm's adjustment; "
                 f"the largest is {largest['resampler']} vs {largest['baseline']} at N = {int(largest['n_particles'])}: "
-                f"{largest['mean_difference']:+.4f} m ({100 * largest['relative_change']:+.1f}%)")
+                f"{largest['mean_difference']:+.4f} m ({percent(largest['relative_change'])})")
     if dominant:
-        section.verdicts.append(Verdict(
+        verdicts.append(Verdict(
             "No resampling scheme is better than the others in every case (the post's remark on resampling)",
             "not reproduced", f"{', '.join(dominant)} beats every other scheme at every N on this demo: {evidence}."))
     else:
-        section.verdicts.append(Verdict(
+        verdicts.append(Verdict(
             "No resampling scheme is better than the others in every case (the post's remark on resampling)",
             "reproduced",
             "on this demo no scheme beats the others at every N" + (
                 ", and the four are statistically indistinguishable" if significant.empty else "")
             + f": {evidence}."))
-    _particle_count_verdict(trials, labels, counts, present, section)
+    if len(counts) > 1:
+        verdicts.append(_particle_count_verdict(trials, labels, counts, present))
+    return Part(items, verdicts)
 
 
-def _particle_count_verdict(trials: pd.DataFrame, labels: list[str], counts: list[int], present: list[str],
-                            section: Section) -> None:
-    if len(counts) < 2:
-        return
+def _particle_count_verdict(trials: pd.DataFrame, labels: list[str], counts: list[int], present: list[str]) -> Verdict:
+    """More particles, smaller error: the smallest N against the largest, per resampler (two counts at least)."""
     smallest, largest = counts[0], counts[-1]
     comparison = paired_comparison(trials[trials["n_particles"].isin([smallest, largest])], "rmse_position",
                                    by="n_particles", baseline=str(smallest), label_columns=labels)
@@ -364,11 +365,29 @@ def _particle_count_verdict(trials: pd.DataFrame, labels: list[str], counts: lis
                 f"{first['ci95_low']:+.3f} to {first['ci95_high']:+.3f})"
                 f", with a CI below zero for {sum(falls.values())} of {len(falls)} resamplers")
     last = steps[steps["step"] == steps["step"].iloc[-1]]
-    gain = f"the last doubling, {counts[-2]}→{largest}, changes it by {100 * last['relative_change'].mean():+.1f}%"
+    gain = f"the last doubling, {counts[-2]}→{largest}, changes it by {percent(last['relative_change'].mean())}"
     evidence += (f"; doubling N no longer helps significantly (Holm) at {', '.join(plateau)}: the error levels off "
                  f"at what four noisy ranges and a random-walk model allow ({gain})" if plateau else
                  f"; every doubling of N still helps significantly for some resampler, if less and less: {gain}")
-    verdict = "reproduced" if all(falls.values()) else "partly reproduced" if any(falls.values()) else "not reproduced"
-    section.verdicts.append(Verdict(
+    return Verdict(
         "More particles make the filter more accurate (the post: practical filters use 1000 or more)",
-        verdict, evidence + "."))
+        verdict_from_checks(falls.values()), evidence + ".")
+
+
+# -- the report -------------------------------------------------------------------------------
+
+PARTS = (empirical_cdf_part, importance_sampling_part, landmark_demo_part, resamplers_part)
+
+
+@REPORTS.register("bayes-blog")
+def bayes_blog(results: PaperResults) -> Section:
+    numbers = results.numbers
+    summary = (f"{numbers.get('citation', 'Unknownpgr, blog post, 2024')} The post derives the Bayes filter, "
+               "the empirical distribution function, importance sampling, SIS and resampling, and shows two "
+               "sampling figures and a live landmark-tracking demo. It prints no numeric results, so each claim "
+               "is checked against theory or against a stated bar, from our CSV files. The set-ups it leaves "
+               "open (the normal's parameters, sample sizes, the proposal's interval, landmark positions, the "
+               "path, the random walk's spread) are chosen in `configs/papers/bayes-blog/`, each with its reason.")
+    items, verdicts = assemble(results, PARTS)
+    return Section("bayes-blog", "bayes-blog: Bayes filter and particle filter (blog post, 2024)",
+                   summary, items, verdicts)

@@ -1,7 +1,8 @@
 r"""The kim-mcl report: Kim, Kim & Kim (2011), Monte Carlo localisation with a noisy motion model.
 
-Reads ``results/kim-mcl/`` (made by ``pfx reproduce kim-mcl`` from ``configs/papers/kim-mcl/``)
-and the document's facts (``paper.yaml``):
+The document is described in docs/papers/kim-mcl.md. The report reads ``results/kim-mcl/``
+(made by ``pfx reproduce kim-mcl`` from ``configs/papers/kim-mcl/``) and the document's facts
+(``paper.yaml``):
 
 * ``arena`` (Figs. 3 and 5): pfx's arena and route, which the paper does not give;
 * ``one-run`` (Fig. 4's screen): the particle cloud of one noisy-model run, snapshots and GIF;
@@ -30,9 +31,9 @@ and each gets a verdict per filter sensor variance, from the extended runs:
    against N (its trials as points) with its 95% t-interval: *reproduced* when the interval lies
    below 0, else *not reproduced* (:func:`trend_verdict`).
 
-Convergence is pfx's spread criterion (REFERENCE section 4), the parameters read from the
-result's config: the paper's "every particle within a circle of about 2 mm" is replaced, for
-the reasons given in the configs.
+Convergence is pfx's spread criterion (docs/reference-facts.md, convergence criteria), the
+parameters read from the result's config: the paper's "every particle within a circle of about
+2 mm" is replaced, for the reasons given in the configs.
 """
 
 from __future__ import annotations
@@ -41,21 +42,25 @@ import math
 
 import numpy as np
 import pandas as pd
-import yaml
 from scipy import stats
 
 from pfx.analysis.compare import paired_comparison, relative_change_interval
 from pfx.errors import ConfigError
-from pfx.papers.gallery import (
+from pfx.papers.base import (
     REPORTS,
     Figure,
     PaperResults,
+    Part,
     Section,
     Table,
     Text,
     Verdict,
+    assemble,
     format_number,
+    interval,
     markdown_table,
+    percent,
+    verdict_from_checks,
 )
 
 PAPER = "kim-mcl"
@@ -72,10 +77,7 @@ def per_count_verdict(low: np.ndarray, high: np.ndarray, sign: int) -> str:
     +1: positive (holds where ``low > 0``). All counts: reproduced; some: partly; none: not.
     """
     low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-    holds = high < 0 if sign < 0 else low > 0
-    if holds.size and holds.all():
-        return "reproduced"
-    return "partly reproduced" if holds.any() else "not reproduced"
+    return verdict_from_checks(high < 0 if sign < 0 else low > 0)
 
 
 def accuracy_verdict(high: float) -> str:
@@ -101,13 +103,16 @@ def error_slope(frame: pd.DataFrame, metric: str = "error_at_convergence") -> tu
     return fit.slope, fit.slope - half, fit.slope + half, n
 
 
-def _criterion(folder) -> dict:
-    config = yaml.safe_load((folder.path / "config.yaml").read_text())
-    return (config.get("metrics") or {}).get("convergence") or {}
+def _criterion(results: PaperResults, experiment: str) -> dict:
+    """The convergence criterion of an experiment's resolved config."""
+    return (results.config(experiment).get("metrics") or {}).get("convergence") or {}
 
 
 def criterion_text(criterion: dict, unit: str) -> str:
-    """The convergence criterion in words (REFERENCE section 4 asks that a table name it)."""
+    """The convergence criterion in words, for the tables that need it named.
+
+    docs/reference-facts.md (convergence criteria) asks that a convergence result name its criterion.
+    """
     if criterion.get("criterion") != "spread":
         return f"convergence criterion {criterion}"
     mean = "weighted" if criterion.get("weighted") else "unweighted"
@@ -116,10 +121,11 @@ def criterion_text(criterion: dict, unit: str) -> str:
             "until then; error distance = |true - estimated position| at that step")
 
 
-def _interval(mean, low, high, digits: int = 3) -> str:
+def _mean_and_interval(mean, low, high) -> str:
+    """A table cell "1.9 (1.82–1.98)": the mean and its 95% CI; blank when no run converged."""
     if not np.isfinite(mean):
         return ""
-    return f"{format_number(mean, digits)} ({format_number(low, digits)}–{format_number(high, digits)})"
+    return f"{format_number(mean)} {interval(low, high, brackets='()', separator='–')}"
 
 
 def _cell_rows(summary: pd.DataFrame, variance: float) -> pd.DataFrame:
@@ -139,11 +145,12 @@ def _results_table(paper: pd.DataFrame, extended: pd.DataFrame, variance: float)
                 continue
             cell = match.iloc[0]
             line[f"{tag}: converged"] = f"{int(round(cell['converged_mean'] * cell['trials']))}/{int(cell['trials'])}"
-            line[f"{tag}: time [actions]"] = _interval(cell["convergence_step_mean"], cell["convergence_step_ci95_low"],
-                                                       cell["convergence_step_ci95_high"])
-            line[f"{tag}: error [cm]"] = _interval(cell["error_at_convergence_mean"],
-                                                   cell["error_at_convergence_ci95_low"],
-                                                   cell["error_at_convergence_ci95_high"])
+            line[f"{tag}: time [actions]"] = _mean_and_interval(cell["convergence_step_mean"],
+                                                                cell["convergence_step_ci95_low"],
+                                                                cell["convergence_step_ci95_high"])
+            line[f"{tag}: error [cm]"] = _mean_and_interval(cell["error_at_convergence_mean"],
+                                                            cell["error_at_convergence_ci95_low"],
+                                                            cell["error_at_convergence_ci95_high"])
         out.append(line)
     return pd.DataFrame(out)
 
@@ -206,8 +213,9 @@ def _verdicts(trials: pd.DataFrame, labels: list[str], variance: float) -> list[
         f"with {name}: the noisy model is far more accurate (read: at most half the noise-free error)",
         accuracy_verdict(high),
         f"mean error at convergence over all N: noisy {format_number(means[NOISY])} cm, noise-free "
-        f"{format_number(means[NOISE_FREE])} cm, relative change {100 * change:+.0f} % "
-        f"(95% CI {100 * low:+.0f} % to {100 * high:+.0f} %; 'far' needs the whole interval below {100 * FAR:.0f} %)."))
+        f"{format_number(means[NOISE_FREE])} cm, relative change {percent(change, decimals=0, suffix=' %')} "
+        f"(95% CI {percent(low, decimals=0, suffix=' %')} to {percent(high, decimals=0, suffix=' %')}; "
+        f"'far' needs the whole interval below {100 * FAR:.0f} %)."))
     slope, slope_low, slope_high, n = error_slope(frame[frame["arm"] == NOISY])
     free_slope, free_low, free_high, _ = error_slope(frame[frame["arm"] == NOISE_FREE])
     by_count = frame[frame["arm"] == NOISY].groupby("n_particles")["error_at_convergence"].mean()
@@ -233,76 +241,111 @@ def _overall(verdicts: list[Verdict]) -> str:
     return f"the finding holds in {held} of its {len(verdicts)} parts" + (f" and partly in {partly}" if partly else "")
 
 
+# -- the parts of the report, in the section's order ------------------------------------------
+
+def arena_part(results: PaperResults) -> Part:
+    """Figs. 3 and 5: pfx's arena and route (the paper gives neither)."""
+    if not results.has("arena"):
+        return Part()
+    return Part([
+        Figure("arena", "arena_map.png",
+               "Figs. 3 and 5 (pfx's own, the paper gives neither): the arena's walls (cm), the start "
+               "pose and the commanded 40-action route executed exactly, numbered by action (turns "
+               "in place share a label), with one true path of the real robot, which covers 92 % of "
+               "each move and turns 3 % too far, with noise."),
+        Figure("arena", "trajectory_map.png",
+               "One run of the noisy motion model (300 particles, tempered sensor model): true and "
+               "estimated paths.")])
+
+
+def one_run_part(results: PaperResults) -> Part:
+    """Fig. 4's screen: the particle cloud of one noisy-model run."""
+    if not results.has("one-run"):
+        return Part()
+    return Part([
+        Figure("one-run", "particle_snapshots.png",
+               "Fig. 4's screen: the 300 weighted particles of one noisy-model run (tempered sensor "
+               "model) on the map, from the uniform prior over free space to a cloud around the "
+               "robot, at six of its 40 actions."),
+        Figure("one-run", "particle_animation.gif", "The same run action by action (animated GIF).")])
+
+
+def figures_6_and_7_part(results: PaperResults) -> Part:
+    """Figs. 6 and 7 with the paper's 10 runs and with 100; the four verdicts per filter sensor model."""
+    if not (results.has("paper-runs") and results.has("extended")):
+        return Part()
+    numbers = results.numbers
+    items, verdicts = [], []
+    paper, extended = results.folder("paper-runs"), results.folder("extended")
+    unit = extended.units.get("position", "cm")
+    criterion = criterion_text(_criterion(results, "extended"), unit)
+    same = first_trials_coincide(paper.trials, extended.trials, extended.label_columns)
+    for experiment, runs in (("paper-runs", "the paper's 10 runs"), ("extended", f"{int(extended.summary['trials'].max())} runs")):
+        items.append(Figure(experiment, "convergence_vs_particles.png",
+                            f"Fig. 6 with {runs} per point: mean convergence time in actions (band: 95% CI) and "
+                            "the share of runs converged against the particle count, one line per motion model "
+                            "and filter sensor variance (cm²)."))
+        items.append(Figure(experiment, "error_at_convergence_vs_particles.png",
+                            f"Fig. 7 with {runs} per point: mean error distance at convergence (cm, band: 95% "
+                            "CI) against the particle count."))
+    figures_note = numbers.get("figure6_convergence_time", {}), numbers.get("figure7_error_distance", {})
+    items.append(Table(
+        "The paper's Figs. 6 and 7 (values not printed; what its text says they show)",
+        markdown_table(pd.DataFrame([
+            {"motion model": NOISE_FREE, "convergence time (Fig. 6)": figures_note[0].get("noise_free", ""),
+             "error distance (Fig. 7)": figures_note[1].get("noise_free", "")},
+            {"motion model": NOISY, "convergence time (Fig. 6)": figures_note[0].get("noisy", ""),
+             "error distance (Fig. 7)": figures_note[1].get("noisy", "")}])),
+        f"The paper's criterion: {numbers.get('convergence_criterion', '')}; its error distance has no stated "
+        "unit. Its absolute numbers could not be compared anyway: the arena and route are pfx's own."))
+    for variance in sorted(extended.summary[VARIANCE].unique()):
+        items.append(Table(
+            f"Figs. 6 and 7 as a table, with {_sensor_name(variance)} in the filter: mean (95% CI)",
+            markdown_table(_results_table(paper.summary, extended.summary, variance)),
+            f"Criterion: {criterion}. Means over converged runs. The truth's sonar noise is 1.0 cm² "
+            f"throughout; the filter assumes {variance:g} cm²."))
+        verdicts += _verdicts(extended.trials, extended.label_columns, variance)
+    items.append(Text(
+        "**Why two sensor models.** With the paper's sensor variance of 1.0 cm² in the filter (sd 1 cm), "
+        "the first readings leave weight on a handful of the 200..400 uniformly spread particles, whose "
+        "spacing is about sqrt(free area / N) ≈ 12 cm at N = 300, none of them near the truth: both motion "
+        "models then collapse within about two actions far from the robot. A filter sensor sd of the order "
+        "of the particle spacing (100 cm², sd 10 cm) lets the particles present carry weight; it is the same "
+        "in both arms, so the comparison of the motion models stands. The paper's real robot may have "
+        "differed (its error-distance unit, arena and route are unknown).\n\n"
+        "**Criterion.** The paper's \"all particles inside a circle of about 2 mm\" cannot be met by a "
+        "noisy-model cloud, whose particles spread by the motion noise itself (a localised noisy cloud that "
+        "tracks the robot from its known start has a median RMS spread of 8 cm); only the noise-free cloud, "
+        "made of copies of one particle, shrinks to a point. pfx uses the spread criterion above (90 % within "
+        "15 cm, what a localised cloud reaches; 90 % so that a few strays do not postpone convergence "
+        "indefinitely).\n\n"
+        f"**Same trials.** paper-runs and extended share model, filter, arms, sweep and seed: the 10 "
+        f"paper-runs trials {'are' if same else 'are NOT'} value for value trials 0-9 of the extended runs."))
+    return Part(items, verdicts)
+
+
+def _findings(verdicts: list[Verdict]) -> list[str]:
+    """'with <sensor model>, the finding holds in ...': one clause per filter sensor model.
+
+    The verdicts of one sensor model are the four of :func:`_verdicts`, whose claims all start
+    with "with <sensor model>:"; that prefix groups them.
+    """
+    by_sensor: dict[str, list[Verdict]] = {}
+    for verdict in verdicts:
+        by_sensor.setdefault(verdict.claim.split(":")[0], []).append(verdict)
+    return [f"{sensor}, {_overall(group)}" for sensor, group in by_sensor.items()]
+
+
+# -- the report -------------------------------------------------------------------------------
+
+PARTS = (arena_part, one_run_part, figures_6_and_7_part)
+
+
 @REPORTS.register(PAPER)
 def kim_mcl_report(results: PaperResults) -> Section:
     numbers = results.numbers
-    items: list = []
-    verdicts: list = []
-    overall: list[str] = []
-    if results.has("arena"):
-        items.append(Figure("arena", "arena_map.png",
-                            "Figs. 3 and 5 (pfx's own, the paper gives neither): the arena's walls (cm), the start "
-                            "pose and the commanded 40-action route executed exactly, numbered by action (turns "
-                            "in place share a label), with one true path of the real robot, which covers 92 % of "
-                            "each move and turns 3 % too far, with noise."))
-        items.append(Figure("arena", "trajectory_map.png",
-                            "One run of the noisy motion model (300 particles, tempered sensor model): true and "
-                            "estimated paths."))
-    if results.has("one-run"):
-        items.append(Figure("one-run", "particle_snapshots.png",
-                            "Fig. 4's screen: the 300 weighted particles of one noisy-model run (tempered sensor "
-                            "model) on the map, from the uniform prior over free space to a cloud around the "
-                            "robot, at six of its 40 actions."))
-        items.append(Figure("one-run", "particle_animation.gif",
-                            "The same run action by action (animated GIF)."))
-    if results.has("paper-runs") and results.has("extended"):
-        paper, extended = results.folder("paper-runs"), results.folder("extended")
-        unit = extended.units.get("position", "cm")
-        criterion = criterion_text(_criterion(extended), unit)
-        same = first_trials_coincide(paper.trials, extended.trials, extended.label_columns)
-        for experiment, runs in (("paper-runs", "the paper's 10 runs"), ("extended", f"{int(extended.summary['trials'].max())} runs")):
-            items.append(Figure(experiment, "convergence_vs_particles.png",
-                                f"Fig. 6 with {runs} per point: mean convergence time in actions (band: 95% CI) and "
-                                "the share of runs converged against the particle count, one line per motion model "
-                                "and filter sensor variance (cm²)."))
-            items.append(Figure(experiment, "error_at_convergence_vs_particles.png",
-                                f"Fig. 7 with {runs} per point: mean error distance at convergence (cm, band: 95% "
-                                "CI) against the particle count."))
-        figures_note = numbers.get("figure6_convergence_time", {}), numbers.get("figure7_error_distance", {})
-        items.append(Table(
-            "The paper's Figs. 6 and 7 (values not printed; what its text says they show)",
-            markdown_table(pd.DataFrame([
-                {"motion model": NOISE_FREE, "convergence time (Fig. 6)": figures_note[0].get("noise_free", ""),
-                 "error distance (Fig. 7)": figures_note[1].get("noise_free", "")},
-                {"motion model": NOISY, "convergence time (Fig. 6)": figures_note[0].get("noisy", ""),
-                 "error distance (Fig. 7)": figures_note[1].get("noisy", "")}])),
-            f"The paper's criterion: {numbers.get('convergence_criterion', '')}; its error distance has no stated "
-            "unit. Its absolute numbers could not be compared anyway: the arena and route are pfx's own."))
-        for variance in sorted(extended.summary[VARIANCE].unique()):
-            items.append(Table(
-                f"Figs. 6 and 7 as a table, with {_sensor_name(variance)} in the filter: mean (95% CI)",
-                markdown_table(_results_table(paper.summary, extended.summary, variance)),
-                f"Criterion: {criterion}. Means over converged runs. The truth's sonar noise is 1.0 cm² "
-                f"throughout; the filter assumes {variance:g} cm²."))
-            part = _verdicts(extended.trials, extended.label_columns, variance)
-            verdicts += part
-            overall.append(f"with {_sensor_name(variance)}, {_overall(part)}")
-        items.append(Text(
-            "**Why two sensor models.** With the paper's sensor variance of 1.0 cm² in the filter (sd 1 cm), "
-            "the first readings leave weight on a handful of the 200..400 uniformly spread particles, whose "
-            "spacing is about sqrt(free area / N) ≈ 12 cm at N = 300, none of them near the truth: both motion "
-            "models then collapse within about two actions far from the robot. A filter sensor sd of the order "
-            "of the particle spacing (100 cm², sd 10 cm) lets the particles present carry weight; it is the same "
-            "in both arms, so the comparison of the motion models stands. The paper's real robot may have "
-            "differed (its error-distance unit, arena and route are unknown).\n\n"
-            "**Criterion.** The paper's \"all particles inside a circle of about 2 mm\" cannot be met by a "
-            "noisy-model cloud, whose particles spread by the motion noise itself (a localised noisy cloud that "
-            "tracks the robot from its known start has a median RMS spread of 8 cm); only the noise-free cloud, "
-            "made of copies of one particle, shrinks to a point. pfx uses the spread criterion above (90 % within "
-            "15 cm, what a localised cloud reaches; 90 % so that a few strays do not postpone convergence "
-            "indefinitely).\n\n"
-            f"**Same trials.** paper-runs and extended share model, filter, arms, sweep and seed: the 10 "
-            f"paper-runs trials {'are' if same else 'are NOT'} value for value trials 0-9 of the extended runs."))
+    items, verdicts = assemble(results, PARTS)
+    findings = _findings(verdicts)
     summary = (
         f"{numbers.get('citation', 'Kim, Kim & Kim (2011)')} A Lego NXT robot with one forward ultrasonic "
         "sensor localises itself with a particle filter; the paper compares a noise-free motion model (the "
@@ -310,6 +353,6 @@ def kim_mcl_report(results: PaperResults) -> Section:
         "13.0), for 200..400 particles, 10 runs each, by the convergence time (actions) and the error distance at "
         "convergence. Its arena, route and figure values are not given: pfx simulates the robot (with the "
         "paper's biases and noise) in an arena and along a route of its own, in centimetres. "
-        + ("In our simulation " + "; ".join(overall) + " (verdicts below, from the extended runs)." if overall else ""))
+        + ("In our simulation " + "; ".join(findings) + " (verdicts below, from the extended runs)." if findings else ""))
     return Section(PAPER, f"{PAPER}: {numbers.get('title', 'Particle Filter Localization Using Noisy Models')}",
                    summary, items, verdicts)

@@ -1,7 +1,9 @@
 r"""The park-mpf report: Park, Lim & Yang (2021), a particle filter weighted by Mahalanobis distance.
 
-Reads ``results/park-mpf/`` (made by ``pfx reproduce park-mpf`` from
-``configs/papers/park-mpf/``) and the document's numbers (``paper.yaml``):
+The document is described in docs/papers/park-mpf.md; the falling-body variants and the two
+readings of its eq. (6) in docs/reference-facts.md. The report reads ``results/park-mpf/``
+(made by ``pfx reproduce park-mpf`` from ``configs/papers/park-mpf/``) and the document's
+numbers (``paper.yaml``):
 
 * ``table1`` (study ``mahalanobis_distances``): Table 1 and Fig. 1. The verdict compares the
   paper's eight printed values, and our seeded ones, with the sampling distribution of each
@@ -37,16 +39,20 @@ from scipy import stats
 
 from pfx.analysis.compare import diverged, paired_comparison, relative_change_interval
 from pfx.errors import ConfigError
-from pfx.papers.gallery import (
+from pfx.papers.base import (
     REPORTS,
     Figure,
     PaperResults,
+    Part,
     Section,
     Table,
     Text,
     Verdict,
+    assemble,
     format_number,
+    interval,
     markdown_table,
+    percent,
 )
 
 PAPER = "park-mpf"
@@ -59,22 +65,6 @@ DIVERGENCE_FACTOR = 1000.0        # RMSE above this many times the PF's median: 
 
 def _state_text(state: str) -> str:
     return state.replace("_", " ")
-
-
-def _percent(value: float) -> str:
-    return "" if value is None or not np.isfinite(value) else f"{100 * value:+.1f}%"
-
-
-def _interval(low: float, high: float, digits: int = 3) -> str:
-    if not (np.isfinite(low) and np.isfinite(high)):
-        return ""
-    return f"[{format_number(low, digits)}, {format_number(high, digits)}]"
-
-
-def _percent_interval(low: float, high: float) -> str:
-    if not (np.isfinite(low) and np.isfinite(high)):
-        return ""
-    return f"[{100 * low:+.1f}%, {100 * high:+.1f}%]"
 
 
 def _arms(trials: pd.DataFrame) -> dict[str, str]:
@@ -163,9 +153,9 @@ def claim_verdict(claimed_change: float, row: pd.Series, form_arm: str, state: s
     """(verdict, evidence) for 'MPF changes the mean RMSE of ``state`` by ``claimed_change``' (module docstring)."""
     n, k = int(row["trials"]), int(row["diverged"])
     change, low, high = row.get("relative_change"), row.get("relative_low"), row.get("relative_high")
-    measured = (f"{_percent(change)} (95% interval {_percent_interval(low, high)}, {int(row.get('pairs', 0))} pairs)"
-                if np.isfinite(change) else "")
-    claimed = f"{100 * claimed_change:+.0f}%"
+    measured = (f"{percent(change)} (95% interval {interval(low, high, number=percent)}, "
+                f"{int(row.get('pairs', 0))} pairs)" if np.isfinite(change) else "")
+    claimed = percent(claimed_change, decimals=0)
     if k:
         text = (f"{form_arm} diverged in {k} of {n} trials ({_state_text(state)} RMSE infinite or above "
                 f"{DIVERGENCE_FACTOR:g} x the PF's median), so its mean RMSE is not finite")
@@ -188,9 +178,12 @@ def claim_verdict(claimed_change: float, row: pd.Series, form_arm: str, state: s
 
 # -- Table 1 ------------------------------------------------------------------------------------
 
-def _table1(results: PaperResults, numbers: dict, items: list, verdicts: list) -> None:
+def table1_part(results: PaperResults) -> Part:
+    """Table 1 and Fig. 1: the squared distances of four test points, paper beside ours."""
     if not results.has("table1"):
-        return
+        return Part()
+    numbers = results.numbers
+    items, verdicts = [], []
     distances = results.folder("table1").table("distances")
     printed = {p["point"]: p for p in numbers.get("table1", {}).get("points", [])}
     rows, paper_z, our_z = [], [], []
@@ -244,6 +237,7 @@ def _table1(results: PaperResults, numbers: dict, items: list, verdicts: list) -
         "Table 1: squared Euclidean distances 2.09 / 2.04 / 1.96 / 1.91 (true 2.0) and squared Mahalanobis "
         "distances 1.11 / 20.36 / 19.59 / 1.01 from 1000 samples",
         "reproduced" if consistent else "not reproduced", evidence))
+    return Part(items, verdicts)
 
 
 def _paper_change(printed: dict) -> float:
@@ -261,9 +255,12 @@ def _units(results: PaperResults, experiment: str) -> dict[str, str]:
     return {state: units.get(f"state_{state}", "") for state in STATES}
 
 
-def _table2(results: PaperResults, numbers: dict, items: list, verdicts: list) -> None:
+def table2_part(results: PaperResults) -> Part:
+    """Table 2 and Figs. 4-6: one run, paper beside ours; is MPF lower in all three states?"""
     if not results.has("one-run"):
-        return
+        return Part()
+    numbers = results.numbers
+    items, verdicts = [], []
     trials = results.folder("one-run").trials
     roles = _arms(trials)
     baseline = _baseline(roles)
@@ -283,7 +280,7 @@ def _table2(results: PaperResults, numbers: dict, items: list, verdicts: list) -
                        markdown_table(pd.DataFrame(rows)),
                        "The paper states no unit for its RMSEs; ours are in the model's units (ft, ft/s, 1/ft). "
                        "Our run is trial 0 of the ten runs and of the extended comparison (same seed and settings). "
-                       "MPF-paper is eq. (6) as printed, MPF-innovation the principled form (README of the papers); "
+                       "MPF-paper is eq. (6) as printed, MPF-innovation the principled form (docs/reference-facts.md, Mahalanobis forms); "
                        "an RMSE written ∞ or of order 1e100 means the filter diverged."))
     items.append(Figure("one-run", "state_error_over_time.png",
                         "Figs. 4-6 (ours): estimation error (estimate - truth) of altitude [ft], velocity [ft/s] "
@@ -306,11 +303,15 @@ def _table2(results: PaperResults, numbers: dict, items: list, verdicts: list) -
             f"Table 2: in one run MPF's RMSE is lower than PF's for all three states ({arm})",
             "reproduced" if lower else "not reproduced",
             f"our run, {arm} vs {baseline}: {values}{share}."))
+    return Part(items, verdicts)
 
 
-def _table3(results: PaperResults, numbers: dict, items: list) -> None:
+def table3_part(results: PaperResults) -> Part:
+    """Table 3: ten repeated runs, paper beside ours, and the change of the mean RMSE."""
     if not results.has("ten-runs"):
-        return
+        return Part()
+    numbers = results.numbers
+    items = []
     trials = results.folder("ten-runs").trials
     roles = _arms(trials)
     baseline = _baseline(roles)
@@ -357,9 +358,9 @@ def _table3(results: PaperResults, numbers: dict, items: list) -> None:
             usable = ~(bad[arm] | bad[baseline]).to_numpy()
             change, low, high = relative_change_interval(table[baseline].to_numpy(dtype=float)[usable],
                                                          table[arm].to_numpy(dtype=float)[usable])
-            rows.append({"state": _state_text(state), "paper: MPF vs PF": _percent(paper_change), "ours": arm,
-                         "diverged": f"{int(bad[arm].sum())}/{len(table)}", "change of mean RMSE": _percent(change),
-                         "95% interval": _percent_interval(low, high)})
+            rows.append({"state": _state_text(state), "paper: MPF vs PF": percent(paper_change), "ours": arm,
+                         "diverged": f"{int(bad[arm].sum())}/{len(table)}", "change of mean RMSE": percent(change),
+                         "95% interval": interval(low, high, number=percent)})
     items.append(Table(f"Table 3 summary: change of the {len(trials['trial'].unique())}-run mean RMSE, MPF against PF",
                        markdown_table(pd.DataFrame(rows)),
                        "The paper's change is computed from its per-run values (altitude, velocity) or its printed "
@@ -368,13 +369,17 @@ def _table3(results: PaperResults, numbers: dict, items: list) -> None:
     items.append(Figure("ten-runs", "state_error_over_time.png",
                         f"Ours, the {len(trials['trial'].unique())} runs of Table 3: RMS over the runs of the estimation "
                         "error of each state over time, PF and the two MPF forms."))
+    return Part(items)
 
 
 # -- the extended comparison -------------------------------------------------------------------
 
-def _extended(results: PaperResults, numbers: dict, items: list, verdicts: list) -> None:
+def extended_part(results: PaperResults) -> Part:
+    """Beyond the paper: 100 paired trials of five filters, and the verdicts on the relative claims."""
     if not results.has("extended"):
-        return
+        return Part()
+    numbers = results.numbers
+    items, verdicts = [], []
     folder = results.folder("extended")
     trials = folder.trials
     comparison = compare_with_pf(trials, folder.label_columns)
@@ -387,12 +392,13 @@ def _extended(results: PaperResults, numbers: dict, items: list, verdicts: list)
         for _, row in comparison[comparison["state"] == state].iterrows():
             rows.append({
                 "filter": row["arm"], "diverged": f"{row['diverged']}/{row['trials']}",
-                "mean RMSE": row["mean"], "95% CI": _interval(row["ci95_low"], row["ci95_high"]),
+                "mean RMSE": row["mean"], "95% CI": interval(row["ci95_low"], row["ci95_high"]),
                 "median": row["median"],
                 f"difference vs {baseline}": row.get("mean_difference"),
-                "difference 95% CI": _interval(row.get("difference_low", math.nan), row.get("difference_high", math.nan)),
-                "relative change": _percent(row.get("relative_change", math.nan)),
-                "relative 95% CI": _percent_interval(row.get("relative_low", math.nan), row.get("relative_high", math.nan)),
+                "difference 95% CI": interval(row.get("difference_low", math.nan), row.get("difference_high", math.nan)),
+                "relative change": percent(row.get("relative_change", math.nan)),
+                "relative 95% CI": interval(row.get("relative_low", math.nan), row.get("relative_high", math.nan),
+                                            number=percent),
                 "p": row.get("p_value"),
                 "wins/losses": (f"{int(row['wins'])}/{int(row['losses'])}" if row.get("pairs", 0) > 0 else ""),
             })
@@ -407,7 +413,7 @@ def _extended(results: PaperResults, numbers: dict, items: list, verdicts: list)
     items.append(Figure("extended", "relative_change_by_state.png",
                         f"Ours, beyond the paper: change of each filter's mean RMSE against the PF over {n} paired "
                         "trials, per state, with 95% intervals; a filter that diverged is marked with its count."))
-    _divergence_note(trials, roles, baseline, items)
+    items.append(_divergence_note(trials, roles, baseline))
     claims = numbers.get("claims", {})
     for state in STATES:
         claim = claims.get(state, {})
@@ -417,16 +423,18 @@ def _extended(results: PaperResults, numbers: dict, items: list, verdicts: list)
         elif claim.get("means"):
             claimed = claim["means"]["MPF"] / claim["means"]["PF"] - 1
             label = (f"{_state_text(state)} RMSE lower with MPF (ten-run means {claim['means']['PF']:g} vs "
-                     f"{claim['means']['MPF']:g}: {_percent(claimed)})")
+                     f"{claim['means']['MPF']:g}: {percent(claimed)})")
         else:
             continue
         for form, arm in _forms(roles).items():
             row = comparison[(comparison["state"] == state) & (comparison["arm"] == arm)].iloc[0]
             verdict, evidence = claim_verdict(claimed, row, arm, state)
             verdicts.append(Verdict(f"{label}: {arm}", verdict, evidence + f" ({n} paired trials.)"))
+    return Part(items, verdicts)
 
 
-def _divergence_note(trials: pd.DataFrame, roles: dict, baseline: str, items: list) -> None:
+def _divergence_note(trials: pd.DataFrame, roles: dict, baseline: str) -> Text:
+    """Why MPF-paper diverges: its weights are nearly uniform (measured ESS and lost particles)."""
     by_arm = trials.groupby("arm", sort=False)
     ess = by_arm["ess_mean"].mean()
     lost = by_arm["lost_particles"].mean()
@@ -436,53 +444,59 @@ def _divergence_note(trials: pd.DataFrame, roles: dict, baseline: str, items: li
         lines.append(f"{arm}: mean ESS {ess[arm]:.0f} of {particles[arm]:.0f} particles per step "
                      f"({baseline}: {ess[baseline]:.0f}), {lost[arm]:.0f} particle states lost (non-finite) per trial "
                      f"({baseline}: {lost[baseline]:.0f})")
-    items.append(Text(
+    return Text(
         "**Why the printed eq. (6) fails here.** Its weight exp(-½ ν Σ⁻¹ Σ⁻¹ ν) with Σ the spread of the "
         "predicted ranges divides the squared innovation (ft²) by a squared variance (ft⁴): the result depends on "
         "the unit of length, and with a cloud hundreds of feet wide it is nearly the same for every particle, so "
         "the radar is all but ignored. Measured: " + "; ".join(lines) + ". With almost uniform weights the "
         "roughening keeps widening the cloud; particles whose ballistic coefficient turns negative have drag "
         "that grows without bound and their states overflow. The innovation form is a tempered likelihood "
-        "(REFERENCE section 5): flatter weights than the PF's, but still scaled by the measurement noise. "
+        "(docs/reference-facts.md, Mahalanobis forms): flatter weights than the PF's, but still scaled by the measurement noise. "
         "MPF-paper's ballistic-coefficient errors are small in most trials for a reason that is no merit of "
         "the weighting: nearly uniform weights leave that estimate near the prior mean, which this benchmark "
-        "centres on the true value."))
+        "centres on the true value.")
+
+
+# -- the paper's absolute values --------------------------------------------------------------
+
+def absolute_values_part(results: PaperResults) -> Part:
+    """The paper's absolute RMSEs: not comparable with ours (no unit, far below the radar's noise)."""
+    if not results.has("one-run"):
+        return Part()
+    numbers = results.numbers
+    trials = results.folder("one-run").trials
+    units = _units(results, "one-run")
+    pf = trials[trials["arm"] == _baseline(_arms(trials))].iloc[0]
+    printed = numbers.get("table2", {}).get("altitude", {}).get("PF")
+    noise = numbers.get("model", {}).get("measurement_variance", {})
+    noise_sd = math.sqrt(noise.get("value", math.nan))
+    unit = noise.get("unit", "").removesuffix("^2")
+    return Part(verdicts=[Verdict(
+        f"absolute RMSE values (e.g. altitude {printed} for PF in one run)", "not comparable",
+        f"the paper states no unit, and its altitude RMSE {printed} is {noise_sd / printed:,.0f} times smaller than "
+        f"the radar's noise standard deviation of {noise_sd:g} {unit} (R = {noise.get('value', math.nan):g} "
+        f"{noise.get('unit', '')}): {int(pf['steps'])} measurements with that noise do not pin the altitude down "
+        f"thousands of times more finely, so it cannot be an absolute error in ft or m; our PF's altitude RMSE "
+        f"in the same run is {format_number(pf['rmse_altitude'])} {units['altitude']}.")])
 
 
 # -- the report ---------------------------------------------------------------------------------
 
+PARTS = (table1_part, table2_part, table3_part, extended_part, absolute_values_part)
+
+
 @REPORTS.register(PAPER)
 def park_mpf_report(results: PaperResults) -> Section:
     numbers = results.numbers
-    items: list = []
-    verdicts: list = []
-    _table1(results, numbers, items, verdicts)
-    _table2(results, numbers, items, verdicts)
-    _table3(results, numbers, items)
-    _extended(results, numbers, items, verdicts)
-    if results.has("one-run"):
-        trials = results.folder("one-run").trials
-        units = _units(results, "one-run")
-        pf = trials[trials["arm"] == _baseline(_arms(trials))].iloc[0]
-        printed = numbers.get("table2", {}).get("altitude", {}).get("PF")
-        noise = numbers.get("model", {}).get("measurement_variance", {})
-        noise_sd = math.sqrt(noise.get("value", math.nan))
-        unit = noise.get("unit", "").removesuffix("^2")
-        verdicts.append(Verdict(
-            f"absolute RMSE values (e.g. altitude {printed} for PF in one run)", "not comparable",
-            f"the paper states no unit, and its altitude RMSE {printed} is {noise_sd / printed:,.0f} times smaller than "
-            f"the radar's noise standard deviation of {noise_sd:g} {unit} (R = {noise.get('value', math.nan):g} "
-            f"{noise.get('unit', '')}): {int(pf['steps'])} measurements with that noise do not pin the altitude down "
-            f"thousands of times more finely, so it cannot be an absolute error in ft or m; our PF's altitude RMSE "
-            f"in the same run is {format_number(pf['rmse_altitude'])} {units['altitude']}."))
     summary = (
         f"{numbers.get('citation', 'Park, Lim & Yang (2021)')} The paper proposes weighting particles by a "
         "Mahalanobis distance (eq. 6) instead of the Gaussian likelihood (eq. 5) and compares the two on the "
-        "falling-body benchmark. Its printed constants mix units (REFERENCE section 1), so we run the source its "
-        "equation copies, Simon's example 14.2 in feet; the prior, Q, time step and particle count it leaves "
-        "open are chosen, with reasons, in `configs/papers/park-mpf/`. Eq. (6) is "
+        "falling-body benchmark. Its printed constants mix units (docs/reference-facts.md, falling-body variants), "
+        "so we run the source its equation copies, Simon's example 14.2 in feet; the prior, Q, time step and "
+        "particle count it leaves open are chosen, with reasons, in `configs/papers/park-mpf/`. Eq. (6) is "
         "ambiguous, so both readings run: **MPF-paper** (eq. 6 as printed, Σ the spread of the predicted "
         "ranges) and **MPF-innovation** (ν'S⁻¹ν with S = R + that spread). EKF and UKF rows go beyond the paper. "
         "The paper's RMSEs have no unit and cannot be compared in size with ours; its relative claims can.")
-    return Section(paper=PAPER, title="park-mpf: particle filter with Mahalanobis weighting (Park, Lim & Yang 2021)",
-                   summary=summary, items=items, verdicts=verdicts)
+    items, verdicts = assemble(results, PARTS)
+    return Section(PAPER, "park-mpf: particle filter with Mahalanobis weighting (Park, Lim & Yang 2021)",
+                   summary, items, verdicts)

@@ -1,43 +1,43 @@
 """The gallery section of ``prob-robotics``: Thrun, Burgard & Fox, *Probabilistic Robotics*, ch. 3-5.
 
-The source is a set of study notes on the book; neither prints a number to compare with (the
-book's figures are drawings of densities and samples, with no stated parameters), so every
-verdict here compares our numbers with the *mathematics* the book states: the Kalman filter's
-update against Bayes' rule on a grid, importance-weighted moments against the target's exact
-moments, a particle histogram against the exact law of a transformed Gaussian, the particle
-filter against the histogram filter's near-exact posterior.
+The source (described in docs/papers/prob-robotics.md; the book's corrected motion-model
+algorithms are in docs/reference-facts.md) is a set of study notes on the book; neither prints
+a number to compare with (the book's figures are drawings of densities and samples, with no
+stated parameters), so every verdict here compares our numbers with the *mathematics* the book
+states: the Kalman filter's update against Bayes' rule on a grid, importance-weighted moments
+against the target's exact moments, a particle histogram against the exact law of a
+transformed Gaussian, the particle filter against the histogram filter's near-exact posterior.
 
-**Parts.** The section is assembled from parts, one per experiment (a folder of
-``results/prob-robotics/``): :data:`PARTS` maps an experiment name to a builder
-``(results, folder) -> Part`` (figures, tables, verdicts), and a builder runs only when its
-folder exists, in the order of :data:`PARTS`. To add the motion-model figures (5.3, 5.4, the
-odometry model) or the binary Bayes filter: write a builder and decorate it
-``@part("<experiment name>")``; nothing else changes.
+**Parts.** The section is assembled from parts (:mod:`pfx.papers.base`), one per experiment
+(a folder of ``results/prob-robotics/``), in the order of :data:`PARTS`; a part returns nothing
+when its folder is absent. The motion-model figures (5.3, 5.4, 5.8, 5.9) and the binary Bayes
+filter are one part of their own, :func:`pfx.papers.prob_robotics_motion.motion_sections`. To
+add an experiment: write a part function and put it in :data:`PARTS`.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
-from typing import Callable, Union
 
 import numpy as np
 import pandas as pd
 
 from pfx.analysis.compare import paired_comparison
 from pfx.analysis.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes
-from pfx.papers.gallery import (
+from pfx.papers.base import (
     REPORTS,
     Figure,
     PaperResults,
+    Part,
     Section,
     Table,
-    Text,
     Verdict,
+    assemble,
     format_number,
     markdown_table,
+    p_value,
+    percent,
+    verdict_from_checks,
 )
 from pfx.papers.prob_robotics_motion import motion_sections
-from pfx.result_folder import ResultFolder
 
 PAPER = "prob-robotics"
 
@@ -50,54 +50,13 @@ RATE_TOLERANCE = 0.1           # ... "near": the 95% interval of the slope insid
 NEGLIGIBLE = 0.05              # "negligible": the PF's RMSE, 95% upper bound, within 5 % of the grid's
 
 
-@dataclass
-class Part:
-    """What one experiment adds to the section."""
-
-    items: list[Union[Figure, Table, Text]] = field(default_factory=list)
-    verdicts: list[Verdict] = field(default_factory=list)
-
-
-PARTS: dict[str, Callable[[PaperResults, ResultFolder], Part]] = {}
-
-
-def part(experiment: str):
-    """Register a builder of the part drawn from ``results/prob-robotics/<experiment>/``."""
-    def register(builder):
-        PARTS[experiment] = builder
-        return builder
-    return register
-
-
-@REPORTS.register(PAPER)
-def report(results: PaperResults) -> Section:
-    numbers = results.numbers
-    items: list = []
-    verdicts: list = []
-    for experiment, builder in PARTS.items():
-        if results.has(experiment):
-            built = builder(results, results.folder(experiment))
-            items += built.items
-            verdicts += built.verdicts
-    motion_items, motion_verdicts = motion_sections(results)     # Figs. 5.3-5.9 and Table 4.2
-    items += motion_items
-    verdicts += motion_verdicts
-    title = numbers.get("short_title", "Probabilistic Robotics (Thrun, Burgard & Fox 2005), chapters 3-5")
-    summary = (f"{numbers.get('source', 'Study notes on Probabilistic Robotics')}. "
-               f"{numbers.get('numeric_results', '')} Each verdict below compares our numbers with the "
-               "mathematics the book states (closed forms, exact densities, a near-exact grid posterior); "
-               "the thresholds are in `pfx/papers/prob_robotics.py`.")
-    return Section(paper=PAPER, title=title, summary=summary, items=items, verdicts=verdicts)
-
-
-def _number(value, digits: int = 3) -> str:
-    return format_number(value, digits)
-
-
 # -- Fig. 3.2: the Kalman filter in 1-D --------------------------------------------------------
 
-@part("fig-3.2-kalman")
-def kalman_part(results: PaperResults, folder: ResultFolder) -> Part:
+def kalman_part(results: PaperResults) -> Part:
+    """Fig. 3.2: the 1-D Kalman filter's steps against Bayes' rule on a grid."""
+    if not results.has("fig-3.2-kalman"):
+        return Part()
+    folder = results.folder("fig-3.2-kalman")
     steps = folder.table("steps").set_index("curve")
     unit = folder.units.get("x", "")
     table = pd.DataFrame({
@@ -119,13 +78,14 @@ def kalman_part(results: PaperResults, folder: ResultFolder) -> Part:
                    float((np.abs(steps["grid_variance"] - steps["variance"]) / steps["variance"]).max()))
     agrees = relative < GRID_AGREEMENT
     shape = all(checks)
-    verdict = "reproduced" if shape and agrees else ("partly reproduced" if shape or agrees else "not reproduced")
-    evidence = (f"update 1: variance {_number(prior['variance'])} → {_number(update_1['variance'])} {unit}² "
-                f"(measurement {_number(first['variance'])}), mean {_number(prior['mean'])} → "
-                f"{_number(update_1['mean'])} {unit} toward z₁ = {_number(first['mean'])}; motion: variance "
-                f"{_number(update_1['variance'])} → {_number(predicted['variance'])}; update 2: variance "
-                f"{_number(predicted['variance'])} → {_number(update_2['variance'])}, mean "
-                f"{_number(predicted['mean'])} → {_number(update_2['mean'])} toward z₂ = {_number(second['mean'])}; "
+    verdict = verdict_from_checks([shape, agrees])
+    evidence = (f"update 1: variance {format_number(prior['variance'])} → "
+                f"{format_number(update_1['variance'])} {unit}² (measurement {format_number(first['variance'])}), "
+                f"mean {format_number(prior['mean'])} → {format_number(update_1['mean'])} {unit} toward "
+                f"z₁ = {format_number(first['mean'])}; motion: variance {format_number(update_1['variance'])} → "
+                f"{format_number(predicted['variance'])}; update 2: variance {format_number(predicted['variance'])} → "
+                f"{format_number(update_2['variance'])}, mean {format_number(predicted['mean'])} → "
+                f"{format_number(update_2['mean'])} toward z₂ = {format_number(second['mean'])}; "
                 f"Table 3.1 and Bayes' rule on a grid agree to {relative:.1e} (relative; tolerance "
                 f"{GRID_AGREEMENT:g}).")
     return Part(
@@ -146,8 +106,11 @@ def kalman_part(results: PaperResults, folder: ResultFolder) -> Part:
 
 # -- Fig. 4.2: importance sampling -------------------------------------------------------------
 
-@part("fig-4.2-importance-sampling")
-def importance_part(results: PaperResults, folder: ResultFolder) -> Part:
+def importance_part(results: PaperResults) -> Part:
+    """Fig. 4.2: moments of the target from importance-weighted samples of the proposal."""
+    if not results.has("fig-4.2-importance-sampling"):
+        return Part()
+    folder = results.folder("fig-4.2-importance-sampling")
     moments = folder.table("moments").set_index("quantity")
     table = pd.DataFrame({
         "quantity": moments.index, "exact (target f)": moments["exact"],
@@ -159,11 +122,13 @@ def importance_part(results: PaperResults, folder: ResultFolder) -> Part:
     verdict = "reproduced" if within else "not reproduced"
     mean, variance = moments.loc["mean"], moments.loc["variance"]
     evidence = (f"with {int(mean['samples']):,} draws of g (ESS {mean['effective_sample_size']:,.0f}) the weighted "
-                f"mean is {_number(mean['weighted_estimate'], 4)} against f's {_number(mean['exact'], 4)} "
-                f"(z = {mean['z_score']:.2f}) and the weighted variance {_number(variance['weighted_estimate'], 4)} "
-                f"against {_number(variance['exact'], 4)} (z = {variance['z_score']:.2f}), within {Z_LIMIT:g} "
+                f"mean is {format_number(mean['weighted_estimate'], 4)} against f's "
+                f"{format_number(mean['exact'], 4)} (z = {mean['z_score']:.2f}) and the weighted variance "
+                f"{format_number(variance['weighted_estimate'], 4)} against {format_number(variance['exact'], 4)} "
+                f"(z = {variance['z_score']:.2f}), within {Z_LIMIT:g} "
                 f"standard errors{'' if within else ' NOT for both'}; unweighted, the same draws give "
-                f"{_number(mean['unweighted_estimate'], 4)} and {_number(variance['unweighted_estimate'], 4)} "
+                f"{format_number(mean['unweighted_estimate'], 4)} and "
+                f"{format_number(variance['unweighted_estimate'], 4)} "
                 f"({unweighted_z.min():.0f} or more standard errors off): the weights do the work.")
     return Part(
         items=[Figure("fig-4.2-importance-sampling", "importance_weights.png",
@@ -180,8 +145,11 @@ def importance_part(results: PaperResults, folder: ResultFolder) -> Part:
 
 # -- Fig. 4.3: a Gaussian through a nonlinear function ----------------------------------------
 
-@part("fig-4.3-nonlinear-transform")
-def nonlinear_part(results: PaperResults, folder: ResultFolder) -> Part:
+def nonlinear_part(results: PaperResults) -> Part:
+    """Fig. 4.3: a Gaussian through a nonlinear function, particles against linearisation."""
+    if not results.has("fig-4.3-nonlinear-transform"):
+        return Part()
+    folder = results.folder("fig-4.3-nonlinear-transform")
     fit = folder.table("fit").set_index("method")
     moments = folder.table("moments").set_index("quantity")
     fit_table = pd.DataFrame({"compared with the exact law of y": ["particle histogram", "linearised Gaussian (EKF)"],
@@ -199,11 +167,13 @@ def nonlinear_part(results: PaperResults, folder: ResultFolder) -> Part:
     samples = int(particles["samples"])
     evidence = (f"{samples:,} particles: their histogram fits the exact law of y (chi-square "
                 f"{particles['chi_square']:.1f} on {int(particles['degrees_of_freedom'])} dof, "
-                f"{_p_text(particles['p_value'])}, total variation {particles['total_variation']:.3f}), the linearised "
-                f"Gaussian does not (chi-square of the same particles against it {linear['chi_square']:.3g}, "
-                f"{_p_text(linear['p_value'])}, total variation {linear['total_variation']:.3f}); exact mean "
-                f"{_number(moments.loc['mean', 'exact'])}, particles {_number(moments.loc['mean', 'particles'])}, "
-                f"linearised {_number(moments.loc['mean', 'linearised'])}.")
+                f"{_p_value(particles['p_value'], in_words=True)}, total variation "
+                f"{particles['total_variation']:.3f}), the linearised Gaussian does not (chi-square of the same "
+                f"particles against it {linear['chi_square']:.3g}, {_p_value(linear['p_value'], in_words=True)}, "
+                f"total variation {linear['total_variation']:.3f}); exact mean "
+                f"{format_number(moments.loc['mean', 'exact'])}, particles "
+                f"{format_number(moments.loc['mean', 'particles'])}, "
+                f"linearised {format_number(moments.loc['mean', 'linearised'])}.")
     return Part(
         items=[Figure("fig-4.3-nonlinear-transform", "nonlinear_particles.png",
                       "Fig. 4.3: particles of a Gaussian X (lower right) pushed through y = g(x) (upper right); "
@@ -221,24 +191,23 @@ def nonlinear_part(results: PaperResults, folder: ResultFolder) -> Part:
                           "linearisation does not (Fig. 4.3)", verdict, evidence)])
 
 
-def _p_value(p: float) -> str:
-    """A p-value: "0.32", or "< 1e-300" where it underflows to 0."""
-    return f"{p:.2g}" if p >= 1e-300 else "< 1e-300"
-
-
-def _p_text(p: float) -> str:
-    value = _p_value(p)
-    return f"p {value}" if value.startswith("<") else f"p = {value}"
+def _p_value(p: float, in_words: bool = False) -> str:
+    """This section's p-values: Python's two significant digits ("0.32", "6e-135"), "< 1e-300" below."""
+    return p_value(p, in_words=in_words, number="{:.2g}".format)
 
 
 def _percent(fraction: float) -> str:
-    return f"{fraction * 100:+.2g} %" if abs(fraction) < 0.1 else f"{fraction * 100:+.0f} %"
+    """This section's relative changes: "+3.4 %", whole percents from 10 % ("+45 %")."""
+    return percent(fraction, significant=2, suffix=" %")
 
 
 # -- Beyond the book: the histogram filter as the reference for the particle filter ------------
 
-@part("histogram-reference")
-def reference_part(results: PaperResults, folder: ResultFolder) -> Part:
+def reference_part(results: PaperResults) -> Part:
+    """Beyond the book: the particle filter against the histogram filter's near-exact posterior."""
+    if not results.has("histogram-reference"):
+        return Part()
+    folder = results.folder("histogram-reference")
     labels = folder.label_columns
     steps = folder.steps
     per_trial = trial_gaps(steps, labels)
@@ -272,8 +241,8 @@ def reference_part(results: PaperResults, folder: ResultFolder) -> Part:
     first, last = gaps.iloc[0], gaps.iloc[-1]
     evidence = (f"on the {model} model ({int(summary['n'])} trials) the per-trial slope of log RMS gap against "
                 f"log N averages {slope:.3f} (95% CI {low:.3f} to {high:.3f}; -1/2 expected); the pooled RMS gap "
-                f"falls from {_number(first['rms_gap'])} at N = {int(first['n_particles']):,} to "
-                f"{_number(last['rms_gap'])} at N = {int(last['n_particles']):,}.")
+                f"falls from {format_number(first['rms_gap'])} at N = {int(first['n_particles']):,} to "
+                f"{format_number(last['rms_gap'])} at N = {int(last['n_particles']):,}.")
     verdicts = [Verdict("The histogram filter is a near-exact reference: the particle filter converges to it as "
                         "N grows, at the rate N^-1/2 (chapter 4's summary: both nonparametric filters' "
                         "approximation error goes to zero as their parameters grow)", verdict, evidence)]
@@ -296,15 +265,15 @@ def reference_part(results: PaperResults, folder: ResultFolder) -> Part:
 
         def increase(arm):
             row = rows[arm]
-            return (f"N = {int(smallest[arm]):,}: RMSE {_number(row['mean'])} against the grid's "
-                    f"{_number(grid_rmse)}, {_percent(row['relative_change'])} (95% CI "
+            return (f"N = {int(smallest[arm]):,}: RMSE {format_number(row['mean'])} against the grid's "
+                    f"{format_number(grid_rmse)}, {_percent(row['relative_change'])} (95% CI "
                     f"{_percent(row['ci95_low'] / row['baseline_mean'])} to "
                     f"{_percent(row['ci95_high'] / row['baseline_mean'])})")
         gap = float(gaps.set_index("arm").loc[first_arm, "rms_gap"])
         evidence = (f"reading 'negligible' as an RMSE (against the truth) whose paired 95% upper bound is within "
                     f"{NEGLIGIBLE:.0%} of the exact posterior mean's: {increase(first_arm)}; {increase(typical)}; at "
                     f"N = {int(smallest[first_arm]):,} the RMS gap to the posterior mean is "
-                    f"{_number(gap / posterior_sd, 2)} posterior standard deviations.")
+                    f"{format_number(gap / posterior_sd, 2)} posterior standard deviations.")
         verdicts.append(Verdict(claim, word, evidence))
 
     return Part(
@@ -317,7 +286,25 @@ def reference_part(results: PaperResults, folder: ResultFolder) -> Part:
                      f"Gap: the distance between the particle filter's estimate and the grid posterior mean at "
                      f"each step, RMS over the trial's steps, paired by trial (the arms share the truth and the "
                      f"measurements). Posterior sd: RMS over trials and steps of the grid posterior's standard "
-                     f"deviation, {_number(posterior_sd)}. RMSE increase: paired over trials with "
-                     f"`pfx.analysis.compare` (t-interval), against the grid filter's RMSE {_number(grid_rmse)}. "
+                     f"deviation, {format_number(posterior_sd)}. RMSE increase: paired over trials with "
+                     f"`pfx.analysis.compare` (t-interval), against the grid filter's RMSE {format_number(grid_rmse)}. "
                      f"The book runs no such experiment: no numbers to print beside ours.")],
         verdicts=verdicts)
+
+
+# -- the report -------------------------------------------------------------------------------
+
+PARTS = (kalman_part, importance_part, nonlinear_part, reference_part,
+         motion_sections)                                     # Figs. 5.3-5.9 and Table 4.2
+
+
+@REPORTS.register(PAPER)
+def report(results: PaperResults) -> Section:
+    numbers = results.numbers
+    title = numbers.get("short_title", "Probabilistic Robotics (Thrun, Burgard & Fox 2005), chapters 3-5")
+    summary = (f"{numbers.get('source', 'Study notes on Probabilistic Robotics')}. "
+               f"{numbers.get('numeric_results', '')} Each verdict below compares our numbers with the "
+               "mathematics the book states (closed forms, exact densities, a near-exact grid posterior); "
+               "the thresholds are in `pfx/papers/prob_robotics.py`.")
+    items, verdicts = assemble(results, PARTS)
+    return Section(PAPER, title, summary, items, verdicts)

@@ -1,9 +1,10 @@
 """Gallery items for ``prob-robotics``, part B: the motion models (Figs. 5.3, 5.4, 5.8, 5.9) and Table 4.2.
 
-:func:`motion_sections` reads the folders of the five experiments below (whichever exist) and
-returns the gallery items (figures, tables, text) and the verdicts; the paper's report adds them
-to its section. The book prints no numbers for these figures (no alpha values, no densities), so
-every verdict checks a property the book states against our CSV numbers:
+:func:`motion_sections` is one part of the prob-robotics report (see :mod:`pfx.papers.base`),
+itself assembled from five parts, one per experiment below, each returning nothing when its
+folder is absent. The motion-model algorithms as pfx runs them (the book's, corrected) are in
+docs/reference-facts.md. The book prints no numbers for these figures (no alpha values, no
+densities), so every verdict checks a property the book states against our CSV numbers:
 
 * **the sampler and the density agree** (Figs. 5.3 vs 5.4, 5.8 vs 5.9): Pearson's chi-square of
   the sampler's draws against the gridded density (table ``agreement``), passing at
@@ -26,7 +27,19 @@ import math
 import numpy as np
 import pandas as pd
 
-from pfx.papers.gallery import Figure, PaperResults, Table, Verdict, format_number, markdown_table
+from pfx.papers.base import (
+    Figure,
+    PaperResults,
+    Part,
+    Table,
+    Verdict,
+    assemble,
+    format_number,
+    markdown_table,
+    p_value,
+    percent,
+    verdict_from_checks,
+)
 from pfx.result_folder import ResultFolder
 
 VELOCITY_DENSITY = "fig-5.3-velocity-density"
@@ -47,26 +60,26 @@ MODELS = {
 }
 
 
-def motion_sections(results: PaperResults) -> tuple[list, list]:
-    """(items, verdicts) of the motion-model and binary Bayes experiments present in ``results``."""
-    items: list = []
-    verdicts: list = []
-    for model, spec in MODELS.items():
-        if results.has(spec["density"]):
-            new_items, new_verdicts = density_part(results.folder(spec["density"]), model, spec,
-                                                   _printed(results, spec["figures"][0]))
-            items += new_items
-            verdicts += new_verdicts
-        if results.has(spec["samples"]):
-            new_items, new_verdicts = samples_part(results.folder(spec["samples"]), model, spec,
-                                                   _printed(results, spec["figures"][1]))
-            items += new_items
-            verdicts += new_verdicts
-    if results.has(BINARY_BAYES):
-        new_items, new_verdicts = binary_bayes_part(results.folder(BINARY_BAYES))
-        items += new_items
-        verdicts += new_verdicts
-    return items, verdicts
+def motion_sections(results: PaperResults) -> Part:
+    """The motion-model and binary Bayes experiments present in ``results``: (items, verdicts)."""
+    return assemble(results, (velocity_density_part, velocity_samples_part, odometry_density_part,
+                              odometry_samples_part, binary_bayes_part))
+
+
+def velocity_density_part(results: PaperResults) -> Part:
+    return density_part(results, "velocity")
+
+
+def velocity_samples_part(results: PaperResults) -> Part:
+    return samples_part(results, "velocity")
+
+
+def odometry_density_part(results: PaperResults) -> Part:
+    return density_part(results, "odometry")
+
+
+def odometry_samples_part(results: PaperResults) -> Part:
+    return samples_part(results, "odometry")
 
 
 def _printed(results: PaperResults, figure: str) -> str:
@@ -81,16 +94,13 @@ def _labels(folder: ResultFolder) -> dict[str, str]:
     return dict(zip(settings["setting"], settings["label"]))
 
 
-def _p(value: float) -> str:
-    """A p-value for a table (0 means below double precision)."""
-    return "< 1e-300" if value == 0 else format_number(value, 2)
-
-
-def _p_text(value: float) -> str:
-    return "p < 1e-300" if value == 0 else f"p = {format_number(value, 2)}"
-
-
-def density_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> tuple[list, list]:
+def density_part(results: PaperResults, model: str) -> Part:
+    """Fig. 5.3 or 5.8: the motion model's density, and the sampler's draws against it."""
+    spec = MODELS[model]
+    if not results.has(spec["density"]):
+        return Part()
+    folder = results.folder(spec["density"])
+    printed = _printed(results, spec["figures"][0])
     agreement = folder.table("agreement")
     labels = _labels(folder)
     figure_number, (density_table, sampler_table) = spec["figures"][0], spec["tables"]
@@ -105,9 +115,9 @@ def density_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> 
         f"the x-y grid and the heading window: {', '.join(format_number(m, 4) for m in pose['grid_mass'])}.")]
     table = pd.DataFrame({
         "setting": [labels.get(s, s) for s in pose.index],
-        f"χ² p, Table {density_table} as printed": [_p(book.loc[s, "p_value"]) for s in pose.index],
+        f"χ² p, Table {density_table} as printed": [p_value(book.loc[s, "p_value"]) for s in pose.index],
         f"TV, Table {density_table}": [book.loc[s, "total_variation"] for s in pose.index],
-        "χ² p, pose density (÷ Jacobian)": [_p(pose.loc[s, "p_value"]) for s in pose.index],
+        "χ² p, pose density (÷ Jacobian)": [p_value(pose.loc[s, "p_value"]) for s in pose.index],
         "TV, pose density": [pose.loc[s, "total_variation"] for s in pose.index],
         "TV from sampling alone (mean / 99%)": [f"{pose.loc[s, 'tv_null_mean']:.3f} / {pose.loc[s, 'tv_null_q99']:.3f}"
                                                for s in pose.index],
@@ -130,8 +140,8 @@ def density_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> 
     else:
         verdict = "not reproduced"
     per_setting = "; ".join(
-        f"{s}: {_p_text(book.loc[s, 'p_value'])} (TV {book.loc[s, 'total_variation']:.3f}) as printed, "
-        f"{_p_text(pose.loc[s, 'p_value'])} (TV {pose.loc[s, 'total_variation']:.3f}) ÷ Jacobian"
+        f"{s}: {p_value(book.loc[s, 'p_value'], in_words=True)} (TV {book.loc[s, 'total_variation']:.3f}) as printed, "
+        f"{p_value(pose.loc[s, 'p_value'], in_words=True)} (TV {pose.loc[s, 'total_variation']:.3f}) ÷ Jacobian"
         for s in pose.index)
     sampling = f"{pose['tv_null_mean'].min():.3f}-{pose['tv_null_mean'].max():.3f}"
     evidence = (f"chi-square of {n:,} draws per setting against the gridded density (passes at p ≥ {P_LIMIT:g}): "
@@ -142,7 +152,7 @@ def density_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> 
                      "motion.")
     verdicts = [Verdict(f"Figs. {spec['figures'][0]} and {spec['figures'][1]} show the same law: the sampler "
                         f"(Table {sampler_table}) draws from the density (Table {density_table}).", verdict, evidence)]
-    return items, verdicts
+    return Part(items, verdicts)
 
 
 def _z(first, second, column: str) -> float:
@@ -151,7 +161,13 @@ def _z(first, second, column: str) -> float:
     return float(difference / math.hypot(first[f"{column}_se"], second[f"{column}_se"]))
 
 
-def samples_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> tuple[list, list]:
+def samples_part(results: PaperResults, model: str) -> Part:
+    """Fig. 5.4 or 5.9: samples of the motion model, and what the alpha settings and noise families do."""
+    spec = MODELS[model]
+    if not results.has(spec["samples"]):
+        return Part()
+    folder = results.folder(spec["samples"])
+    printed = _printed(results, spec["figures"][1])
     spread = folder.table("spread")
     settings = folder.table("settings")
     labels = dict(zip(settings["setting"], settings["label"]))
@@ -178,7 +194,7 @@ def samples_part(folder: ResultFolder, model: str, spec: dict, printed: str) -> 
         f"{printed} We draw {shown} per panel (the first {shown} of the {int(counts[-1]):,} draws of the "
         "statistics). 'along' is the direction from the start to the noise-free end pose."))
     verdicts = [_settings_verdict(spread, settings, spec), _noise_verdict(spread, labels, noises, counts, spec)]
-    return items, verdicts
+    return Part(items, verdicts)
 
 
 def _settings_verdict(spread: pd.DataFrame, settings: pd.DataFrame, spec: dict) -> Verdict:
@@ -238,7 +254,7 @@ def _noise_verdict(spread: pd.DataFrame, labels: dict, noises: list, counts: lis
                 f"along and across, {', '.join(f'{int(n):,}' for n in counts)} draws) differ beyond {Z_LIMIT:g} "
                 f"standard errors; at {int(max(counts)):,} draws the standard deviations differ by at most "
                 f"{100 * widest:.1f}%; the largest z is {largest[4]:+.1f} ({labels.get(largest[0], largest[0])}, "
-                f"{largest[1]}, {largest[2]:,} draws, {100 * largest[3]:+.1f}% in sd).")
+                f"{largest[1]}, {largest[2]:,} draws, {percent(largest[3])} in sd).")
     if not significant:
         verdict = "reproduced"
     elif len(significant) <= len(comparisons) / 2:
@@ -251,7 +267,11 @@ def _noise_verdict(spread: pd.DataFrame, labels: dict, noises: list, counts: lis
     return Verdict(claim, verdict, evidence)
 
 
-def binary_bayes_part(folder: ResultFolder) -> tuple[list, list]:
+def binary_bayes_part(results: PaperResults) -> Part:
+    """Table 4.2: the binary Bayes filter's worked example and its convergence over repeated runs."""
+    if not results.has(BINARY_BAYES):
+        return Part()
+    folder = results.folder(BINARY_BAYES)
     convergence = folder.table("convergence")
     final = folder.table("final")
     runs = int(convergence["runs"].iloc[0])
@@ -281,8 +301,7 @@ def binary_bayes_part(folder: ResultFolder) -> tuple[list, list]:
     first, last = convergence.iloc[0], convergence.iloc[-1]
     wrong_z = (first["visible_wrong_mean"] - last["visible_wrong_mean"]) / math.hypot(
         first["visible_wrong_se"], last["visible_wrong_se"]) if first["visible_wrong_se"] > 0 else float("inf")
-    checks = [bool(example_correct.all()), monotone, bool(wrong_z > 2)]
-    verdict = "reproduced" if all(checks) else "partly reproduced" if any(checks) else "not reproduced"
+    verdict = verdict_from_checks([example_correct.all(), monotone, wrong_z > 2])
     hidden = final[~final["visible"].astype(bool)]
     evidence = (f"example: {int(example_correct.sum())} of {len(visible)} visible cells end on their true side "
                 f"after {scans} scans; over {runs:,} runs the visible cells' mean error falls "
@@ -294,4 +313,4 @@ def binary_bayes_part(folder: ResultFolder) -> tuple[list, list]:
                      f"(prior {prior:g}: they are almost never observed)")
     verdicts = [Verdict("Table 4.2: accumulating log odds, the belief of every cell the sensor sees converges to "
                         "its true state (free or occupied).", verdict, evidence + ".")]
-    return items, verdicts
+    return Part(items, verdicts)

@@ -1,7 +1,7 @@
 """``pfx reproduce``: run every paper's configs into ``results/<paper>/<experiment>/``.
 
-Each paper has a folder ``configs/papers/<short-name>/`` of ordinary configs (see
-``../shared/papers/README.md`` for the short names) and a ``paper.yaml`` holding the
+Each paper has a folder ``configs/papers/<short-name>/`` of ordinary configs (the short names
+and their documents: ``docs/papers/<short-name>.md``) and a ``paper.yaml`` holding the
 document's own numbers; reproducing a paper is running its configs, copying ``paper.yaml``
 beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.papers.gallery`).
 """
@@ -16,6 +16,7 @@ import yaml
 
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
+from pfx.papers.gallery import write_gallery
 from pfx.registry import closest_name
 from pfx.result_folder import write_text
 from pfx.run.runner import run_plan
@@ -57,6 +58,4 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
-    from pfx.papers.gallery import write_gallery
-
     report(f"gallery: {write_gallery(out)}")
