@@ -12,7 +12,7 @@ limit) are described in ``malformed_configs/EXPECTATIONS.yaml``.
 
 Each entry is given to ``pfx validate`` and, for a representative subset, to
 ``pfx run good.yaml ENTRY --out out`` (a valid config first: nothing may run, since every config
-is checked first). The contract (SPEC, Reliability): exit status 2, stderr exactly one line
+is checked first). The contract (docs/configuration.md#reading-and-validation): exit status 2, stderr exactly one line
 ``pfx: error: <file>[:line:col]: [<key path>: ]<reason>``, no traceback, no pydantic internals,
 nothing written, no code executed (YAML python tags), alias bombs refused before expansion.
 

@@ -1,6 +1,6 @@
 """Sweeps on a Dask cluster, through real `pfx run` processes and local clusters on loopback.
 
-SPEC (Scale): the same run goes to Dask distributed with identical results. A sweep of eight
+docs/dask.md: the same run goes to Dask distributed with identical results. A sweep of eight
 cells, each split into ten batches of trials (so that a cell's batches come back out of
 order), must give trials.csv, steps.csv and summary.csv identical (all but the run-time
 columns) to `--executor local`, whether pfx starts the cluster (`dask-local`) or connects to
@@ -100,7 +100,7 @@ def config(tmp_path_factory) -> Path:
 def cluster():
     """A Dask cluster as a user would start one: a scheduler and 2 single-threaded worker
     processes (with nannies, which restart a killed worker), on loopback."""
-    with dask.config.set(WORKER_SETTINGS):          # as the README advises for one's own workers
+    with dask.config.set(WORKER_SETTINGS):          # as docs/dask.md advises for one's own workers
         local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                          dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
         client = distributed.Client(local, set_as_default=False)

@@ -1,6 +1,6 @@
 """Reproducibility: same config, same numbers; batching, workers and other arms change nothing.
 
-SPEC (Engine, Seeding): one root seed; every (cell, trial) has its own stream; trial t of every
+docs/configuration.md#seeding-and-pairing: one root seed; every (cell, trial) has its own stream; trial t of every
 arm sees the same true trajectory and measurements; results do not depend on --workers.
 """
 

@@ -1,5 +1,5 @@
 """Numerical extremes: the smallest filters, the most extreme noise, weights that all underflow,
-and models that produce NaN or infinity (SPEC, Reliability: no NaN ever reaches a CSV).
+and models that produce NaN or infinity (no NaN ever reaches a CSV: docs/output-files.md#the-result-folder).
 
 Two layers:
 
@@ -12,7 +12,7 @@ Two layers:
   that every likelihood is zero; filters and truths that overflow.
 
 After every successful run the result folder is checked (:func:`check_result_folder`): no ``nan``
-anywhere in a CSV, empty fields only where the README documents them, and every figure the
+anywhere in a CSV, empty fields only where docs/output-files.md documents them, and every figure the
 manifest lists exists as a PNG.
 """
 
@@ -41,7 +41,7 @@ from pfx.numerics.seeding import TrialStreams
 
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
 # empty = never converged; NEES/NIS not recorded (particle filters without metrics.consistency)
-EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nis_mean"}
+EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nis_mean", "grid_lost_mass"}
 SPREAD_STATISTICS = {"std", "sem", "ci95_low", "ci95_high"}      # empty when n < 2
 CENTRAL_STATISTICS = {"mean", "median"}                          # empty when n == 0
 

@@ -4,7 +4,7 @@
   standard covariance form) on random linear-Gaussian systems;
 * ``ekf`` and ``ukf`` reduce to the KF on a linear model (the unscented transform is exact for
   linear maps; the EKF's Jacobians are then exact or central differences of a linear map);
-* the falling body (variant jud, REFERENCE.md section 1, Julier, Uhlmann & Durrant-Whyte 2000):
+* the falling body (variant jud, docs/reference-facts.md#falling-body, Julier, Uhlmann & Durrant-Whyte 2000):
   the UKF keeps a symmetric positive definite covariance and is consistent, the EKF is not;
 * finite-difference Jacobians equal the models' analytic ones;
 * errors: kf refuses nonlinear models, non-finite values name filter, model and step.

@@ -1,4 +1,4 @@
-"""Model tests: the falling body against the published reference truths (REFERENCE section 1),
+"""Model tests: the falling body against the published reference truths (docs/reference-facts.md#falling-body),
 the range-beacons geometry and paths, and the linear model's algebra and validation."""
 
 from __future__ import annotations

@@ -184,7 +184,7 @@ def test_full_covariance_density_integrates_to_one_2d():
 @pytest.mark.parametrize("b", [0.01, 1.0, 7.5])
 def test_triangular_density_is_prob_triangular(b):
     """The triangular density of variance b equals Probabilistic Robotics' corrected
-    prob_triangular(a, b) = max(0, 1/sqrt(6b) - |a|/(6b)) (REFERENCE section 2),
+    prob_triangular(a, b) = max(0, 1/sqrt(6b) - |a|/(6b)) (docs/reference-facts.md#motion-models),
     including zero outside the support |a| < sqrt(6b)."""
     noise = Noise(family="triangular", variance=b).bind(1, need_density=True)
     a = np.linspace(-1.5, 1.5, 301) * math.sqrt(6 * b)

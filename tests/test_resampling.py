@@ -65,7 +65,7 @@ def test_registry_flags():
 
 @pytest.mark.parametrize("name", UNBIASED)
 def test_unbiased_mean_offspring(name):
-    """E[N_j] = N w_j for each unbiased scheme (REFERENCE section 3).
+    """E[N_j] = N w_j for each unbiased scheme (docs/reference-facts.md#resampling).
 
     Mean counts over R = 20000 resamplings of a fixed non-uniform weight vector are compared
     with N w_j within 4.5 standard errors (SE = empirical std of the counts / sqrt(R)).
@@ -78,7 +78,7 @@ def test_unbiased_mean_offspring(name):
 
 
 def test_han_lee_iv_reference_example():
-    """The REFERENCE example w = (.3, .1, .2, .15, .25), N = 5: expected counts under
+    """The worked example of docs/reference-facts.md#resampling, w = (.3, .1, .2, .15, .25), N = 5: expected counts under
     Algorithm IV are 1.799, 0.597, 1.157, 0.769, 0.678 (to the 3 printed decimals, so a
     tolerance of half a unit in the last place), and they still sum to N."""
     w = np.array([0.3, 0.1, 0.2, 0.15, 0.25])
@@ -141,7 +141,7 @@ def test_shape_range_and_zero_weights(name):
 
 
 def test_systematic_counts_are_floor_or_ceil():
-    """Systematic resampling gives N_j in {floor(N w_j), ceil(N w_j)} (REFERENCE section 3)."""
+    """Systematic resampling gives N_j in {floor(N w_j), ceil(N w_j)} (docs/reference-facts.md#resampling)."""
     n = 37
     weights = _random_weight_rows(2000, n, seed=4)
     counts = offspring_counts(RESAMPLERS["systematic"](weights, TrialStreams.from_seeds(range(2000))), n)

@@ -13,7 +13,8 @@ transition + measurement, i.e. the k-th action in kim-mcl's counting).
   - ``spread``: the first step at which at least ``fraction`` of the particles lie within
     ``radius`` of the particle mean, evaluated on the posterior cloud at the end of the step
     (after any resampling); ``weighted`` counts particles by weight and uses the weighted mean,
-    otherwise each particle counts 1/N around the unweighted mean. kim-mcl: fraction 1.
+    otherwise each particle counts 1/N around the unweighted mean. kim-mcl's paper asks for
+    every particle (fraction 1; the criteria compared: docs/reference-facts.md#convergence).
   - ``truth``: the first step from which the error distance stays below ``radius`` for
     ``hold`` consecutive steps (needs the truth: for experiments, not for a deployed filter).
 

@@ -3,7 +3,7 @@
 * :mod:`pfx.safe_yaml` reads YAML safely (no object construction, no duplicate keys,
   no alias bombs) and applies ``--set`` overrides.
 * :mod:`pfx.config.schema` declares every section as pydantic models: validation, the JSON
-  Schema of ``pfx schema`` and the config reference in the README all come from them.
+  Schema of ``pfx schema`` and the config reference in ``docs/configuration.md`` all come from them.
 * :mod:`pfx.config.validation` turns pydantic errors into one-line :class:`~pfx.errors.ConfigError`.
 * :mod:`pfx.config.plan` expands arms x sweep into cells and validates every one before any run.
 """

@@ -105,22 +105,26 @@ def markdown_reference() -> str:
     return "\n".join(parts)
 
 
-def update_readme(path: str = "README.md") -> None:
-    """Rewrite the generated section of the README between its two markers."""
+REFERENCE_PAGE = "docs/configuration.md"
+
+
+def update_reference_page(path: str = REFERENCE_PAGE) -> None:
+    """Rewrite the generated reference in ``docs/configuration.md``, between its two markers
+    (``python -m pfx.config.reference --update``; a test keeps the page current)."""
     from pathlib import Path
 
     start, end = "<!-- config-reference:start -->", "<!-- config-reference:end -->"
-    readme = Path(path)
-    text = readme.read_text()
+    page = Path(path)
+    text = page.read_text()
     before, rest = text.split(start, 1)
     _, after = rest.split(end, 1)
-    readme.write_text(f"{before}{start}\n{markdown_reference()}\n{end}{after}")
+    page.write_text(f"{before}{start}\n{markdown_reference()}\n{end}{after}")
 
 
 if __name__ == "__main__":
     import sys
 
-    if sys.argv[1:] == ["--update-readme"]:
-        update_readme()
+    if sys.argv[1:] == ["--update"]:
+        update_reference_page()
     else:
         print(markdown_reference())

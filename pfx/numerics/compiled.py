@@ -7,7 +7,7 @@ particles or a Python loop per trial: the merged walk of the inverse CDF
 normal draws (:mod:`pfx.numerics.ziggurat`). Each is an ordinary Python function decorated with
 :func:`compiled`; it stays next to the mathematics it implements.
 
-Why numba, and what it costs (measured by ``pfx bench``, see the README's Performance section):
+Why numba, and what it costs (measured by ``pfx bench``, see docs/performance.md):
 at N = 1e5 those three steps took about half of a particle-step before (binary search
 ~20 ns, NumPy's fancy-index gather ~20 ns, NumPy's normal generator ~30 ns of ~140 ns);
 compiled, they take ~6, ~2 and ~12 ns. Compiling them costs a few seconds once per machine;

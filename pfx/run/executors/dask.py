@@ -34,7 +34,7 @@ import pfx
 from pfx.errors import ExecutorError, UsageError
 from pfx.run.executors.base import Executor, Results, Task, ignore_interrupts
 
-# Dask settings for the workers of the clusters pfx starts (README: the same for your own).
+# Dask settings for the workers of the clusters pfx starts (docs/dask.md: the same for your own).
 # Dask's nannies set MALLOC_TRIM_THRESHOLD_ in their workers, which turns off glibc's adaptive
 # mmap threshold: every particle-sized array then comes fresh from the kernel, and the filter
 # spends about three times the CPU time (measured). The workers' statistical profiler (a
