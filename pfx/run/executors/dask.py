@@ -70,8 +70,10 @@ class DaskCluster(Executor):
         self.cluster: Optional[distributed.LocalCluster] = None
         self._pending: dict = {}           # key -> (index, future) of the tasks not yet returned
         self._settings = None              # WORKER_SETTINGS in force, for a cluster of our own
+        self._log_levels: dict = {}        # client-side loggers quietened while the client lives
 
     def __enter__(self) -> "DaskCluster":
+        self._quiet_client_logs()
         try:
             if self.scheduler is None:
                 self._start_local_cluster()
@@ -177,3 +179,15 @@ class DaskCluster(Executor):
         settings, self._settings = self._settings, None
         if settings is not None:
             settings.__exit__(None, None, None)
+        for name, level in self._log_levels.items():
+            logging.getLogger(name).setLevel(level)
+        self._log_levels = {}
+
+    def _quiet_client_logs(self) -> None:
+        """While pfx holds the client, a lost worker or connection is reported by pfx itself, in
+        one line (:meth:`_translated`); the same failure must not also reach the user as
+        the traceback tornado's event loop logs when one of the client's own callbacks meets the
+        closed connection (``tornado.application``: "Exception in callback ...")."""
+        for name in ("tornado.application", "distributed.client"):
+            self._log_levels[name] = logging.getLogger(name).level
+            logging.getLogger(name).setLevel(logging.CRITICAL)
