@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import signal
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -18,6 +17,7 @@ import typer
 import yaml
 
 from pfx.errors import ConfigError, ExecutorError, ModelNumericalError
+from pfx.run.interrupts import Interrupted, stop_on_signals
 
 app = typer.Typer(add_completion=True, no_args_is_help=True, pretty_exceptions_enable=False,
                   context_settings={"help_option_names": ["-h", "--help"]},     # inherited by every command
@@ -89,19 +89,6 @@ def _with_outcome(message: str, error: BaseException) -> str:
     return f"{message}; {notes[-1]}" if notes else message
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM (or another stop signal), raised where the program is, like Ctrl-C."""
-
-    def __init__(self, signal_number: int):
-        super().__init__(signal_number)
-        self.signal_number = signal_number
-        self.signal_name = signal.Signals(signal_number).name
-
-
-def _raise_interrupted(signal_number, frame):
-    raise Interrupted(signal_number)
-
-
 def _show_progress(quiet: bool) -> bool:
     return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
 
@@ -144,7 +131,7 @@ def run(
     from pfx.run.memory import budget_from_option, check_fits, keep_freed_memory
     from pfx.run.runner import run_plan
 
-    signal.signal(signal.SIGTERM, _raise_interrupted)
+    stop_on_signals()
     keep_freed_memory()
     executor = make_executor(executor_name, workers, scheduler)    # options checked, Dask imported
     budget = budget_from_option(max_memory)
@@ -283,7 +270,7 @@ def reproduce(
     from pfx.papers.reproduce import reproduce_papers
     from pfx.run.memory import keep_freed_memory
 
-    signal.signal(signal.SIGTERM, _raise_interrupted)
+    stop_on_signals()
     keep_freed_memory()
     reproduce_papers(papers or [], configs_dir, out, fresh=not resume,
                      report=lambda message: typer.echo(message, err=True), progress=_show_progress(quiet))

@@ -47,6 +47,7 @@ from pfx.result_folder import (
 )
 from pfx.run.batch import BatchResult, run_batch
 from pfx.run.executors import Executor, make_executor
+from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
 OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "scene.csv",
@@ -242,6 +243,7 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     with _progress_bar(progress, total, experiment.name, executor.counts) as live:
         task_id = live.add_task(executor.counts, total=total) if live else None
         for index, result in executor.run(run_batch, tasks):
+            raise_if_requested()                 # a stop signal whose exception was swallowed
             number = owner[index]
             returned[number][index] = result
             if live:
