@@ -1,5 +1,5 @@
 """The front page and the docs: the README starts with the two commands, the config reference in
-docs/configuration.md is generated from the config declarations and kept current, and every
+docs/configuration.md and the figure table of docs/figures.md are generated and kept current, and every
 relative link of the README and of docs/ resolves inside the repository."""
 
 import re
@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from pfx.config.reference import markdown_reference
+from pfx.figures.registry import figure_table
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -22,6 +23,16 @@ def test_config_reference_is_current():
     text = CONFIGURATION.read_text()
     section = text.split(START, 1)[1].split(END, 1)[0]
     assert section.strip() == markdown_reference().strip()
+
+
+def test_figure_table_is_current():
+    """The figure table of docs/figures.md is generated from the registry; regenerate with:
+    python -m pfx.config.reference --update"""
+    text = (ROOT / "docs" / "figures.md").read_text()
+    section = text.split("<!-- figure-table:start -->", 1)[1].split("<!-- figure-table:end -->", 1)[0]
+    assert section.strip() == figure_table().strip()
+    from pfx.figures import FIGURES
+    assert all(f"| `{name}` |" in section for name in FIGURES)
 
 
 def test_readme_starts_with_the_two_commands():

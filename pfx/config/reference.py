@@ -106,25 +106,33 @@ def markdown_reference() -> str:
 
 
 REFERENCE_PAGE = "docs/configuration.md"
+FIGURES_PAGE = "docs/figures.md"
 
 
-def update_reference_page(path: str = REFERENCE_PAGE) -> None:
-    """Rewrite the generated reference in ``docs/configuration.md``, between its two markers
-    (``python -m pfx.config.reference --update``; a test keeps the page current)."""
+def update_generated_pages(reference: str = REFERENCE_PAGE, figures: str = FIGURES_PAGE) -> None:
+    """Rewrite the generated parts of the docs between their markers: the config reference in
+    ``docs/configuration.md`` and the figure table in ``docs/figures.md``
+    (``python -m pfx.config.reference --update``; a test keeps both current)."""
+    from pfx.figures.registry import figure_table
+
+    _replace_between(reference, "config-reference", markdown_reference())
+    _replace_between(figures, "figure-table", figure_table())
+
+
+def _replace_between(path: str, marker: str, generated: str) -> None:
     from pathlib import Path
 
-    start, end = "<!-- config-reference:start -->", "<!-- config-reference:end -->"
+    start, end = f"<!-- {marker}:start -->", f"<!-- {marker}:end -->"
     page = Path(path)
-    text = page.read_text()
-    before, rest = text.split(start, 1)
+    before, rest = page.read_text().split(start, 1)
     _, after = rest.split(end, 1)
-    page.write_text(f"{before}{start}\n{markdown_reference()}\n{end}{after}")
+    page.write_text(f"{before}{start}\n{generated}\n{end}{after}")
 
 
 if __name__ == "__main__":
     import sys
 
     if sys.argv[1:] == ["--update"]:
-        update_reference_page()
+        update_generated_pages()
     else:
         print(markdown_reference())

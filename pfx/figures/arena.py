@@ -46,7 +46,10 @@ def action_groups(path) -> list[tuple[float, float, str]]:
 
 @FIGURES.register("arena_map")
 def arena_map(result: ResultFolder):
-    """Walls, start pose, the commanded route with its action numbers, and one true path."""
+    """Walls, start pose, the commanded route with its action numbers, and one true path.
+
+    Walled-map models (kim-mcl Figs. 3 and 5): the start heading, the route executed exactly (scene.csv `path` rows).
+    """
     import matplotlib.pyplot as plt
 
     scene = result.scene

@@ -38,7 +38,10 @@ def closeup_window(x: np.ndarray, y: np.ndarray, weights: np.ndarray, truth=None
 
 @FIGURES.register("particle_closeups")
 def particle_closeups(result: ResultFolder):
-    """The particle cloud at up to six kept steps of one trial, each framed on the cloud (area ∝ weight)."""
+    """The particle cloud at up to six kept steps of one trial, each framed on the cloud (area ∝ weight).
+
+    From particles.csv: each panel framed on the particles holding 99% of the weight and the truth, with N_eff and the window's width.
+    """
     series = _first_cloud_series(result)
     if series is None:
         return None

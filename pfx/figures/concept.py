@@ -62,7 +62,10 @@ def offspring_stacks(positions: np.ndarray) -> list[tuple[float, int]]:
 
 @FIGURES.register("resampling_concept")
 def resampling_concept(result: ResultFolder):
-    """One filter step, particle by particle: predicted, weighted (with the likelihood), resampled."""
+    """One filter step, particle by particle: predicted, weighted (with the likelihood), resampled.
+
+    On the first state axis (han-lee Fig. 1): weights as stems, with the likelihood when the weight increments are exactly Gaussian in x; offspring stacked by multiplicity, labelled N w_j. Needs `outputs.particles` with the three stages at a step, and `diffusion: none` for exact copies.
+    """
     import matplotlib.pyplot as plt
 
     particles = result.particles

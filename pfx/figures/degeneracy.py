@@ -24,7 +24,10 @@ from pfx.result_folder import ResultFolder
 
 @FIGURES.register("ess_decay")
 def ess_decay(result: ResultFolder):
-    """ESS / N over time per cell on a log scale (median and 10-90% band of the traced trials), with the 1/N floor."""
+    """ESS / N over time per cell on a log scale (median and 10-90% band of the traced trials), with the 1/N floor.
+
+    SIS's collapse, which a linear axis hides. Quantiles need every trial's trace: trace them all (`outputs.trace_trials`) for this figure.
+    """
     steps = result.steps
     if steps.empty or steps["n_particles"].isna().all():
         return None

@@ -19,7 +19,10 @@ def _ellipse(centre: np.ndarray, covariance: np.ndarray, radius: float, points: 
 
 @FIGURES.register("mahalanobis_scatter")
 def mahalanobis_scatter(result: ResultFolder):
-    """The sample, the test points coloured by squared Mahalanobis distance, 1-3 sigma ellipses (park-mpf Fig. 1)."""
+    """The sample, the test points coloured by squared Mahalanobis distance, 1-3 sigma ellipses (park-mpf Fig. 1).
+
+    Study `mahalanobis_distances`.
+    """
     import matplotlib.pyplot as plt
 
     samples, distances = result.table("samples"), result.table("distances")

@@ -76,7 +76,10 @@ def _grid(count: int):
 
 @FIGURES.register("trajectory_map")
 def trajectory_map(result: ResultFolder):
-    """True and estimated path of the first traced trial over the model's world, per cell."""
+    """True and estimated path of the first traced trial over the model's world, per cell.
+
+    Planar models: the world from scene.csv.
+    """
     planar = _planar(result)
     steps = result.steps
     if planar is None or steps.empty:
@@ -168,7 +171,10 @@ def _limits(result, cloud_frame, track, x_name, y_name):
 
 @FIGURES.register("particle_snapshots")
 def particle_snapshots(result: ResultFolder):
-    """The particle cloud at up to six kept steps of one trial, over the model's world."""
+    """The particle cloud at up to six kept steps of one trial, over the model's world.
+
+    Planar models; marker area proportional to weight; needs `outputs.particles`.
+    """
     series = _first_cloud_series(result)
     if series is None:
         return None
@@ -194,7 +200,10 @@ def particle_snapshots(result: ResultFolder):
 
 @FIGURES.register("particle_animation")
 def particle_animation(result: ResultFolder):
-    """Animated GIF of one trial: the particle cloud step by step, with the true and estimated paths."""
+    """Animated GIF of one trial: the particle cloud step by step, with the true and estimated paths.
+
+    The particle snapshots as an animated GIF, one frame per kept step; needs `outputs.particles`.
+    """
     series = _first_cloud_series(result)
     if series is None:
         return None

@@ -60,7 +60,10 @@ def _draw_path(axes, path, radius: float) -> None:
 
 @FIGURES.register("motion_density_panels")
 def motion_density_panels(result: ResultFolder):
-    """Figs. 5.3 / 5.8: the pose density in x-y per setting (grey scale), with the commanded motion."""
+    """Figs. 5.3 / 5.8: the pose density in x-y per setting (grey scale), with the commanded motion.
+
+    Studies `velocity_motion_density`, `odometry_motion_density`: start and commanded end pose, noise-free path.
+    """
     import matplotlib.pyplot as plt
 
     density = result.table("density")
@@ -103,7 +106,10 @@ def motion_density_panels(result: ResultFolder):
 
 @FIGURES.register("motion_sample_panels")
 def motion_sample_panels(result: ResultFolder):
-    """Figs. 5.4 / 5.9: the sampler's poses per setting (columns) and noise family (rows)."""
+    """Figs. 5.4 / 5.9: the sampler's poses per setting (columns) and noise family (rows).
+
+    Studies `velocity_motion_samples`, `odometry_motion_samples`.
+    """
     import matplotlib.pyplot as plt
 
     samples = result.table("samples")
@@ -147,7 +153,10 @@ def motion_sample_panels(result: ResultFolder):
 
 @FIGURES.register("motion_spread")
 def motion_spread(result: ResultFolder):
-    """Standard deviation of the samples along and across the motion, per setting and noise (95% CI)."""
+    """Standard deviation of the samples along and across the motion, per setting and noise (95% CI).
+
+    Studies `velocity_motion_samples`, `odometry_motion_samples`.
+    """
     import matplotlib.pyplot as plt
 
     spread = result.table("spread")
@@ -180,7 +189,10 @@ def motion_spread(result: ResultFolder):
 
 @FIGURES.register("binary_bayes_beliefs")
 def binary_bayes_beliefs(result: ResultFolder):
-    """The worked example's belief per cell and scan, and the final belief against the truth."""
+    """The worked example's belief per cell and scan, and the final belief against the truth.
+
+    Study `binary_bayes`, with the mean over runs.
+    """
     import matplotlib.pyplot as plt
 
     beliefs = result.table("beliefs")
@@ -238,7 +250,10 @@ def binary_bayes_beliefs(result: ResultFolder):
 
 @FIGURES.register("binary_bayes_convergence")
 def binary_bayes_convergence(result: ResultFolder):
-    """Over all runs: the visible cells' mean |belief - truth| and share misclassified, per scan."""
+    """Over all runs: the visible cells' mean |belief - truth| and share misclassified, per scan.
+
+    Study `binary_bayes`.
+    """
     import matplotlib.pyplot as plt
 
     convergence = result.table("convergence")

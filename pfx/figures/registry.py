@@ -19,6 +19,20 @@ from pfx.result_folder import FILE_MODE, ResultFolder
 FIGURES: Registry[Callable] = Registry("figure")
 
 
+def figure_table() -> str:
+    """The figure table of ``docs/figures.md``, from the registry: one row per figure, its
+    docstring's summary line and, if it has one, its second paragraph (the details a reader
+    needs: which study or output it draws, what it needs). A test keeps the page current."""
+    import inspect
+
+    rows = ["| figure | shows |", "| --- | --- |"]
+    for name in FIGURES:
+        paragraphs = inspect.cleandoc(FIGURES[name].__doc__ or "").split("\n\n")
+        text = " ".join(" ".join(paragraph.split()) for paragraph in paragraphs[:2])
+        rows.append(f"| `{name}` | " + text.replace("|", "\\|") + " |")
+    return "\n".join(rows)
+
+
 def _save(figure, target: Path) -> None:
     """Write a figure (or an animation, as GIF) atomically: a temporary file, then rename."""
     descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=".tmp-", suffix=target.suffix)

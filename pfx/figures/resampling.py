@@ -10,7 +10,10 @@ from pfx.result_folder import ResultFolder
 
 @FIGURES.register("offspring_bias")
 def offspring_bias(result: ResultFolder):
-    """Observed mean offspring count per particle (±2 SE) for each resampler against N w."""
+    """Observed mean offspring count per particle (±2 SE) for each resampler against N w.
+
+    Study `offspring_counts`.
+    """
     import matplotlib.pyplot as plt
 
     table = result.table("offspring")

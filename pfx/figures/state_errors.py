@@ -45,7 +45,10 @@ def _label(name: str, unit: str) -> str:
 
 @FIGURES.register("state_error_over_time")
 def state_error_over_time(result: ResultFolder):
-    """Estimation error of every state component over time, one line per cell (RMS if several trials)."""
+    """Estimation error of every state component over time, one line per cell (RMS if several trials).
+
+    Estimate - truth of a single-trial run, or its RMS over every trial (steps_summary.csv); a diverging line stops at the axes' edge and is named.
+    """
     import matplotlib.pyplot as plt
 
     summary = result.steps_summary
@@ -106,7 +109,10 @@ def _rms_errors(result: ResultFolder, summary, states: list[str]) -> dict:
 
 @FIGURES.register("relative_change_by_state")
 def relative_change_by_state(result: ResultFolder):
-    """Each arm's mean RMSE per state relative to the first arm's, paired by trial, with 95% intervals."""
+    """Each arm's mean RMSE per state relative to the first arm's, paired by trial, with 95% intervals.
+
+    Delta-method intervals; diverged trials counted; needs one cell per arm.
+    """
     import matplotlib.pyplot as plt
 
     trials = result.trials

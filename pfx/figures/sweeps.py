@@ -71,7 +71,10 @@ def _unit(result: ResultFolder) -> str:
 
 @FIGURES.register("rmse_vs_particles")
 def rmse_vs_particles(result: ResultFolder):
-    """Position RMSE (mean over trials, 95% CI band) against the number of particles."""
+    """Position RMSE (mean over trials, 95% CI band) against the number of particles.
+
+    One line per other setting; a log N axis for sweeps spanning 8x or more (so do the other `*_vs_particles` figures).
+    """
     return metric_versus_particles(result, "rmse_position", f"position RMSE{_unit(result)}",
                                    "position RMSE against particle count")
 

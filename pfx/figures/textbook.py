@@ -37,7 +37,10 @@ KALMAN_TITLES = {
 
 @FIGURES.register("kalman_steps")
 def kalman_steps(result: ResultFolder):
-    """Fig. 3.2 (a)-(f): the 1-D Kalman filter's beliefs and measurements, six panels."""
+    """Fig. 3.2 (a)-(f): the 1-D Kalman filter's beliefs and measurements, six panels.
+
+    Study `kalman_1d_steps` (Probabilistic Robotics).
+    """
     import matplotlib.pyplot as plt
 
     steps, densities = result.table("steps"), result.table("densities")
@@ -78,7 +81,10 @@ def kalman_steps(result: ResultFolder):
 
 @FIGURES.register("importance_weights")
 def importance_weights(result: ResultFolder):
-    """Fig. 4.2: target f, proposal g and its samples, the samples weighted by f/g, the weighted histogram."""
+    """Fig. 4.2: target f, proposal g and its samples, the samples weighted by f/g, the weighted histogram.
+
+    Study `importance_sampling`.
+    """
     import matplotlib.pyplot as plt
 
     densities, samples, histogram = result.table("densities"), result.table("samples"), result.table("histogram")
@@ -131,7 +137,10 @@ def importance_weights(result: ResultFolder):
 
 @FIGURES.register("nonlinear_particles")
 def nonlinear_particles(result: ResultFolder):
-    """Fig. 4.3: particles of a Gaussian through g: histogram of y against the exact density and the EKF's Gaussian."""
+    """Fig. 4.3: particles of a Gaussian through g: histogram of y against the exact density and the EKF's Gaussian.
+
+    Study `nonlinear_transform`.
+    """
     import matplotlib.pyplot as plt
 
     function, density, histogram = result.table("function"), result.table("density"), result.table("histogram")
@@ -212,7 +221,10 @@ def nonlinear_particles(result: ResultFolder):
 
 @FIGURES.register("reference_gap_vs_particles")
 def reference_gap_vs_particles(result: ResultFolder):
-    """Particle filter against the histogram filter's posterior mean: RMS gap vs N (log-log), and one trial."""
+    """Particle filter against the histogram filter's posterior mean: RMS gap vs N (log-log), and one trial.
+
+    Arms of a `histogram` filter and particle filters at several N; the per-trial slope with its 95% CI (`pfx/analysis/reference_gap.py`).
+    """
     import matplotlib.pyplot as plt
 
     from pfx.analysis.reference_gap import REFERENCE_FILTER, gap_table, slope_summary, trial_gaps, trial_slopes

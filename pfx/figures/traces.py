@@ -105,7 +105,10 @@ def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, uni
 
 @FIGURES.register("error_over_time")
 def error_over_time(result: ResultFolder):
-    """Mean error distance over time per cell over every trial, with the 95% CI of the mean."""
+    """Mean error distance over time per cell over every trial, with the 95% CI of the mean.
+
+    From steps_summary.csv; the axis names the error (`|error| of altitude [ft]`, or `position error distance [m]` for several position states).
+    """
     quantity = error_quantity(result)
     layout = _over_time(result, "error_distance", f"{quantity.title} over time", quantity.axis_label,
                         unit=result.units.get("position", ""))
@@ -117,7 +120,10 @@ def error_over_time(result: ResultFolder):
 
 @FIGURES.register("nees_over_time")
 def nees_over_time(result: ResultFolder):
-    """Mean NEES over time per cell (log scale) against its expected value d, the state dimension."""
+    """Mean NEES over time per cell (log scale) against its expected value d, the state dimension.
+
+    From steps_summary.csv, every trial.
+    """
     dimension = len(result.state_names)
     layout = _over_time(result, "nees", "normalised estimation error squared (NEES)",
                         f"NEES (consistent filter: d = {dimension})", log_y=True,
@@ -127,7 +133,10 @@ def nees_over_time(result: ResultFolder):
 
 @FIGURES.register("ess_over_time")
 def ess_over_time(result: ResultFolder):
-    """Mean effective sample size (as a share of N) over time per cell, before resampling."""
+    """Mean effective sample size (as a share of N) over time per cell, before resampling.
+
+    From steps_summary.csv, with the 95% CI of the mean.
+    """
     summary = result.steps_summary
     if summary.empty or "n_particles" not in summary or summary["n_particles"].isna().all():
         return None
