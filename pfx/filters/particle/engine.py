@@ -1,6 +1,6 @@
-r"""The batched particle filter: R independent trials x N particles advanced together.
+r"""The batched particle filter: many independent trials x N particles advanced together.
 
-Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..T:
+Particles are an array of shape (trials, N, d); log-weights (trials, N). Each step k = 1..T:
 
 1. **Predict**: :math:`x_{k,i} \sim p(x_k \mid x_{k-1,i}, u_k)` (the model's transition).
 2. **Weight**: :math:`\log \tilde w_{k,i} = \log w_{k-1,i} + \log \ell_k(x_{k,i})`, with the
@@ -15,6 +15,13 @@ Particles are an array of shape (R, N, d); log-weights (R, N). Each step k = 1..
    :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
 5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
+
+In the code, :class:`ParticleFilter` runs these as named stages, ``predict`` (the proposal:
+the transition, i.e. the bootstrap filter), ``update_weights``, ``estimate`` and
+``resample_and_move`` (the resampler, then the move: a diffusion or roughening), with the
+particle count held by the filter (fixed today): the places a guided proposal, an MCMC move or
+an adaptive particle count plug in. Diagnostics (particle snapshots, NEES/NIS, the spread and
+the share within a radius) are :class:`Recorder` s called after each stage; they only read.
 
 A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
 drag equation, for instance, blows up in finite time for a negative ballistic coefficient): it
@@ -152,123 +159,209 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
                         consistency: bool = False, snapshot: Optional[SnapshotRequest] = None) -> FilterTrace:
-    """Run the filter on measurements of shape (R, T, m); see the module docstring.
+    """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
     the normalised innovation squared of the predicted cloud, for NEES and NIS. With
     ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``).
     """
-    trials, steps, _ = measurements.shape
-    n = particles
-    position = list(model.position_components)
-    if position == list(range(position[0], position[-1] + 1)):
-        position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
-    state = prior.sample(random, (n,))
-    uniform_log_weight = -np.log(n)
-    log_weights = np.full((trials, n), uniform_log_weight)
-    weights = np.full((trials, n), 1.0 / n)    # always exp(log_weights)
-
-    estimates = np.empty((trials, steps, state.shape[-1]))
-    ess = np.empty((trials, steps))
-    resampled = np.zeros((trials, steps), dtype=bool)
-    degenerate = np.zeros((trials, steps), dtype=bool)
-    spread = np.empty((trials, steps))
-    within = np.empty((trials, steps)) if spread_criterion else None
-    log_likelihood = np.zeros(trials)
-    lost_particles = np.zeros(trials, dtype=np.int64)
-    dimension = state.shape[-1]
-    covariances = np.empty((trials, steps, dimension, dimension)) if consistency else None
-    nis = np.empty((trials, steps)) if consistency else None
+    recorders: list[Recorder] = [SpreadRecorder(model, spread_criterion)]
+    if consistency:
+        recorders.append(ConsistencyRecorder(model))
     if snapshot is not None:
-        snapshot.keep("prior", 0, state, weights)
+        recorders.append(SnapshotRecorder(snapshot))
+    return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
+                          ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
+                          recorders=recorders).run()
 
-    for k in range(1, steps + 1):
-        t = k - 1
+
+class ParticleFilter:
+    """One batch of trials of the particle filter, advanced step by step in named stages.
+
+    :meth:`run` is the algorithm; each stage is a method, and the points where a variant plugs
+    in are objects: the weighting (the weight update), the resampler, the move after resampling
+    (today's diffusions and roughening), and the particle count (fixed today). Diagnostics are
+    :class:`Recorder` s: they look at the cloud after a stage and fill their part of the trace,
+    so the loop holds the algorithm and nothing else.
+    """
+
+    def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
+                 resampler, ess_threshold: float, weighting, move, recorders=()):
+        self.model, self.measurements, self.random = model, measurements, random
+        self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
+        self.recorders = list(recorders)
+        self.trials, self.steps, _ = measurements.shape
+        self.particles = particles                       # the particle count: fixed for now
+        self.uniform_log_weight = -np.log(particles)
+        self.state = prior.sample(random, (particles,))
+        self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
+        self.weights = np.full((self.trials, particles), 1.0 / particles)    # always exp(log_weights)
+        self.lost: Optional[np.ndarray] = None            # this step's particles that left the domain
+        self.trace = FilterTrace(
+            estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
+            ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
+            degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.empty((self.trials, self.steps)),
+            log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64))
+
+    def run(self) -> FilterTrace:
+        self.record("prior", 0)
+        for k in range(1, self.steps + 1):
+            self.predict(k)
+            self.record("predicted", k)
+            self.update_weights(k)
+            self.estimate(k)
+            self.record("weighted", k)
+            self.resample_and_move(k)
+            self.record("resampled", k)
+        return self.trace
+
+    def record(self, stage: str, step: int) -> None:
+        for recorder in self.recorders:
+            recorder.record(stage, step, self)
+
+    def predict(self, k: int) -> None:
+        """Propose x_k from the transition (the bootstrap proposal); park particles that left the
+        model's domain at weight zero."""
         with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
-            state = model.transition(state, k, random)
+            self.state = self.model.transition(self.state, k, self.random)
             # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
-            suspect = not np.isfinite(state.sum())
-        finite = np.isfinite(state).all(axis=-1) if suspect else None
-        lost = None
-        if suspect and not finite.all():
-            lost = ~finite
-            lost_particles += lost.sum(axis=-1)
-            if (lost | np.isneginf(log_weights)).all(axis=-1).any():
-                raise ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or "
-                                          f"infinite at step {k} of the filter (check the prior and the noise)")
-            state[lost] = 0.0
-            log_weights[lost] = -np.inf
-            weights[lost] = 0.0
-        if snapshot is not None:
-            snapshot.keep("predicted", k, state, weights)
-        if consistency:
-            nis[:, t] = _innovation_squared(model, measurements[:, t], state, weights)
+            suspect = not np.isfinite(self.state.sum())
+        self.lost = None
+        if suspect:
+            finite = np.isfinite(self.state).all(axis=-1)
+            if not finite.all():
+                self.lost = lost = ~finite
+                self.trace.lost_particles += lost.sum(axis=-1)
+                if (lost | np.isneginf(self.log_weights)).all(axis=-1).any():
+                    raise ModelNumericalError(f"model {self.model.kind}: every particle of a trial became NaN or "
+                                              f"infinite at step {k} of the filter (check the prior and the noise)")
+                self.state[lost] = 0.0
+                self.log_weights[lost] = -np.inf
+                self.weights[lost] = 0.0
+
+    def update_weights(self, k: int) -> None:
+        """log w_k = log w_{k-1} + log l_k(x_k), normalised by log-sum-exp; the normaliser adds to
+        the log-likelihood estimate; a trial whose weights all underflow is degenerate."""
+        t = k - 1
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            increment = weighting.log_weights(model, measurements[:, t, None, :], state, weights)
-        if lost is not None:
-            increment[lost] = -np.inf
-        updated = log_weights + increment
+            increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :], self.state,
+                                                   self.weights)
+        if self.lost is not None:
+            increment[self.lost] = -np.inf
+        updated = self.log_weights + increment
         normalised, new_weights, normaliser = normalise_weights(updated)
         if not np.isfinite(normaliser).all():          # rare: one check in the common case
             if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
                 # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
                 # (-inf + NaN would be NaN); only if that does not help is it the model's error.
-                updated = np.where(np.isneginf(log_weights), -np.inf, updated)
+                updated = np.where(np.isneginf(self.log_weights), -np.inf, updated)
                 normalised, new_weights, normaliser = normalise_weights(updated)
             if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
                 bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
                 raise ModelNumericalError(
-                    f"model {model.kind} gave {bad} log-likelihood at step {k} of the filter "
+                    f"model {self.model.kind} gave {bad} log-likelihood at step {k} of the filter "
                     "(did particles leave the model's domain? check the prior and the noise)")
             underflow = np.isneginf(normaliser)
-            degenerate[underflow, t] = True
-            normalised[underflow] = uniform_log_weight
-            new_weights[underflow] = 1.0 / n
-        log_weights = normalised
-        log_likelihood += normaliser
+            self.trace.degenerate[underflow, t] = True
+            normalised[underflow] = self.uniform_log_weight
+            new_weights[underflow] = 1.0 / self.particles
+        self.log_weights = normalised
+        self.trace.log_likelihood += normaliser
+        self.weights = new_weights
 
-        weights = new_weights
-        ess[:, t] = effective_sample_size(weights)
-        if snapshot is not None:
-            snapshot.keep("weighted", k, state, weights)
-        estimates[:, t] = posterior_mean(model, weights, state)
-        if not np.isfinite(estimates[:, t]).all():
-            raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {k} "
+    def estimate(self, k: int) -> None:
+        """The ESS before resampling, and the estimate: the weighted (circular) mean."""
+        t = k - 1
+        self.trace.ess[:, t] = effective_sample_size(self.weights)
+        self.trace.estimates[:, t] = posterior_mean(self.model, self.weights, self.state)
+        if not np.isfinite(self.trace.estimates[:, t]).all():
+            raise ModelNumericalError(f"model {self.model.kind} produced NaN or infinite particles at step {k} "
                                       "of the filter (check the prior and the noise)")
-        if consistency:
-            centred = state - estimates[:, t, None, :]
-            covariances[:, t] = np.einsum("rn,rnd,rne->rde", weights, centred, centred)
 
-        if ess_threshold >= 1.0:
-            rows = np.arange(trials)
-        elif ess_threshold > 0.0:
-            rows = np.flatnonzero(ess[:, t] < ess_threshold * n)
+    def resample_and_move(self, k: int) -> None:
+        """Resample the trials whose ESS fell below the threshold, then move their particles."""
+        t = k - 1
+        if self.ess_threshold >= 1.0:
+            rows = np.arange(self.trials)
+        elif self.ess_threshold > 0.0:
+            rows = np.flatnonzero(self.trace.ess[:, t] < self.ess_threshold * self.particles)
         else:
             rows = np.empty(0, dtype=np.intp)
-        if rows.size:
-            every = rows.size == trials
-            selected = slice(None) if every else rows      # a slice spares fancy-index copies
-            streams = random if every else random.subset(rows)
-            indices = resampler(weights[selected], streams)
-            moved = diffusion.apply(resample_rows(state, rows, indices), streams)
-            if every:
-                state = moved
-            else:
-                state[rows] = moved
-            log_weights[selected] = uniform_log_weight
-            weights[selected] = 1.0 / n
-            resampled[selected, t] = True
-        if snapshot is not None:
-            snapshot.keep("resampled", k, state, weights)
+        if not rows.size:
+            return
+        every = rows.size == self.trials
+        selected = slice(None) if every else rows      # a slice spares fancy-index copies
+        streams = self.random if every else self.random.subset(rows)
+        indices = self.resampler(self.weights[selected], streams)
+        moved = self.move.apply(resample_rows(self.state, rows, indices), streams)
+        if every:
+            self.state = moved
+        else:
+            self.state[rows] = moved
+        self.log_weights[selected] = self.uniform_log_weight
+        self.weights[selected] = 1.0 / self.particles
+        self.trace.resampled[selected, t] = True
 
+
+class Recorder:
+    """A diagnostic attached to :class:`ParticleFilter`: after each stage ("prior",
+    "predicted", "weighted", "resampled") it may read the filter's cloud and fill its part of
+    the trace. Recorders never change the cloud or draw random numbers."""
+
+    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
+        raise NotImplementedError
+
+
+class SpreadRecorder(Recorder):
+    """After each step: the weighted RMS distance of the positions from their mean (``spread``)
+    and, for the spread convergence criterion, the share within its radius."""
+
+    def __init__(self, model, criterion: Optional[SpreadCriterion]):
+        position = list(model.position_components)
+        if position == list(range(position[0], position[-1] + 1)):
+            position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
+        self.position, self.criterion = position, criterion
+
+    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
+        if stage != "resampled":
+            return
+        if self.criterion is not None and run.trace.within_radius is None:
+            run.trace.within_radius = np.empty((run.trials, run.steps))
+        positions = run.state[..., self.position]
         with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
-            spread[:, t] = _spread(weights, state[..., position])
-            if spread_criterion is not None:
-                within[:, t] = _share_within(weights, state[..., position], spread_criterion)
+            run.trace.spread[:, step - 1] = _spread(run.weights, positions)
+            if self.criterion is not None:
+                run.trace.within_radius[:, step - 1] = _share_within(run.weights, positions, self.criterion)
 
-    return FilterTrace(estimates=estimates, ess=ess, resampled=resampled, degenerate=degenerate,
-                       spread=spread, log_likelihood=log_likelihood, lost_particles=lost_particles,
-                       within_radius=within, covariances=covariances, nis=nis)
+
+class ConsistencyRecorder(Recorder):
+    """NEES and NIS for particle filters: the NIS of the predicted cloud, and the weighted
+    posterior covariance (before resampling)."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
+        trace, t = run.trace, step - 1
+        if stage == "prior":
+            dimension = run.state.shape[-1]
+            trace.covariances = np.empty((run.trials, run.steps, dimension, dimension))
+            trace.nis = np.empty((run.trials, run.steps))
+        elif stage == "predicted":
+            trace.nis[:, t] = _innovation_squared(self.model, run.measurements[:, t], run.state, run.weights)
+        elif stage == "weighted":
+            centred = run.state - trace.estimates[:, t, None, :]
+            trace.covariances[:, t] = np.einsum("rn,rnd,rne->rde", run.weights, centred, centred)
+
+
+class SnapshotRecorder(Recorder):
+    """Keeps the particle clouds a :class:`SnapshotRequest` asks for."""
+
+    def __init__(self, request: SnapshotRequest):
+        self.request = request
+
+    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
+        self.request.keep(stage, step, run.state, run.weights)
 
 
 def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
