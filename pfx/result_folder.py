@@ -84,6 +84,18 @@ def write_csv(frame: pd.DataFrame, path: str | Path) -> None:
 
 # -- reading -------------------------------------------------------------------------------------
 
+def read_table(path: str | Path) -> pd.DataFrame:
+    """A CSV table of the folder (an empty file: an empty table). The one reader: a cell key is
+    12 hex digits and is read as text, or "910808017e06" would become the number 9.1e14 and
+    "012345678901" lose its zero."""
+    import pandas as pd
+
+    try:
+        return pd.read_csv(path, dtype={"cell": str})
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame()
+
+
 class ResultFolder:
     """A result folder as figures see it: its CSV tables and its manifest, nothing else."""
 
@@ -91,13 +103,7 @@ class ResultFolder:
         self.path = Path(path)
 
     def table(self, name: str) -> pd.DataFrame:
-        import pandas as pd
-
-        try:
-            # A cell key is 12 hex digits: read as text, or "120e45678901" would become a number.
-            return pd.read_csv(self.path / f"{name}.csv", dtype={"cell": str})
-        except pd.errors.EmptyDataError:
-            return pd.DataFrame()
+        return read_table(self.path / f"{name}.csv")
 
     @cached_property
     def trials(self) -> pd.DataFrame:

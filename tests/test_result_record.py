@@ -280,3 +280,14 @@ def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, run_pfx):
     assert f"{summary['rmse_position_mean'].iloc[0]:.4g}" in few
     assert f"next: pfx compare {tmp_path / 'out'} --metric rmse_position --by arm" in result.stdout
     assert np.isfinite(summary["rmse_position_ci95_low"]).all()
+
+
+def test_a_cell_key_that_looks_like_a_number_stays_text(tmp_path):
+    """Cell keys are 12 hex digits; "910808017e06" (a real kim-mcl key) must not be read as
+    9.1e14, nor "012345678901" lose its leading zero, anywhere a result folder is read."""
+    from pfx.result_folder import ResultFolder, read_table, write_csv
+
+    keys = ["910808017e06", "012345678901", "ed6f45077bf8"]
+    write_csv(pd.DataFrame({"cell": keys, "trial": [0, 1, 2]}), tmp_path / "trials.csv")
+    assert list(read_table(tmp_path / "trials.csv")["cell"]) == keys
+    assert list(ResultFolder(tmp_path).trials["cell"]) == keys

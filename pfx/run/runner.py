@@ -42,6 +42,7 @@ from pfx.result_folder import (
     clear_outputs,
     folder_lock,
     inspect_folder,
+    read_table,
     write_csv,
     write_text,
 )
@@ -332,7 +333,7 @@ def _cell_tables(out: Path, key: str, name: str, kept: Optional[pd.DataFrame]) -
     frames = [kept[kept["cell"] == key]] if kept is not None and not kept.empty else []
     path = out / CELLS / f"{key}.{name}.csv"
     if path.exists():
-        frames.append(pd.read_csv(path))
+        frames.append(read_table(path))
     return frames
 
 
