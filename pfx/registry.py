@@ -80,9 +80,12 @@ class Registry(Generic[T]):
         return self.register(name, description)(item)
 
     def register_kind(self, component: T) -> T:
-        """Class decorator: register a component (a pydantic model) under the name its ``kind``
-        field declares, so that the name is written once, at the definition."""
-        return self.add(component.model_fields["kind"].default, component)
+        """Class decorator: register a component under the name its ``kind`` declares (the
+        default of a pydantic model's ``kind`` field, or a plain class attribute), so that the
+        name is written once, at the definition."""
+        fields = getattr(component, "model_fields", None)
+        name = fields["kind"].default if fields and "kind" in fields else component.kind
+        return self.add(name, component)
 
     def kind_union(self):
         """The config type choosing one of the registered components by ``kind`` (see

@@ -18,8 +18,10 @@ from scipy.special import logsumexp
 from scipy.stats import norm
 
 from pfx.errors import ConfigError
-from pfx.filters import FILTERS
-from pfx.filters.histogram import GridParameters, _Transition, axis_noises, plan_grid, run_histogram_filter
+from pfx.filters import run_filter
+from pfx.filters.histogram.filter import run_histogram_filter
+from pfx.filters.histogram.grid import GridParameters, axis_noises, plan_grid
+from pfx.filters.histogram.kernel import Transition
 from pfx.filters.particle.diffusion import NoDiffusion
 from pfx.filters.particle.engine import SpreadCriterion, run_particle_filter, simulate_truth
 from pfx.filters.particle.resampling import RESAMPLERS
@@ -166,7 +168,7 @@ def test_grid_filter_equals_kalman_in_2d(name):
     _, measurements = simulate_truth(model, TrialStreams.from_seeds(range(20, 24)))
     grid = plan_grid(model, model.initial, GridParameters(cells=[140, 70]))
     assert grid.widths.max() < 0.35
-    transition = _Transition(model, grid, axis_noises(model))
+    transition = Transition(model, grid, axis_noises(model))
     assert transition.kernel(grid.points, None, on_grid=True).own_axis == own_axis
     trace = run_histogram_filter(model, measurements, prior=model.initial, grid=grid)
     means, covariances, nis, log_likelihood = kalman_filter(
@@ -214,7 +216,7 @@ def test_predict_equals_the_log_domain_sum(name):
         dimension, (A, own_axis) = 2, TWO_D_DYNAMICS[name]
         model = linear_model(A, [[1.0, 0.0]], [0.5, 0.3], 1.0, [0.0, 0.0], 1.0, steps=3)
         grid = plan_grid(model, model.initial, GridParameters(low=[-14.0, -10.0], high=[14.0, 10.0], cells=[56, 40]))
-    transition = _Transition(model, grid, axis_noises(model))
+    transition = Transition(model, grid, axis_noises(model))
     kernel = transition.kernel(grid.points, None, on_grid=True)
     assert kernel.own_axis == own_axis
     size = grid.size
@@ -335,8 +337,8 @@ def test_grid_filter_on_range_beacons_random_walk_agrees_with_a_large_particle_f
     trials = 4
     states, measurements = simulate_truth(model, TrialStreams.from_seeds(range(300, 300 + trials)))
     settings = types.SimpleNamespace(grid=GridParameters(cells=100))
-    coarse = FILTERS["histogram"](model, measurements, TrialStreams.from_seeds(range(trials)), settings=settings,
-                                  prior=prior, spread_criterion=SpreadCriterion(radius=1.0, weighted=True))
+    coarse = run_filter("histogram", model, measurements, TrialStreams.from_seeds(range(trials)), settings=settings,
+                       prior=prior, spread_criterion=SpreadCriterion(radius=1.0, weighted=True))
     fine = run_histogram_filter(model, measurements, prior=prior,
                                 grid=plan_grid(model, prior, GridParameters(cells=200)))
     std = np.sqrt(np.trace(fine.covariances, axis1=-2, axis2=-1))

@@ -23,8 +23,9 @@ import numpy as np
 import pytest
 
 from pfx.errors import ConfigError, ModelNumericalError
-from pfx.filters import FILTERS
-from pfx.filters.kalman import UnscentedParameters, _robust_square_root, _unscented, finite_difference_jacobian
+from pfx.filters import FILTERS, run_filter
+from pfx.filters.kalman.linearisation import finite_difference_jacobian
+from pfx.filters.kalman.unscented import UnscentedParameters, robust_square_root, run_unscented
 from pfx.filters.particle.engine import simulate_truth
 from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.models.base import bind_law
@@ -38,7 +39,7 @@ SHAPES = [(d, m) for d in (1, 2, 4) for m in (1, 3)]
 
 
 def run(kind, model, measurements, prior, settings=SETTINGS):
-    return FILTERS[kind](model, measurements, None, settings=settings, prior=prior, spread_criterion=None)
+    return run_filter(kind, model, measurements, None, settings=settings, prior=prior)
 
 
 # -- an independent textbook Kalman filter -----------------------------------------------------------
@@ -206,7 +207,7 @@ def falling_body_runs():
     prior = bind_law(model.default_prior(), 3, "initial")
     truth, measurements = simulate(model, 50, 1000)
     diagnostics = {}
-    ukf = _unscented(model, measurements, prior, UnscentedParameters(), diagnostics)
+    ukf = run_unscented(model, measurements, prior, UnscentedParameters(), diagnostics)
     ekf = run("ekf", model, measurements, prior)
     return model, truth, ukf, ekf, diagnostics
 
@@ -260,7 +261,7 @@ def test_robust_square_root_repairs_indefinite_and_badly_scaled_matrices():
     bad = np.outer(scales, scales) * np.array([[1.0, 1.5], [1.5, 1.0]])
     point = np.zeros((2, 2))
     repairs = {"jitter": 0, "clipped": 0}
-    root, repaired = _robust_square_root(np.stack([good, barely, bad, point]), repairs)
+    root, repaired = robust_square_root(np.stack([good, barely, bad, point]), repairs)
     assert repairs == {"jitter": 1, "clipped": 1}
     assert np.array_equal(repaired[0], good) and np.array_equal(repaired[3], point)
     for r in range(3):
@@ -310,11 +311,11 @@ def test_kf_refuses_nonlinear_models_and_ukf_checks_kappa():
         run("kf", model, measurements, prior)
     assert caught.value.key == "filter.kind"
     with pytest.raises(ValueError, match="@kind"):
-        FILTERS["kf"].check(model, SETTINGS, prior)
-    FILTERS["ekf"].check(model, SETTINGS, prior)
+        FILTERS["kf"].plan(model, SETTINGS, prior)
+    FILTERS["ekf"].plan(model, SETTINGS, prior)
     bad = types.SimpleNamespace(unscented=UnscentedParameters(kappa=-3.0))
     with pytest.raises(ValueError, match="@unscented.kappa"):
-        FILTERS["ukf"].check(model, bad, prior)
+        FILTERS["ukf"].plan(model, bad, prior)
     with pytest.raises(ConfigError) as caught:
         run("ukf", model, measurements, prior, bad)
     assert caught.value.key == "filter.unscented.kappa"

@@ -21,14 +21,13 @@ import numpy as np
 from pfx.bench.peers import ADAPTERS
 from pfx.bench.problem import Case, FallingBodyProblem
 from pfx.bench.reference import reference_filter
-from pfx.filters import FILTERS
 from pfx.numerics.seeding import TrialStreams
 
 
 def run_pfx(problem: FallingBodyProblem, case: Case) -> np.ndarray:
     cell = case.cell
-    trace = FILTERS[cell.filter.kind](cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
-                                      settings=cell.filter, prior=cell.prior, spread_criterion=None)
+    trace = cell.planned_filter.run(cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
+                                    settings=cell.filter, prior=cell.prior, spread_criterion=None)
     return trace.estimates
 
 

@@ -22,7 +22,7 @@ from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.schema import Experiment, FilterConfig, StudyExperiment
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, located_value_error
-from pfx.filters import FILTERS
+from pfx.filters import FILTERS, FilterKind
 from pfx.models import MODELS
 from pfx.models.base import Model, bind_law
 from pfx.numerics.hashing import canonical_hash
@@ -46,6 +46,7 @@ class Cell:
     filter: FilterConfig
     prior: Any
     metrics: MetricsConfig
+    planned_filter: FilterKind     # the filter kind planned for this cell (pfx.filters.base)
 
     @property
     def stream_key(self) -> int:
@@ -200,14 +201,12 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
             bind_law(prior, filter_model.state_dimension, "initial")
         except ValueError as error:
             raise located_value_error(error, prefix="filter", file=file) from None
-        check = getattr(FILTERS[settings.kind], "check", None)     # the kind's plan-time check
-        if check is not None:
-            try:
-                check(filter_model, settings, prior)
-            except ValueError as error:
-                raise located_value_error(error, prefix="filter", file=file) from None
-            except ConfigError as error:
-                raise error.located(file=file) from None
+        try:        # the kind's checks, and what it fixes for the cell (the histogram grid)
+            planned_filter = FILTERS[settings.kind].plan(filter_model, settings, prior)
+        except ValueError as error:
+            raise located_value_error(error, prefix="filter", file=file) from None
+        except ConfigError as error:
+            raise error.located(file=file) from None
     except ConfigError as error:
         raise locate(error) from None
 
@@ -234,7 +233,8 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
     metrics = experiment.metrics.model_dump(mode="json")
     return Cell(key=canonical_hash({**identity, "metrics": metrics}, 12),
                 filter_key=canonical_hash(identity, 12), labels=labels, truth_model=truth,
-                filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics)
+                filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics,
+                planned_filter=planned_filter)
 
 
 def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | StudyPlan:

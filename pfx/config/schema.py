@@ -11,13 +11,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any, ClassVar, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model
 
 from pfx.analysis.metrics import MetricsConfig
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS, PARTICLE_KINDS
-from pfx.filters.histogram import GridParameters
-from pfx.filters.kalman import UnscentedParameters
 from pfx.filters.particle.diffusion import Diffusion, NoDiffusion
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import GaussianWeighting, Weighting
@@ -33,7 +31,7 @@ StudyConfig = Annotated[Union[tuple(STUDIES[name] for name in STUDIES)], Field(d
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
 
 
-class FilterConfig(BaseModel):
+class SharedFilterSettings(BaseModel):
     """The filter run on every cell (arms override any of these keys)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -51,20 +49,12 @@ class FilterConfig(BaseModel):
     diffusion: Diffusion = Field(default_factory=NoDiffusion,
                                  description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
     initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
-    unscented: UnscentedParameters = Field(default_factory=UnscentedParameters,
-                                           description="kind ukf: sigma-point parameters alpha, beta, kappa")
-    grid: GridParameters = Field(default_factory=GridParameters,
-                                 description="kind histogram: the grid (box and cells per axis)")
-    model: dict[str, Any] = Field(
-        default_factory=dict,
-        description="model parameters the filter assumes where they differ from the truth "
-                    "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")
 
-    # settings that only some filter kinds read (every other setting applies to every kind)
+    # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
+    # kind's own settings blocks (every other setting applies to every kind)
     KIND_SPECIFIC: ClassVar[dict[str, frozenset[str]]] = {
-        "particles": PARTICLE_KINDS, "weighting": PARTICLE_KINDS, "resampler": frozenset({"particle"}),
-        "ess_threshold": frozenset({"particle"}), "diffusion": frozenset({"particle"}),
-        "unscented": frozenset({"ukf"}), "grid": frozenset({"histogram"})}
+        key: frozenset(name for name, kind in FILTERS.items() if key in kind.reads or key in kind.settings)
+        for _, kind in FILTERS.items() for key in (*kind.reads, *kind.settings)}
 
     @property
     def uses_particles(self) -> bool:
@@ -73,13 +63,26 @@ class FilterConfig(BaseModel):
     def applicable_dump(self, kinds) -> dict:
         """The settings as config data, without those that none of ``kinds`` reads and that
         hold their default (a setting given explicitly is always kept)."""
-        defaults = FilterConfig().model_dump(mode="json")
+        defaults = type(self)().model_dump(mode="json")
         return {key: value for key, value in self.model_dump(mode="json").items()
                 if key not in self.KIND_SPECIFIC or self.KIND_SPECIFIC[key] & set(kinds)
                 or value != defaults[key]}
 
     def effective_threshold(self) -> float:
-        return 0.0 if self.kind == "sis" else self.ess_threshold
+        """The ESS threshold the particle kind applies (``sis``: 0, it never resamples)."""
+        return FILTERS[self.kind].ess_threshold(self) if self.uses_particles else self.ess_threshold
+
+
+# ``filter:`` is the shared settings, each filter kind's own settings blocks (declared by the
+# kind: ``grid`` for histogram, ``unscented`` for ukf), and the filter's model.
+FilterConfig = create_model(
+    "FilterConfig", __base__=SharedFilterSettings, __doc__=SharedFilterSettings.__doc__,
+    **{key: (block, Field(default_factory=block, description=description))
+       for _, kind in FILTERS.items() for key, (block, description) in kind.settings.items()},
+    model=(dict[str, Any], Field(
+        default_factory=dict,
+        description="model parameters the filter assumes where they differ from the truth "
+                    "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")))
 
 
 class ParticleSnapshots(BaseModel):

@@ -1,17 +1,19 @@
 """Filter kinds: every way pfx estimates the state, on the same models, metrics and CSV.
 
-A filter kind is a function registered under the name a config gives as ``filter.kind``::
+A filter kind is a subclass of :class:`~pfx.filters.base.FilterKind` registered at its definition
+(``@FILTERS.register_kind``) under the name a config gives as ``filter.kind``. It declares the
+settings it reads, its own settings blocks and what it needs of a model; its ``plan`` runs once
+per cell, before anything runs (checks, and what is fixed per cell, such as the histogram
+filter's grid), and its ``run`` filters a batch of trials into a
+:class:`~pfx.filters.trace.FilterTrace`. See :mod:`pfx.filters.base`.
 
-    run(model, measurements, random, *, settings, prior, spread_criterion, consistency) -> FilterTrace
+Sub-packages by family: :mod:`~pfx.filters.particle` (the particle filter's engine and
+components), :mod:`~pfx.filters.kalman` (kf, ekf, ukf), :mod:`~pfx.filters.histogram` (the grid
+filter); :mod:`~pfx.filters.log_odds` is the binary Bayes filter of occupancy cells.
+To add a kind: a module with its class, and one import line below.
 
-It may carry a plan-time check, ``run.check(model, settings, prior)``, raising
-``ValueError("@key: reason")`` (key under ``filter``) or a ConfigError when the kind cannot run
-on that model: configs are refused before anything runs.
-
-``model`` is the model the filter assumes, ``measurements`` has shape (trials, T, m),
-``random`` is a :class:`~pfx.numerics.seeding.TrialStreams` (one stream per trial), ``settings`` the
-cell's :class:`~pfx.config.schema.FilterConfig`, ``prior`` the bound initial law.
-To add a kind: write the function in a module of this package and register it below.
+May import :mod:`pfx.laws`, :mod:`pfx.numerics`, :mod:`pfx.safe_yaml`, :mod:`pfx.registry`,
+:mod:`pfx.errors`; never models, config or anything above.
 """
 
 from pfx.filters import (
@@ -19,9 +21,9 @@ from pfx.filters import (
     kalman,  # noqa: F401  (registers kf, ekf, ukf)
     particle,  # noqa: F401  (registers particle, sis)
 )
-from pfx.filters.registry import FILTERS
+from pfx.filters.base import FILTERS, FilterKind, run_filter
 
 # kinds that carry particles (their cells have a particle count, resampler and weighting)
-PARTICLE_KINDS = frozenset({"particle", "sis"})
+PARTICLE_KINDS = frozenset(name for name, kind in FILTERS.items() if kind.carries_particles)
 
-__all__ = ["FILTERS", "PARTICLE_KINDS"]
+__all__ = ["FILTERS", "PARTICLE_KINDS", "FilterKind", "run_filter"]

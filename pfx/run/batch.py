@@ -20,7 +20,6 @@ from pfx.analysis.metrics import MetricInputs, compute_metrics, normalised_squar
 from pfx.analysis.step_summary import step_values
 from pfx.config.plan import Cell
 from pfx.config.schema import ParticleSnapshots
-from pfx.filters import FILTERS
 from pfx.filters.particle.engine import SnapshotRequest, SpreadCriterion, simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
@@ -51,7 +50,7 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
             snapshot = SnapshotRequest(rows=rows, steps=steps_kept, stages=frozenset(snapshots.stages))
     options = {"snapshot": snapshot} if snapshot is not None else {}
     started = time.perf_counter()
-    trace = FILTERS[cell.filter.kind](
+    trace = cell.planned_filter.run(
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
         prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency, **options)
     elapsed = time.perf_counter() - started

@@ -1,34 +1,44 @@
 """The particle filter kinds: ``particle`` (SIR with the ESS rule) and ``sis`` (never resample).
 
-Both run :func:`pfx.filters.particle.engine.run_particle_filter`; ``sis`` forces the ESS threshold to 0.
+Both run :class:`pfx.filters.particle.engine.ParticleFilter`; ``sis`` forces the ESS threshold to 0.
 """
 
 from __future__ import annotations
 
+from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.particle.engine import run_particle_filter
 from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.registry import FILTERS
 
 
-def _run(model, measurements, random, *, settings, prior, spread_criterion, consistency=False, snapshot=None):
-    return run_particle_filter(
-        model, measurements, random, prior=prior, particles=settings.particles,
-        resampler=RESAMPLERS[settings.resampler], ess_threshold=settings.effective_threshold(),
-        weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-        consistency=consistency, snapshot=snapshot)
-
-
-@FILTERS.register("particle")
-def particle(model, measurements, random, *, settings, prior, spread_criterion, consistency=False,
-             snapshot=None):
+@FILTERS.register_kind
+class SampleImportanceResampling(FilterKind):
     """Particle filter: resample when ESS < ess_threshold * N."""
-    return _run(model, measurements, random, settings=settings, prior=prior,
-                spread_criterion=spread_criterion, consistency=consistency, snapshot=snapshot)
+
+    kind = "particle"
+    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion"})
+    carries_particles = True
+
+    @classmethod
+    def ess_threshold(cls, settings) -> float:
+        """Resample when ESS < threshold * N."""
+        return settings.ess_threshold
+
+    def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
+            snapshot=None):
+        return run_particle_filter(
+            model, measurements, random, prior=prior, particles=settings.particles,
+            resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
+            weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
+            consistency=consistency, snapshot=snapshot)
 
 
-@FILTERS.register("sis")
-def sequential_importance_sampling(model, measurements, random, *, settings, prior, spread_criterion,
-                                   consistency=False, snapshot=None):
+@FILTERS.register_kind
+class SequentialImportanceSampling(SampleImportanceResampling):
     """Sequential importance sampling: a particle filter that never resamples."""
-    return _run(model, measurements, random, settings=settings, prior=prior,
-                spread_criterion=spread_criterion, consistency=consistency, snapshot=snapshot)
+
+    kind = "sis"
+    reads = frozenset({"particles", "weighting"})
+
+    @classmethod
+    def ess_threshold(cls, settings) -> float:
+        return 0.0

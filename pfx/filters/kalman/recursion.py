@@ -1,0 +1,87 @@
+"""The Gaussian filters' shared recursion: alternate predict and update over steps 1..T, the
+linear (Joseph-form) update, the innovation's NIS and log-likelihood (see :mod:`pfx.filters.kalman`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pfx.errors import ConfigError, ModelNumericalError
+from pfx.filters.trace import FilterTrace
+
+
+def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predict, update) -> FilterTrace:
+    """Alternate predict(mean, cov, k) and update(mean, cov, z, k) over steps 1..T; build the trace."""
+    trials, steps, _ = measurements.shape
+    mean, covariance = prior_moments(prior, trials, model.state_dimension)
+    d = mean.shape[-1]
+    estimates = np.empty((trials, steps, d))
+    covariances = np.empty((trials, steps, d, d))
+    nis = np.empty((trials, steps))
+    log_likelihood = np.zeros(trials)
+    for k in range(1, steps + 1):
+        with np.errstate(over="ignore", invalid="ignore"):   # reported by check_finite
+            mean, covariance = predict(mean, covariance, k)
+        check_finite(kind, model, k, "prediction", mean, covariance)
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
+        check_finite(kind, model, k, "update", mean, covariance)
+        log_likelihood += increment
+        estimates[:, k - 1] = mean
+        covariances[:, k - 1] = covariance
+    return FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
+                                           position=list(model.position_components))
+
+
+def prior_moments(prior, trials: int, dimension: int) -> tuple[np.ndarray, np.ndarray]:
+    mean = np.asarray(prior.mean_vector(), dtype=float)
+    covariance = np.asarray(prior.covariance_matrix(), dtype=float)
+    if mean.shape != (dimension,) or covariance.shape != (dimension, dimension):
+        raise ConfigError(f"the prior has dimension {mean.shape[-1] if mean.ndim else 0}, the model {dimension}",
+                          key="filter.initial")
+    return (np.broadcast_to(mean, (trials, dimension)).copy(),
+            np.broadcast_to(symmetric(covariance), (trials, dimension, dimension)).copy())
+
+
+def check_finite(kind: str, model, k: int, stage: str, mean: np.ndarray, covariance: np.ndarray) -> None:
+    if not (np.isfinite(mean).all() and np.isfinite(covariance).all()):
+        what = "mean" if not np.isfinite(mean).all() else "covariance"
+        raise ModelNumericalError(f"filter {kind}: model {model.kind} gave a NaN or infinite {what} in the "
+                                  f"{stage} at step {k} (check the prior, the noise and the model's domain)")
+
+
+def transpose(matrices: np.ndarray) -> np.ndarray:
+    return np.swapaxes(matrices, -1, -2)
+
+
+def symmetric(matrices: np.ndarray) -> np.ndarray:
+    return 0.5 * (matrices + transpose(matrices))
+
+
+def innovation_terms(kind: str, model, k: int, innovation: np.ndarray, innovation_covariance: np.ndarray):
+    """(S^-1 nu, NIS, log N(nu; 0, S)) per trial; raises if S is not positive definite."""
+    S = symmetric(innovation_covariance)
+    try:
+        factor = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        raise ModelNumericalError(f"filter {kind}: model {model.kind} gave an innovation covariance that is "
+                                  f"not positive definite at step {k}") from None
+    solved = np.linalg.solve(S, innovation[..., None])[..., 0]
+    nis = np.einsum("rm,rm->r", innovation, solved)
+    log_determinant = 2.0 * np.sum(np.log(np.diagonal(factor, axis1=-2, axis2=-1)), axis=-1)
+    log_density = -0.5 * (nis + log_determinant + innovation.shape[-1] * math.log(2.0 * math.pi))
+    return S, nis, log_density
+
+
+def linear_update(kind, model, k, mean, covariance, z, predicted_measurement, H, noise_r):
+    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS, log p(z_k))."""
+    innovation = z - predicted_measurement
+    S, nis, log_density = innovation_terms(kind, model, k, innovation, H @ covariance @ transpose(H) + noise_r)
+    cross = covariance @ transpose(H)                                   # P H'  (trials, d, m)
+    gain = transpose(np.linalg.solve(S, transpose(cross)))             # P H' S^-1 (S symmetric)
+    mean = mean + np.einsum("rdm,rm->rd", gain, innovation)
+    complement = np.eye(mean.shape[-1]) - gain @ H
+    covariance = complement @ covariance @ transpose(complement) + gain @ noise_r @ transpose(gain)
+    return mean, symmetric(covariance), nis, log_density
+
