@@ -83,7 +83,8 @@ def test_usage_errors_are_one_line_and_exit_2(top_level, name):
 def test_shell_completion_script_is_offered(tmp_path):
     # typer finds the shell by walking up the process tree, so run pfx from bash itself (under a
     # runner whose parents are not shells it would print "Shell  not supported").
-    command = f"{shlex.quote(sys.executable)} -m pfx --show-completion"
+    # (a second command keeps bash from replacing itself with its only command)
+    command = f"{shlex.quote(sys.executable)} -m pfx --show-completion; exit $?"
     result = subprocess.run(["bash", "-c", command], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "_PFX_COMPLETE" in result.stdout                # the variable typer's completion reads
