@@ -26,3 +26,52 @@ import-linter contract: a lower layer never imports a higher one; ``make test`` 
 """
 
 __version__ = "0.1.0"
+
+# -- the public Python API, imported lazily ------------------------------------------------------
+# ``import pfx`` stays cheap (``pfx --help`` imports it): each name below is imported from its
+# module on first use, through the module ``__getattr__`` (PEP 562). ``importlib`` keeps these
+# imports out of the import-linter's static graph: ``pfx`` itself is no layer.
+#
+# Writing plugins (docs/plugins.md): the model base class, whose method names and array shapes
+# are a public contract, and the decorators that register components under their names.
+_LAZY_NAMES = {
+    "Model": "pfx.models.base",
+    "register_model": "pfx.config.plugins",
+    "register_resampler": "pfx.config.plugins",
+    "register_weighting": "pfx.config.plugins",
+    "register_filter_kind": "pfx.config.plugins",
+    # the laws a model's presets() and default_prior() return
+    "Noise": "pfx.laws.noise",
+    "PointLaw": "pfx.laws.initial",
+    "GaussianLaw": "pfx.laws.initial",
+    "UniformLaw": "pfx.laws.initial",
+}
+
+# Running configs and reading results from Python (pfx/api.py, which imports nothing heavy until
+# called): ``pfx.run``, ``pfx.load``, ``pfx.Result``, and ``pfx.ConfigError``, what they raise.
+# ``pfx.run`` names both the function and the subpackage pfx/run/: Python binds a subpackage's
+# name on this package when the subpackage is first imported, which would replace the function.
+# So the subpackage (an empty __init__) is imported first, and the function then keeps the name;
+# code reaches the subpackage by its imports (``from pfx.run.runner import run_plan``).
+import pfx.run as _run_subpackage  # noqa: E402,F401
+from pfx.api import Result, load, run  # noqa: E402
+from pfx.errors import ConfigError  # noqa: E402
+
+del _run_subpackage
+
+
+def __getattr__(name: str):
+    if name in _LAZY_NAMES:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY_NAMES[name]), name)
+        globals()[name] = value              # once imported, an ordinary attribute
+        return value
+    raise AttributeError(f"module 'pfx' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY_NAMES])
+
+
+__all__ = ["ConfigError", "Result", "load", "run", "__version__", *_LAZY_NAMES]

@@ -187,10 +187,28 @@ def validate(
         typer.echo(yaml.safe_dump(plan.resolved, sort_keys=False).rstrip())
 
 
+def _plugin_option(help_text: str):
+    return typer.Option([], "--plugin", metavar="FILE|MODULE",
+                        help=f"{help_text} (runs its code: docs/plugins.md)")
+
+
+def _load_command_line_plugins(entries: List[str], installed: bool = False) -> list:
+    """Import the plugins given with --plugin (files relative to the working folder) and, with
+    ``installed``, those installed packages offer (entry-point group ``pfx.plugins``)."""
+    from pfx.config.plugins import load_installed_plugins, load_plugins
+
+    plugins = load_installed_plugins() if installed else []
+    return plugins + load_plugins(entries)
+
+
 @app.command(name="list")
 @_guarded
-def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {', '.join(LISTABLE)}")):
-    """List what a config can name, with a one-line description each."""
+def list_components(
+    what: Optional[str] = typer.Argument(None, help=f"one of: {', '.join(LISTABLE)}"),
+    plugins: List[str] = _plugin_option("also list the components of this plugin"),
+):
+    """List what a config can name, with a one-line description each (installed plugins'
+    components too, marked with their plugin)."""
     from pfx.registry import closest_name
 
     if what is not None and what not in LISTABLE:
@@ -198,12 +216,18 @@ def list_components(what: Optional[str] = typer.Argument(None, help=f"one of: {'
         _fail(f"nothing called {what!r} to list" + (f" (did you mean {hint!r}?)" if hint else
                                                    f"; choose from {', '.join(LISTABLE)}"))
     registries = _registries()
+    loaded = {plugin.origin: plugin.name for plugin in _load_command_line_plugins(plugins, installed=True)}
     for name in [what] if what else LISTABLE:
         typer.echo(f"{name}:")
-        descriptions = registries[name].describe()
+        registry = registries[name]
+        descriptions = registry.describe()
         width = max([18, *(len(item) for item in descriptions)])     # names aligned, however long
         for item, description in descriptions.items():
-            typer.echo(f"  {item:<{width}} {description}")
+            origin = registry.origin(item)
+            if origin is not None and origin not in loaded:
+                continue          # registered by a plugin this command did not load (a Python session)
+            marker = f" [plugin {loaded[origin]}]" if origin is not None else ""
+            typer.echo(f"  {item:<{width}} {description}{marker}")
 
 
 def _registries() -> dict:
@@ -216,18 +240,22 @@ def _registries() -> dict:
 
 @app.command()
 @_guarded
-def schema(output_format: str = typer.Option("json", "--format", help="json (JSON Schema) or markdown")):
+def schema(
+    output_format: str = typer.Option("json", "--format", help="json (JSON Schema) or markdown"),
+    plugins: List[str] = _plugin_option("also document the components of this plugin"),
+):
     """Print the JSON Schema of the config format (or the Markdown config reference)."""
     from pfx.config.schema import config_json_schema
 
+    if output_format not in ("json", "markdown"):
+        _fail(f"--format: unknown format {output_format!r} (json or markdown)")
+    origins = [plugin.origin for plugin in _load_command_line_plugins(plugins)]
     if output_format == "json":
-        typer.echo(json.dumps(config_json_schema(), indent=2))
-    elif output_format == "markdown":
+        typer.echo(json.dumps(config_json_schema(origins), indent=2))
+    else:
         from pfx.config.reference import markdown_reference
 
-        typer.echo(markdown_reference())
-    else:
-        _fail(f"--format: unknown format {output_format!r} (json or markdown)")
+        typer.echo(markdown_reference(origins))
 
 
 @app.command()

@@ -4,14 +4,48 @@ Every interchangeable component (model, resampler, weighting, noise family, diff
 metric, figure) is registered under the name a config uses for it, with a one-line
 description that ``pfx list`` prints. Adding a component is one new function or class plus
 one ``register`` call; nothing else in pfx needs to change.
+
+Components come from pfx itself (built-in) or from plugins (docs/plugins.md). Each entry
+remembers its *origin*: None for pfx's own, the plugin's name for a plugin's (set by
+:func:`registering_for` while the plugin is imported). A config sees the built-in
+components and those of the plugins it names (:meth:`Registry.visible`), never those another
+config's plugins registered earlier in the same process. Every registration or removal
+bumps a process-wide counter (:func:`changes`), by which the config schema, built from the
+registries, knows when to rebuild itself (:func:`pfx.config.schema.config_schema`).
 """
 
 from __future__ import annotations
 
 import difflib
-from typing import Annotated, Callable, Generic, Iterator, Literal, TypeVar, Union
+from contextlib import contextmanager
+from typing import Annotated, Callable, Collection, Generic, Iterator, Literal, Optional, TypeVar, Union
 
 T = TypeVar("T")
+
+# The plugin being imported (None: pfx's own modules), and the count of registry changes.
+_current_origin: Optional[str] = None
+_changes = 0
+
+
+def changes() -> int:
+    """How many registrations and removals all registries have seen: a version number of
+    their joint contents, for caches built from them."""
+    return _changes
+
+
+@contextmanager
+def registering_for(origin: str):
+    """Within this block, registrations belong to the plugin ``origin`` (see the module docstring)."""
+    global _current_origin
+    earlier, _current_origin = _current_origin, origin
+    try:
+        yield
+    finally:
+        _current_origin = earlier
+
+
+class RegistrationClash(ValueError):
+    """A name registered twice (a plugin naming its component like a built-in one, say)."""
 
 
 def first_line(text: str | None) -> str:
@@ -63,15 +97,21 @@ class Registry(Generic[T]):
         self.what = what
         self._items: dict[str, T] = {}
         self._descriptions: dict[str, str] = {}
+        self._origins: dict[str, Optional[str]] = {}
 
     def register(self, name: str, description: str | None = None) -> Callable[[T], T]:
         """Decorator: register the decorated object under ``name``."""
 
         def decorate(item: T) -> T:
+            global _changes
             if name in self._items:
-                raise ValueError(f"{self.what} {name!r} registered twice")
+                owner = self._origins[name]
+                taken = f"a built-in {self.what} of pfx" if owner is None else f"taken by plugin {owner}"
+                raise RegistrationClash(f"{self.what} {name!r} is {taken}; choose another name")
             self._items[name] = item
             self._descriptions[name] = description or first_line(getattr(item, "__doc__", ""))
+            self._origins[name] = _current_origin
+            _changes += 1
             return item
 
         return decorate
@@ -87,10 +127,27 @@ class Registry(Generic[T]):
         name = fields["kind"].default if fields and "kind" in fields else component.kind
         return self.add(name, component)
 
-    def kind_union(self):
+    def kind_union(self, plugins: Collection[str] = ()):
         """The config type choosing one of the registered components by ``kind`` (see
-        :func:`kind_union`)."""
-        return kind_union(*self._items.values())
+        :func:`kind_union`): the built-in ones and those of ``plugins``."""
+        return kind_union(*self.visible(plugins).values())
+
+    def visible(self, plugins: Collection[str] = ()) -> dict[str, T]:
+        """The components a config naming ``plugins`` may use: pfx's own, then the plugins'
+        (in registration order)."""
+        return {name: item for name, item in self._items.items()
+                if self._origins[name] is None or self._origins[name] in plugins}
+
+    def origin(self, name: str) -> Optional[str]:
+        """The plugin that registered ``name`` (None: pfx's own)."""
+        return self._origins.get(name)
+
+    def forget(self, origin: str) -> None:
+        """Remove what the plugin ``origin`` registered (before importing a changed version of it)."""
+        global _changes
+        for name in [name for name, owner in self._origins.items() if owner == origin]:
+            del self._items[name], self._descriptions[name], self._origins[name]
+            _changes += 1
 
     def __getitem__(self, name: str) -> T:
         try:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import math
+import types
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from conftest import REPO_ROOT, write_config_file
 from matplotlib.path import Path as PolygonPath
 from scipy import integrate, stats
 
-from pfx.analysis.metrics import state_error
+from pfx.analysis.metrics import error_distance, state_error
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.filters.particle.diffusion import NoDiffusion
@@ -318,6 +319,16 @@ def test_heading_errors_are_wrapped():
     estimate = np.array([[[1.0, 2.0, 1.0], [5.0, 5.0, 190.0], [0.0, 0.0, 45.0]]])
     np.testing.assert_allclose(state_error(truth, estimate, model)[0],
                                [[1.0, 2.0, 2.0], [0.0, 0.0, 180.0], [0.0, 0.0, -45.0]])
+
+
+def test_an_angular_position_component_has_its_error_wrapped_in_the_distance():
+    """A position that is an angle (a pendulum's theta, in a plugin): truth -0.076 rad, circular
+    mean 6.233 rad (in [0, 2 pi)): the error distance is the wrapped 0.0262, not 6.309."""
+    model = types.SimpleNamespace(position_components=(0,), angular_components=(0,), full_turn=2 * np.pi)
+    truth, estimate = np.array([[[-0.076, 0.5]]]), np.array([[[6.233, 0.7]]])
+    assert error_distance(truth, estimate, model)[0, 0] == pytest.approx(6.233 - 2 * np.pi + 0.076, abs=1e-12)
+    plain = types.SimpleNamespace(position_components=(0, 1), angular_components=(), full_turn=2 * np.pi)
+    assert error_distance(truth, estimate, plain)[0, 0] == pytest.approx(np.hypot(6.309, 0.2), abs=1e-12)
 
 
 # -- the example, map files, config errors ------------------------------------------------------------

@@ -27,12 +27,18 @@ transition + measurement, i.e. the k-th action in kim-mcl's counting).
   weights are reset to uniform), **lost particles** (states that became non-finite), and the filter's **log-likelihood** estimate
   :math:`\sum_k \log \sum_i w_{k-1,i}\, \ell_k(x_{k,i})` (the marginal likelihood when the
   weighting is ``gaussian``).
+
+Recorded data (:mod:`pfx.config.data`) may come without the truth: then every metric that
+needs it (RMSE, error distance, the truth convergence criterion and the error at convergence,
+NEES) is NaN, an empty field, and the others (log-likelihood, ESS, NIS, the spread criterion)
+are computed as usual. Steps whose measurement is missing have no NIS: the mean NIS is taken
+over the other steps.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Literal
+from typing import Callable, Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
@@ -81,10 +87,22 @@ def component_rmse(error: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(error ** 2, axis=1))
 
 
-def error_distance(truth: np.ndarray, estimate: np.ndarray, components) -> np.ndarray:
-    """Euclidean distance between true and estimated position: (trials, T)."""
-    difference = estimate[..., list(components)] - truth[..., list(components)]
+def error_distance(truth: np.ndarray, estimate: np.ndarray, model) -> np.ndarray:
+    """Euclidean distance between true and estimated position (the model's position
+    components; an angular one's error wrapped, as in :func:`state_error`): (trials, T)."""
+    position = list(model.position_components)
+    difference = state_error(truth[..., position], estimate[..., position], _PositionOf(model))
     return np.sqrt(np.sum(difference * difference, axis=-1))
+
+
+class _PositionOf:
+    """The angular components of a model's position, numbered within the position (for
+    :func:`state_error` on the position's columns alone)."""
+
+    def __init__(self, model):
+        position = list(model.position_components)
+        self.angular_components = [position.index(c) for c in model.angular_components if c in position]
+        self.full_turn = model.full_turn
 
 
 def first_step(condition: np.ndarray) -> np.ndarray:
@@ -123,10 +141,19 @@ def value_at_step(series: np.ndarray, step: np.ndarray) -> np.ndarray:
 class MetricInputs:
     """Everything a metric may read: truth at steps 1..T, the filter trace, the model."""
 
-    truth: np.ndarray              # (trials, T, d)
+    truth: Optional[np.ndarray]    # (trials, T, d); None: recorded data without the truth
     trace: "object"                # pfx.filters.particle.engine.FilterTrace
     model: "object"                # the truth model (names, position components)
     config: MetricsConfig
+    observed: Optional[np.ndarray] = None   # (trials, T) False where the measurement is missing; None: all there
+
+    @property
+    def trials(self) -> int:
+        return self.trace.estimates.shape[0]
+
+    def empty(self) -> np.ndarray:
+        """A metric column with nothing in it (NaN per trial): what needs the truth, without it."""
+        return np.full(self.trials, np.nan)
 
 
 MetricFamily = Callable[[MetricInputs], dict[str, np.ndarray]]
@@ -134,12 +161,14 @@ METRICS: Registry[MetricFamily] = Registry("metric")
 
 
 def _distance(inputs: MetricInputs) -> np.ndarray:
-    return error_distance(inputs.truth, inputs.trace.estimates, inputs.model.position_components)
+    return error_distance(inputs.truth, inputs.trace.estimates, inputs.model)
 
 
 @METRICS.register("rmse")
 def rmse_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """RMSE over time per state component (rmse_<name>) and of position (rmse_position)."""
+    if inputs.truth is None:
+        return {f"rmse_{name}": inputs.empty() for name in (*inputs.model.state_names, "position")}
     values = component_rmse(state_error(inputs.truth, inputs.trace.estimates, inputs.model))
     columns = {f"rmse_{name}": values[:, j] for j, name in enumerate(inputs.model.state_names)}
     columns["rmse_position"] = np.sqrt(np.mean(_distance(inputs) ** 2, axis=1))
@@ -149,6 +178,8 @@ def rmse_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 @METRICS.register("error_distance")
 def error_distance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Position error distance averaged over time (error_distance_mean) and at the end (_final)."""
+    if inputs.truth is None:
+        return {"error_distance_mean": inputs.empty(), "error_distance_final": inputs.empty()}
     distance = _distance(inputs)
     return {"error_distance_mean": distance.mean(axis=1), "error_distance_final": distance[:, -1]}
 
@@ -157,10 +188,19 @@ def error_distance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 def convergence_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Convergence step (spread or truth criterion), converged flag, error distance then."""
     criterion = inputs.config.convergence
-    distance = _distance(inputs)
+    if inputs.truth is None:
+        if criterion.criterion == "truth":
+            return {"convergence_step": inputs.empty(), "converged": inputs.empty(),
+                    "error_at_convergence": inputs.empty()}
+        distance = np.full(inputs.trace.estimates.shape[:2], np.nan)   # the error at convergence: unknown
+    else:
+        distance = _distance(inputs)
     if criterion.criterion == "spread" and inputs.trace.within_radius is None:
-        step = np.full(distance.shape[0], NEVER)      # no particle cloud (Gaussian filters)
-    elif criterion.criterion == "spread":
+        # no cloud to measure (the Gaussian filters): the criterion does not apply, which is not
+        # "never converged"; the truth criterion applies to every kind
+        return {"convergence_step": inputs.empty(), "converged": inputs.empty(),
+                "error_at_convergence": inputs.empty()}
+    if criterion.criterion == "spread":
         step = spread_convergence_step(inputs.trace.within_radius, criterion.fraction)
     else:
         step = truth_convergence_step(distance, criterion.radius, criterion.hold)
@@ -200,7 +240,7 @@ def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Grid filter: the largest probability mass that left the grid in one step (empty for
     other filters); near 0 when the grid covers where the state goes."""
     lost = inputs.trace.grid_lost_mass
-    return {"grid_lost_mass": lost.max(axis=1) if lost is not None else np.full(inputs.truth.shape[0], np.nan)}
+    return {"grid_lost_mass": lost.max(axis=1) if lost is not None else inputs.empty()}
 
 
 def normalised_squares(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
@@ -220,15 +260,19 @@ def normalised_squares(errors: np.ndarray, covariances: np.ndarray) -> np.ndarra
 def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Mean NEES (e' P^-1 e, expected d) and NIS (expected m) over the steps, when recorded."""
     trace = inputs.trace
-    trials = inputs.truth.shape[0]
+    trials = inputs.trials
     nees = np.full(trials, np.nan)
     nis = np.full(trials, np.nan)
-    if trace.covariances is not None:
+    if trace.covariances is not None and inputs.truth is not None:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             errors = state_error(inputs.truth, trace.estimates, inputs.model)
             nees = normalised_squares(errors, trace.covariances).mean(axis=1)
-    if trace.nis is not None:
+    if trace.nis is not None and inputs.observed is None:
         nis = trace.nis.mean(axis=1)
+    elif trace.nis is not None:                      # over the steps that had a measurement
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nis = (np.where(inputs.observed, trace.nis, 0.0).sum(axis=1)
+                   / inputs.observed.sum(axis=1))
     return {"nees_mean": nees, "nis_mean": nis}
 
 

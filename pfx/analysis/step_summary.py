@@ -26,18 +26,21 @@ QUANTITIES = ("error_distance", "ess", "nees", "nis")
 STATISTICS = ("mean", "std", "ci95_low", "ci95_high")
 
 
-def step_values(truth: np.ndarray, trace, model) -> dict[str, np.ndarray]:
+def step_values(truth, trace, model) -> dict[str, np.ndarray]:
     """The per-trial, per-step values this table summarises: name -> (trials, T) array.
 
-    ``squared_error_<state>`` holds the squared error of each state component.
+    ``squared_error_<state>`` holds the squared error of each state component. Without the
+    truth (recorded data that has none: ``truth`` None) the errors and NEES are NaN.
     """
     from pfx.analysis.metrics import error_distance, normalised_squares, state_error
 
-    trials, steps = truth.shape[:2]
+    trials, steps = trace.estimates.shape[:2]
     missing = np.full((trials, steps), np.nan)
+    if truth is None:
+        truth = np.full(trace.estimates.shape, np.nan)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         errors = state_error(truth, trace.estimates, model)
-        values = {"error_distance": error_distance(truth, trace.estimates, model.position_components),
+        values = {"error_distance": error_distance(truth, trace.estimates, model),
                   "ess": np.asarray(trace.ess, dtype=float),
                   "nees": (normalised_squares(errors, trace.covariances)
                            if trace.covariances is not None else missing),

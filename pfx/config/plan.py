@@ -4,6 +4,10 @@ A cell is fully resolved before anything runs: its true model, the model its fil
 (the true model's parameters with ``filter.model`` merged over them), the prior, the filter
 settings and the metric parameters. Any invalid combination stops the whole plan with an
 error naming the arm or sweep entry responsible.
+
+The plugins a config names (``plugins:``, :mod:`pfx.config.plugins`) are imported first, and
+the config is validated against the classes :func:`pfx.config.schema.config_schema` builds for
+pfx's own components plus theirs. Their code's hashes join the config and results hashes.
 """
 
 from __future__ import annotations
@@ -12,20 +16,25 @@ import copy
 import itertools
 import json
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from pfx.analysis.metrics import MetricsConfig
+from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
-from pfx.config.schema import Experiment, FilterConfig, StudyExperiment
+from pfx.config.plugins import LoadedPlugin, load_config_plugins, unknown_name_hint
+from pfx.config.schema import ConfigSchema, config_schema
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, located_value_error
 from pfx.filters import FILTERS, FilterKind
 from pfx.models import MODELS
 from pfx.models.base import Model, bind_law
 from pfx.numerics.hashing import canonical_hash
+
+if TYPE_CHECKING:       # the classes of the built-in components; a plan's own come from config_schema
+    from pfx.config.schema import Experiment, FilterConfig, StudyExperiment
 
 DEFAULT_ARM = "default"
 # sweep keys that already have a column of their own in the tables
@@ -47,6 +56,7 @@ class Cell:
     prior: Any
     metrics: MetricsConfig
     planned_filter: FilterKind     # the filter kind planned for this cell (pfx.filters.base)
+    data: Optional[CellData] = None  # recorded data to filter instead of simulating (pfx.config.data)
 
     @property
     def stream_key(self) -> int:
@@ -60,11 +70,13 @@ class Plan:
     experiment: Experiment
     resolved: dict                 # the resolved config (written as config.yaml)
     cells: list[Cell] = field(default_factory=list)
+    plugins: list[LoadedPlugin] = field(default_factory=list)   # what ``plugins:`` loaded
 
     @property
     def config_hash(self) -> str:
-        """Hash of the whole resolved config: the record of what was asked."""
-        return canonical_hash(self.resolved)
+        """Hash of the whole resolved config: the record of what was asked (with the code of
+        its plugins, if any)."""
+        return canonical_hash(with_plugin_code(self.resolved, self.plugins))
 
     @property
     def results_hash(self) -> str:
@@ -73,10 +85,11 @@ class Plan:
         figures or the trial count: changing those keeps a result folder's results (more trials
         extend them, each trial having its own random streams)."""
         outputs = self.experiment.outputs
-        return canonical_hash({"seed": self.experiment.seed,
-                               "cells": [[cell.key, cell.labels] for cell in self.cells],
-                               "trace_trials": outputs.trace_trials,
-                               "particles": outputs.particles.model_dump(mode="json")})
+        return canonical_hash(with_plugin_code({"seed": self.experiment.seed,
+                                                "cells": [[cell.key, cell.labels] for cell in self.cells],
+                                                "trace_trials": outputs.trace_trials,
+                                                "particles": outputs.particles.model_dump(mode="json")},
+                                               self.plugins))
 
     @property
     def size_text(self) -> str:
@@ -101,19 +114,30 @@ class StudyPlan:
     experiment: StudyExperiment
     resolved: dict
     cells: list = field(default_factory=list)
+    plugins: list[LoadedPlugin] = field(default_factory=list)
 
     @property
     def config_hash(self) -> str:
-        return canonical_hash(self.resolved)
+        return canonical_hash(with_plugin_code(self.resolved, self.plugins))
 
     @property
     def results_hash(self) -> str:
         """Hash of what the tables depend on: the study and the seed (not its figures)."""
-        return canonical_hash({"seed": self.experiment.seed, "study": self.resolved["study"]})
+        return canonical_hash(with_plugin_code({"seed": self.experiment.seed, "study": self.resolved["study"]},
+                                               self.plugins))
 
     @property
     def size_text(self) -> str:
         return f"study {self.experiment.study.kind}"
+
+
+def with_plugin_code(record: dict, plugins: list[LoadedPlugin]) -> dict:
+    """``record`` with the sha256 of each plugin's code, for hashing: changed plugin code changes
+    the hashes, so a result folder is not resumed or kept with it. Without plugins, ``record``
+    itself: the hashes of configs without plugins are what they always were."""
+    if not plugins:
+        return record
+    return {**record, "plugin_code": {plugin.name: plugin.sha256 for plugin in plugins}}
 
 
 def identity_dump(value: Any) -> Any:
@@ -166,7 +190,8 @@ def _filter_model(truth: Model, raw_model: dict, overrides: dict, file: str, pre
 
 
 def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dict, file: str,
-                  prefix: str = "") -> Cell:
+                  prefix: str = "", schema: Optional[ConfigSchema] = None,
+                  plugins: tuple[LoadedPlugin, ...] = ()) -> Cell:
     """Resolve one cell; errors are located under ``prefix`` (an arm or sweep entry) if given."""
     cell_raw = {key: copy.deepcopy(value) for key, value in raw.items() if key not in ("arms", "sweep")}
     if arm_raw:
@@ -178,15 +203,16 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
             raise ConfigError(error.reason, file=file, key=prefix or f"sweep.{dotted}") from None
 
     def locate(error: ConfigError) -> ConfigError:
-        if not prefix:
-            return error
+        if not prefix or (error.file is not None and error.file != file):
+            return error         # located in another file (a plugin, a data file): its own words
         return ConfigError(f"{error.key}: {error.reason}" if error.key else error.reason,
                            file=file, key=prefix)
 
     try:
-        experiment = validate(Experiment, cell_raw, file=file)
+        experiment = validate((schema or config_schema()).Experiment, cell_raw, file=file)
         settings = experiment.filter
         truth = experiment.model
+        _check_plugin_model(truth, plugins, file)
         filter_model = _filter_model(truth, cell_raw["model"], settings.model, file, "filter.model")
         if (filter_model.state_dimension, filter_model.measurement_dimension) != \
                 (truth.state_dimension, truth.measurement_dimension):
@@ -240,17 +266,53 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
 def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | StudyPlan:
     """Validate the whole config and expand it into cells; raise ConfigError on any problem.
 
-    A config with a ``study`` section is a study (:mod:`pfx.studies`): it has no cells.
+    A config with a ``study`` section is a study (:mod:`pfx.studies`): it has no cells. The
+    plugins the config names are imported first (and only they: docs/plugins.md).
     """
+    plugins = load_config_plugins(raw, file)
+    schema = config_schema([plugin.origin for plugin in plugins])
+    try:
+        plan = _expand(raw, file, trials, schema, tuple(plugins))
+    except ConfigError as error:
+        if plugins and error.reason.startswith("unknown "):     # a name none of the plugins registered
+            raise ConfigError(error.reason + unknown_name_hint(plugins), file=error.file, key=error.key,
+                              line=error.line, column=error.column) from None
+        raise
+    plan.plugins = list(plugins)
+    if not plugins:
+        plan.resolved.pop("plugins", None)     # the record of a config without plugins is unchanged
+    return plan
+
+
+def _check_plugin_model(model: Model, plugins: tuple[LoadedPlugin, ...], file: str) -> None:
+    """A plugin's model, called once on a tiny batch before anything runs (its shapes and dtypes:
+    :meth:`Model.check_contract`); its mistakes are one line naming the plugin file."""
+    origin = MODELS.origin(model.kind)
+    plugin = next((plugin for plugin in plugins if plugin.origin == origin), None)
+    if plugin is None:
+        return
+    from pfx.numerics.seeding import TrialStreams
+
+    try:
+        model.check_contract(TrialStreams.from_seeds([0, 1]))
+    except Exception as error:          # the plugin's own code: any exception is its mistake
+        reason = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
+        raise ConfigError(f"model {model.kind}: {' '.join(reason.split())}", file=plugin.path) from None
+
+
+def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
+            plugins: tuple[LoadedPlugin, ...]) -> Plan | StudyPlan:
+    """:func:`build_plan` once the plugins are loaded: validation against ``schema``, the cells."""
     raw = copy.deepcopy(raw)
     if isinstance(raw, dict) and "study" in raw:
         if trials is not None:
             raise ConfigError("a study has no trials; drop --trials", file=file, key="study")
-        study = validate(StudyExperiment, raw, file=file)
+        study = validate(schema.StudyExperiment, raw, file=file)
         return StudyPlan(file=file, experiment=study, resolved=study.model_dump(mode="json"))
     if trials is not None:
         raw["trials"] = trials
-    experiment = validate(Experiment, raw, file=file)
+    data = prepare_recorded_data(raw, file)      # reads data: files; fills model.steps (dt, controls) from them
+    experiment = validate(schema.Experiment, raw, file=file)
     raw_arms = raw.get("arms") or {}
     arms: dict[str, Optional[dict]] = {name: raw_arms[name] for name in experiment.arms} or {DEFAULT_ARM: None}
     sweep = experiment.sweep
@@ -263,10 +325,11 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     # Check each arm and each sweep value on its own first, so errors name their source.
     for name, arm_raw in arms.items():
         if arm_raw is not None:
-            _resolve_cell(raw, name, arm_raw, {}, file, prefix=f"arms.{name}")
+            _resolve_cell(raw, name, arm_raw, {}, file, prefix=f"arms.{name}", schema=schema, plugins=plugins)
     for dotted, values in sweep.items():
         for index, value in enumerate(values):
-            _resolve_cell(raw, DEFAULT_ARM, None, {dotted: value}, file, prefix=f"sweep.{dotted}[{index}]")
+            _resolve_cell(raw, DEFAULT_ARM, None, {dotted: value}, file, prefix=f"sweep.{dotted}[{index}]",
+                          schema=schema, plugins=plugins)
 
     cells: list[Cell] = []
     keys = list(sweep)
@@ -275,7 +338,9 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
             combination = dict(zip(keys, values))
             where = f"arms.{name}" if arm_raw is not None else "sweep"
             cells.append(_resolve_cell(raw, name, arm_raw, combination, file,
-                                       prefix=where if (arm_raw is not None or keys) else ""))
+                                       prefix=where if (arm_raw is not None or keys) else "",
+                                       schema=schema, plugins=plugins))
+    attach_recorded_data(cells, data, file)
     seen: dict[str, int] = {}
     for index, cell in enumerate(cells):
         if cell.key in seen:
@@ -285,7 +350,9 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
 
     if "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
         experiment.outputs.figures = ["rmse_vs_particles", *experiment.outputs.figures]
-    resolved = resolved_config(experiment, raw, arms, cells, file)
+    resolved = resolved_config(experiment, raw, arms, cells, file, schema)
+    if data is None:
+        resolved.pop("data", None)     # the record of a config without data is unchanged
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
 
 
@@ -294,7 +361,7 @@ def _sweeps_particle_count(sweep: dict) -> bool:
 
 
 def resolved_config(experiment: Experiment, raw: dict, arms: dict[str, Optional[dict]], cells: list[Cell],
-                    file: str) -> dict:
+                    file: str, schema: Optional[ConfigSchema] = None) -> dict:
     """The config as it runs, every default filled in: what ``config.yaml`` records and ``pfx
     validate`` prints. Running it gives the same cells, hence the same numbers.
 
@@ -313,7 +380,7 @@ def resolved_config(experiment: Experiment, raw: dict, arms: dict[str, Optional[
     if experiment.arms:
         resolved["arms"] = {}
         for name, arm_raw in arms.items():
-            merged = validate(FilterConfig, deep_merge(raw.get("filter") or {}, arm_raw or {}),
+            merged = validate((schema or config_schema()).FilterConfig, deep_merge(raw.get("filter") or {}, arm_raw or {}),
                               file=file, prefix=f"arms.{name}")
             resolved["arms"][name] = {key: value for key, value in merged.model_dump(mode="json").items()
                                       if section.get(key) != value}

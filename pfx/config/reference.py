@@ -1,16 +1,17 @@
-"""The config reference in Markdown, generated from the same declarations as validation."""
+"""The config reference in Markdown, generated from the same declarations as validation
+(for pfx's own components, plus those of plugins given to ``pfx schema --plugin``)."""
 
 from __future__ import annotations
 
 import types
 import typing
-from typing import Any
+from typing import Any, Collection
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from pfx.analysis.metrics import ConvergenceCriterion
-from pfx.config.schema import Experiment, FilterConfig, OutputsConfig, ParticleSnapshots, StudyExperiment
+from pfx.config.schema import ParticleSnapshots, config_schema
 from pfx.config.validation import _union_members, _unwrap
 from pfx.filters.particle.diffusion import DIFFUSIONS
 from pfx.filters.particle.weighting import WEIGHTINGS
@@ -67,15 +68,16 @@ def model_table(model: type[BaseModel], skip: tuple[str, ...] = ()) -> str:
     return "\n".join(lines)
 
 
-def markdown_reference() -> str:
-    """The whole config reference, section by section."""
+def markdown_reference(plugins: Collection[str] = ()) -> str:
+    """The whole config reference, section by section (with the components of ``plugins``)."""
+    classes = config_schema(plugins)
+    Experiment, StudyExperiment = classes.Experiment, classes.StudyExperiment
     parts = ["### Top level", "", (Experiment.__doc__ or "").strip(), "", model_table(Experiment), ""]
-    parts += ["### `filter` (and each entry of `arms`)", "", model_table(FilterConfig), ""]
+    parts += ["### `filter` (and each entry of `arms`)", "", model_table(classes.FilterConfig), ""]
     parts += ["### `model`", "",
               "`kind` picks the model; fields left empty take the model's presets "
               "(`pfx validate` prints the resolved values).", ""]
-    for name in MODELS:
-        model = MODELS[name]
+    for name, model in MODELS.visible(plugins).items():
         parts += [f"#### `kind: {name}`", "", (model.__doc__ or "").strip(), "", model_table(model, ("kind",)), ""]
     parts += ["### Noise (`process_noise`, `measurement_noise`)", "", model_table(Noise), ""]
     parts += ["### Initial laws (`model.initial`, `filter.initial`)", ""]
@@ -83,23 +85,20 @@ def markdown_reference() -> str:
         parts += [f"- `kind: {law.model_fields['kind'].default}`: {law.__doc__.strip()} Keys: "
                   + ", ".join(f"`{f.alias or n}`" for n, f in law.model_fields.items() if n != "kind")]
     parts += ["", "### Weightings (`filter.weighting`)", ""]
-    for name in WEIGHTINGS:
-        model = WEIGHTINGS[name]
+    for name, model in WEIGHTINGS.visible(plugins).items():
         keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
         parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### Diffusion (`filter.diffusion`)", ""]
-    for name in DIFFUSIONS:
-        model = DIFFUSIONS[name]
+    for name, model in DIFFUSIONS.visible(plugins).items():
         keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
         parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]
-    parts += ["### `outputs`", "", model_table(OutputsConfig), ""]
+    parts += ["### `outputs`", "", model_table(classes.OutputsConfig), ""]
     parts += ["### `outputs.particles`", "", model_table(ParticleSnapshots), ""]
     parts += ["### Studies", "", (StudyExperiment.__doc__ or "").strip()
               + ". A config with a `study` section has these top-level keys instead of `model`, "
               "`filter`, `arms`, `sweep`, `trials` and `metrics`:", "", model_table(StudyExperiment), ""]
-    for name in STUDIES:
-        study = STUDIES[name]
+    for name, study in STUDIES.visible(plugins).items():
         parts += [f"#### `study: {{kind: {name}}}`", "", (study.__doc__ or "").strip(), "",
                   model_table(study, ("kind",)), ""]
     return "\n".join(parts)

@@ -5,84 +5,35 @@ descriptions. From these declarations come validation (:func:`pfx.config.plan.bu
 the JSON Schema printed by ``pfx schema``, and the config reference in docs/configuration.md
 (``pfx schema --format markdown``). Model parameters are declared by the models themselves
 (:mod:`pfx.models`), weightings by :mod:`pfx.filters.particle.weighting`, and so on.
+
+The sections that name registered components (``model.kind``, ``filter.kind``, the resampler,
+weighting, diffusion, figures, studies) are built from the registries' contents, and plugins
+(docs/plugins.md) add to the registries after this module is imported. So those classes are
+not built once, at import: :func:`config_schema` builds them for the built-in components plus
+a config's plugins, and builds them again whenever a registry has changed since (a cache keyed
+by :func:`pfx.registry.changes`). Every reader asks :func:`config_schema` for the classes when
+it needs them. ``schema.Experiment`` (and the other class names) still work, as the classes
+of the built-in components alone.
 """
 
-from __future__ import annotations
-
-from typing import Annotated, Any, ClassVar, Literal, Optional, Union
+from dataclasses import dataclass
+from typing import Annotated, Any, ClassVar, Collection, Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model
 
 from pfx.analysis.metrics import MetricsConfig
+from pfx.config.data import DataConfig
 from pfx.figures import FIGURES
-from pfx.filters import FILTERS, PARTICLE_KINDS
-from pfx.filters.particle.diffusion import Diffusion, NoDiffusion
+from pfx.filters import FILTERS
+from pfx.filters.particle.diffusion import DIFFUSIONS, NoDiffusion
 from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting, Weighting
+from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
 from pfx.laws.initial import InitialLaw
 from pfx.models import MODELS
+from pfx.registry import changes
 from pfx.studies import STUDIES
 
-ResamplerName = Literal[RESAMPLERS.names()]  # type: ignore[valid-type]
-FilterKind = Literal[FILTERS.names()]  # type: ignore[valid-type]
-FigureName = Literal[FIGURES.names()]  # type: ignore[valid-type]
-ModelConfig = Annotated[Union[tuple(MODELS[name] for name in MODELS)], Field(discriminator="kind")]
-StudyConfig = Annotated[Union[tuple(STUDIES[name] for name in STUDIES)], Field(discriminator="kind")]
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._+-]*$"
-
-
-class SharedFilterSettings(BaseModel):
-    """The filter run on every cell (arms override any of these keys)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    kind: FilterKind = Field(  # type: ignore[valid-type]
-        "particle", description="filter kind (`pfx list filters`): particle (SIR with the ESS rule), "
-                                "sis (never resample), ...")
-    particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
-    resampler: ResamplerName = Field("systematic", description="resampling scheme (`pfx list resamplers`)")
-    ess_threshold: StrictFloat = Field(
-        1.0, ge=0.0, le=1.0,
-        description="resample when ESS < ess_threshold * N; 1 = every step, 0 = never")
-    weighting: Weighting = Field(default_factory=GaussianWeighting,
-                                 description="weight update (`pfx list weightings`): a name or {kind: ..., ...}")
-    diffusion: Diffusion = Field(default_factory=NoDiffusion,
-                                 description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
-    initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
-
-    # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
-    # kind's own settings blocks (every other setting applies to every kind)
-    KIND_SPECIFIC: ClassVar[dict[str, frozenset[str]]] = {
-        key: frozenset(name for name, kind in FILTERS.items() if key in kind.reads or key in kind.settings)
-        for _, kind in FILTERS.items() for key in (*kind.reads, *kind.settings)}
-
-    @property
-    def uses_particles(self) -> bool:
-        return self.kind in PARTICLE_KINDS
-
-    def applicable_dump(self, kinds) -> dict:
-        """The settings as config data, without those that none of ``kinds`` reads and that
-        hold their default (a setting given explicitly is always kept)."""
-        defaults = type(self)().model_dump(mode="json")
-        return {key: value for key, value in self.model_dump(mode="json").items()
-                if key not in self.KIND_SPECIFIC or self.KIND_SPECIFIC[key] & set(kinds)
-                or value != defaults[key]}
-
-    def effective_threshold(self) -> float:
-        """The ESS threshold the particle kind applies (``sis``: 0, it never resamples)."""
-        return FILTERS[self.kind].ess_threshold(self) if self.uses_particles else self.ess_threshold
-
-
-# ``filter:`` is the shared settings, each filter kind's own settings blocks (declared by the
-# kind: ``grid`` for histogram, ``unscented`` for ukf), and the filter's model.
-FilterConfig = create_model(
-    "FilterConfig", __base__=SharedFilterSettings, __doc__=SharedFilterSettings.__doc__,
-    **{key: (block, Field(default_factory=block, description=description))
-       for _, kind in FILTERS.items() for key, (block, description) in kind.settings.items()},
-    model=(dict[str, Any], Field(
-        default_factory=dict,
-        description="model parameters the filter assumes where they differ from the truth "
-                    "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")))
 
 
 class ParticleSnapshots(BaseModel):
@@ -98,27 +49,6 @@ class ParticleSnapshots(BaseModel):
                     "resampling), resampled (after resampling and diffusion)")
 
 
-class FigureOutputs(BaseModel):
-    """Which figures to render, in which formats."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    figures: list[FigureName] = Field(  # type: ignore[valid-type]
-        default_factory=list, description="figures to render (`pfx list figures`)")
-    formats: list[Literal["png", "svg", "pdf"]] = Field(
-        default_factory=lambda: ["png"], description="figure file formats (animations are always GIF)")
-
-
-class OutputsConfig(FigureOutputs):
-    """Which traces, particle clouds and figures to write."""
-
-    figures: list[FigureName] = Field(  # type: ignore[valid-type]
-        default_factory=lambda: ["error_over_time", "ess_over_time"],
-        description="figures to render (`pfx list figures`)")
-    trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
-    particles: ParticleSnapshots = Field(default_factory=ParticleSnapshots,
-                                         description="particle clouds to keep in particles.csv")
-
-
 class ExperimentHeader(BaseModel):
     """What every config starts with: its name, description and root seed."""
 
@@ -128,34 +58,181 @@ class ExperimentHeader(BaseModel):
                       description="experiment name (the default result folder is runs/<name>)")
     description: str = Field("", description="free text, copied to the manifest")
     seed: StrictInt = Field(0, ge=0, lt=2**63, description="root seed of every random stream")
+    plugins: list[Annotated[str, Field(min_length=1)]] = Field(
+        default_factory=list,
+        description="Python files (relative to this config's folder) or module names whose "
+                    "components (models, ...) the config uses; pfx imports them, so naming a plugin "
+                    "runs its code (docs/plugins.md)")
 
 
-class Experiment(ExperimentHeader):
-    """One experiment: a model, a filter, its arms and sweep, trials and seed."""
+@dataclass(frozen=True)
+class ConfigSchema:
+    """The config's classes for one set of components (see the module docstring)."""
 
-    trials: StrictInt = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
-    model: ModelConfig = Field(description="the true system (`pfx list models`)")
-    filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")
-    arms: dict[Annotated[str, Field(pattern=NAME_PATTERN)], FilterConfig] = Field(
-        default_factory=dict,
-        description="named filter variants; each overrides the filter defaults it names")
-    sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = Field(
-        default_factory=dict,
-        description="dotted key -> list of values; the Cartesian product forms the cells "
-                    "(e.g. filter.particles: [200, 400])")
-    metrics: MetricsConfig = Field(default_factory=MetricsConfig, description="metric parameters")
-    outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="tables and figures")
+    SharedFilterSettings: type
+    FilterConfig: type
+    FigureOutputs: type
+    OutputsConfig: type
+    Experiment: type
+    StudyExperiment: type
 
 
-class StudyExperiment(ExperimentHeader):
-    """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""
-
-    study: StudyConfig = Field(description="the computation and its parameters (`pfx list studies`)")
-    outputs: FigureOutputs = Field(default_factory=FigureOutputs, description="figures")
+_CACHE: dict[frozenset, tuple[int, ConfigSchema]] = {}
 
 
-def config_json_schema() -> dict:
-    """The JSON Schema of a config file: an experiment or a study (``pfx schema``).
+def config_schema(plugins: Collection[str] = ()) -> ConfigSchema:
+    """The config's classes for pfx's own components plus those of ``plugins`` (the names
+    :mod:`pfx.config.plugins` gives loaded plugins); rebuilt when a registry has changed."""
+    key = frozenset(plugins)
+    version = changes()
+    cached = _CACHE.get(key)
+    if cached is None or cached[0] != version:
+        cached = _CACHE[key] = (version, _build(key))
+    return cached[1]
+
+
+def __getattr__(name: str):
+    """``schema.Experiment`` and the other classes of :class:`ConfigSchema`: the built-in ones."""
+    if name in ConfigSchema.__dataclass_fields__:
+        return getattr(config_schema(), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _build(plugins: frozenset) -> ConfigSchema:
+    """Declare the sections that name registered components, from the registries' contents
+    (the built-in components and those of ``plugins``)."""
+    filters = FILTERS.visible(plugins)
+    ResamplerName = Literal[tuple(RESAMPLERS.visible(plugins))]  # type: ignore[valid-type]
+    FilterKind = Literal[tuple(filters)]  # type: ignore[valid-type]
+    FigureName = Literal[tuple(FIGURES.visible(plugins))]  # type: ignore[valid-type]
+    ModelConfig = Annotated[Union[tuple(MODELS.visible(plugins).values())], Field(discriminator="kind")]
+    StudyConfig = Annotated[Union[tuple(STUDIES.visible(plugins).values())], Field(discriminator="kind")]
+    Weighting = WEIGHTINGS.kind_union(plugins)
+    Diffusion = DIFFUSIONS.kind_union(plugins)
+
+    class SharedFilterSettings(BaseModel):
+        """The filter run on every cell (arms override any of these keys)."""
+
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+        kind: FilterKind = Field(  # type: ignore[valid-type]
+            "particle", description="filter kind (`pfx list filters`): particle (SIR with the ESS rule), "
+                                    "sis (never resample), ...")
+        particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
+        resampler: ResamplerName = Field(  # type: ignore[valid-type]
+            "systematic", description="resampling scheme (`pfx list resamplers`)")
+        ess_threshold: StrictFloat = Field(
+            1.0, ge=0.0, le=1.0,
+            description="resample when ESS < ess_threshold * N; 1 = every step, 0 = never")
+        weighting: Weighting = Field(  # type: ignore[valid-type]
+            default_factory=GaussianWeighting,
+            description="weight update (`pfx list weightings`): a name or {kind: ..., ...}")
+        diffusion: Diffusion = Field(  # type: ignore[valid-type]
+            default_factory=NoDiffusion,
+            description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
+        initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
+
+        # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
+        # kind's own settings blocks (every other setting applies to every kind)
+        KIND_SPECIFIC: ClassVar[dict[str, frozenset[str]]] = {
+            key: frozenset(name for name, kind in filters.items() if key in kind.reads or key in kind.settings)
+            for kind in filters.values() for key in (*kind.reads, *kind.settings)}
+
+        # the plugins these classes were built for (see __reduce__)
+        PLUGINS: ClassVar[tuple[str, ...]] = tuple(sorted(plugins))
+
+        def __reduce__(self):
+            # Pickled (to worker processes) as "the FilterConfig of these plugins" and its
+            # state, not by class identity: each process builds its own classes (config_schema).
+            return (_filter_settings, (self.PLUGINS, self.__getstate__()))
+
+        @property
+        def uses_particles(self) -> bool:
+            return FILTERS[self.kind].carries_particles
+
+        def applicable_dump(self, kinds) -> dict:
+            """The settings as config data, without those that none of ``kinds`` reads and that
+            hold their default (a setting given explicitly is always kept)."""
+            defaults = type(self)().model_dump(mode="json")
+            return {key: value for key, value in self.model_dump(mode="json").items()
+                    if key not in self.KIND_SPECIFIC or self.KIND_SPECIFIC[key] & set(kinds)
+                    or value != defaults[key]}
+
+        def effective_threshold(self) -> float:
+            """The ESS threshold the particle kind applies (``sis``: 0, it never resamples)."""
+            return FILTERS[self.kind].ess_threshold(self) if self.uses_particles else self.ess_threshold
+
+    # ``filter:`` is the shared settings, each filter kind's own settings blocks (declared by the
+    # kind: ``grid`` for histogram, ``unscented`` for ukf), and the filter's model.
+    FilterConfig = create_model(
+        "FilterConfig", __base__=SharedFilterSettings, __doc__=SharedFilterSettings.__doc__,
+        **{key: (block, Field(default_factory=block, description=description))
+           for kind in filters.values() for key, (block, description) in kind.settings.items()},
+        model=(dict[str, Any], Field(
+            default_factory=dict,
+            description="model parameters the filter assumes where they differ from the truth "
+                        "(e.g. {process_noise: {variance: 0.5}}); same keys as `model`")))
+
+    class FigureOutputs(BaseModel):
+        """Which figures to render, in which formats."""
+
+        model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+        figures: list[FigureName] = Field(  # type: ignore[valid-type]
+            default_factory=list, description="figures to render (`pfx list figures`)")
+        formats: list[Literal["png", "svg", "pdf"]] = Field(
+            default_factory=lambda: ["png"], description="figure file formats (animations are always GIF)")
+
+    class OutputsConfig(FigureOutputs):
+        """Which traces, particle clouds and figures to write."""
+
+        figures: list[FigureName] = Field(  # type: ignore[valid-type]
+            default_factory=lambda: ["error_over_time", "ess_over_time"],
+            description="figures to render (`pfx list figures`)")
+        trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
+        particles: ParticleSnapshots = Field(default_factory=ParticleSnapshots,
+                                             description="particle clouds to keep in particles.csv")
+
+    class Experiment(ExperimentHeader):
+        """One experiment: a model, a filter, its arms and sweep, trials and seed."""
+
+        trials: StrictInt = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
+        model: ModelConfig = Field(description="the true system (`pfx list models`)")  # type: ignore[valid-type]
+        filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")  # type: ignore[valid-type]
+        arms: dict[Annotated[str, Field(pattern=NAME_PATTERN)], FilterConfig] = Field(  # type: ignore[valid-type]
+            default_factory=dict,
+            description="named filter variants; each overrides the filter defaults it names")
+        sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = Field(
+            default_factory=dict,
+            description="dotted key -> list of values; the Cartesian product forms the cells "
+                        "(e.g. filter.particles: [200, 400])")
+        metrics: MetricsConfig = Field(default_factory=MetricsConfig, description="metric parameters")
+        outputs: OutputsConfig = Field(default_factory=OutputsConfig, description="tables and figures")
+        data: Optional[DataConfig] = Field(
+            None, description="recorded data to filter instead of simulating the model (docs/recorded-data.md); "
+                              "default none: simulate")
+
+    class StudyExperiment(ExperimentHeader):
+        """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""
+
+        study: StudyConfig = Field(  # type: ignore[valid-type]
+            description="the computation and its parameters (`pfx list studies`)")
+        outputs: FigureOutputs = Field(default_factory=FigureOutputs, description="figures")
+
+    return ConfigSchema(SharedFilterSettings, FilterConfig, FigureOutputs, OutputsConfig, Experiment,
+                        StudyExperiment)
+
+
+def _filter_settings(plugins: tuple[str, ...], state: dict):
+    """Unpickle ``filter:`` settings (see ``SharedFilterSettings.__reduce__``)."""
+    settings_class = config_schema(plugins).FilterConfig
+    settings = settings_class.__new__(settings_class)
+    settings.__setstate__(state)
+    return settings
+
+
+def config_json_schema(plugins: Collection[str] = ()) -> dict:
+    """The JSON Schema of a config file: an experiment or a study (``pfx schema``), for pfx's
+    own components plus those of ``plugins``.
 
     It describes what pfx accepts, shorthands included (``weighting: gaussian``, a route's
     ``turn 90``, ``alphas: [...]``); cross-field checks (a covariance that is not positive
@@ -163,7 +240,8 @@ def config_json_schema() -> dict:
     """
     from pydantic import TypeAdapter
 
-    schema = TypeAdapter(Union[Experiment, StudyExperiment]).json_schema()
+    classes = config_schema(plugins)
+    schema = TypeAdapter(Union[classes.Experiment, classes.StudyExperiment]).json_schema()
     schema["title"] = "pfx config"
     schema["description"] = "A pfx experiment (model, filter, arms, sweep, ...) or a study (study: {kind: ...})."
     return schema

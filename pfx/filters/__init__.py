@@ -23,7 +23,4 @@ from pfx.filters import (
 )
 from pfx.filters.base import FILTERS, FilterKind, run_filter
 
-# kinds that carry particles (their cells have a particle count, resampler and weighting)
-PARTICLE_KINDS = frozenset(name for name, kind in FILTERS.items() if kind.carries_particles)
-
-__all__ = ["FILTERS", "PARTICLE_KINDS", "FilterKind", "run_filter"]
+__all__ = ["FILTERS", "FilterKind", "run_filter"]

@@ -15,6 +15,14 @@ declares, once:
   as names of model attributes that must not be None (``kf`` needs ``matrices``).
 * ``carries_particles``: whether its cells have a particle count, resampler and weighting in
   their labels, and may keep particle clouds (``outputs.particles``).
+* ``takes_trace_rows``: whether its ``run`` accepts ``trace_rows=``, the rows of the batch whose
+  per-step traces steps.csv keeps, to record costly per-step diagnostics (the particle
+  filter's posterior standard deviations) for those rows only. Kinds that carry a covariance
+  need not: steps.csv's ``sd_<state>`` columns come from its diagonal.
+
+Measurements may hold NaN rows: a missing measurement (recorded data, :mod:`pfx.config.data`).
+Every kind treats such a step as predict-only for that trial (no update, log-likelihood
+increment 0, NIS NaN); the built-in kinds do.
 
 Two methods do the work. :meth:`FilterKind.plan` runs at plan time, once per cell: it checks
 that the kind can run on the cell's model (raising ``ValueError("@key: reason")``, key under
@@ -48,6 +56,7 @@ class FilterKind:
     settings: ClassVar[dict[str, tuple[type[BaseModel], str]]] = {}
     model_needs: ClassVar[tuple[str, ...]] = ()
     carries_particles: ClassVar[bool] = False
+    takes_trace_rows: ClassVar[bool] = False
 
     @classmethod
     def plan(cls, model, settings, prior) -> "FilterKind":
@@ -77,14 +86,18 @@ FILTERS: Registry[type[FilterKind]] = Registry("filter")
 
 
 def run_filter(kind: str, model, measurements, random=None, *, settings, prior,
-               spread_criterion=None, consistency: bool = False, snapshot=None) -> FilterTrace:
+               spread_criterion=None, consistency: bool = False, snapshot=None,
+               trace_rows=None) -> FilterTrace:
     """Plan the filter kind for ``model`` and run it on ``measurements`` (see :class:`FilterKind`);
-    a plan-time refusal becomes a :class:`~pfx.errors.ConfigError` keyed under ``filter``."""
+    a plan-time refusal becomes a :class:`~pfx.errors.ConfigError` keyed under ``filter``.
+    ``trace_rows`` (kinds that take them) are the rows whose costly per-step diagnostics to keep."""
     try:
         planned = FILTERS[kind].plan(model, settings, prior)
     except ValueError as error:
         raise located_value_error(error, prefix="filter") from None
     options = {"snapshot": snapshot} if snapshot is not None else {}
+    if trace_rows is not None and planned.takes_trace_rows:
+        options["trace_rows"] = trace_rows
     return planned.run(model, measurements, random, settings=settings, prior=prior,
                        spread_criterion=spread_criterion, consistency=consistency, **options)
 

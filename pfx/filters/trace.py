@@ -1,4 +1,9 @@
-"""What every filter kind returns: per-trial, per-step estimates and diagnostics."""
+"""What every filter kind returns: per-trial, per-step estimates and diagnostics.
+
+A step whose measurement is missing (recorded data with a blank row, :mod:`pfx.config.data`)
+is predict-only in every kind: no weight update, a log-likelihood increment of 0, and NIS NaN
+at that step (empty in the CSV).
+"""
 
 from __future__ import annotations
 
@@ -27,6 +32,21 @@ class FilterTrace:
     covariances: Optional[np.ndarray] = None    # (trials, T, d, d) posterior covariance
     nis: Optional[np.ndarray] = None            # (trials, T) normalised innovation squared
     grid_lost_mass: Optional[np.ndarray] = None  # (trials, T) grid filter: probability mass leaving the grid
+    # (trials, T, d) posterior standard deviation of each component, where a kind records it
+    # apart from ``covariances`` (the particle filter: weighted, before resampling, for the
+    # traced trials only; NaN in the rows not recorded)
+    standard_deviations: Optional[np.ndarray] = None
+
+    def posterior_standard_deviations(self) -> Optional[np.ndarray]:
+        """(trials, T, d): the recorded standard deviations, else the square root of the
+        covariance diagonal (Gaussian filters, the histogram filter), else None."""
+        if self.standard_deviations is not None:
+            return self.standard_deviations
+        if self.covariances is not None:
+            variances = np.diagonal(self.covariances, axis1=-2, axis2=-1)
+            with np.errstate(invalid="ignore"):      # round-off may leave a variance at -1e-300
+                return np.sqrt(np.clip(variances, 0.0, None))
+        return None
 
     @classmethod
     def for_gaussian_filter(cls, estimates, covariances, nis, log_likelihood, position) -> "FilterTrace":

@@ -24,6 +24,25 @@ A model is a pydantic model: its fields are its parameters, declared once with t
 descriptions; the config schema, ``pfx schema`` and the config docs all come from them.
 Fields left ``None`` are filled from the model's presets by :meth:`Model.presets`.
 Cross-field checks raise ``ValueError("@key.path: reason")`` so errors point at the key.
+
+**The public contract** (``pfx.Model``, for plugins: docs/plugins.md). Its method names and
+array shapes are stable. A model must define ``state_names``, ``measurement_dimension``,
+``propagate`` and ``measurement_mean`` (:func:`missing_methods`); everything else has a
+default. With ``R`` trials, ``N`` particles, ``d`` states, ``m`` measurement components and
+``q`` process noise components, and ``...`` standing for the leading dimensions (``(R,)`` for
+the truth, ``(R, N)`` for particles):
+
+=====================================================  =========================================
+``propagate(state (..., d), control, noise (..., q))``  the new state, ``(..., d)``, floating point
+``measurement_mean(state (..., d))``                    h(x), ``(..., m)``, floating point
+``simulate_measurement(state (R, d), random)``          one measurement per trial, ``(R, m)``
+``log_likelihood(measurement, state (R, N, d))``        ``(R, N)``; measurement ``(R, 1, m)``
+=====================================================  =========================================
+
+A measurement that is not "h(x) + noise" (multiplicative noise, say) overrides both
+``simulate_measurement`` (how the truth's measurements are drawn; every draw from ``random``)
+and ``log_likelihood`` (log p(z | x), in the log domain). :meth:`Model.check_contract` checks
+the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
 """
 
 from __future__ import annotations
@@ -32,7 +51,7 @@ import math
 from typing import Any, ClassVar, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, model_validator
 
 from pfx.laws.initial import InitialLaw
 from pfx.laws.noise import Noise
@@ -81,6 +100,12 @@ class Model(BaseModel):
         raise NotImplementedError
 
     @property
+    def measurement_names(self) -> tuple[str, ...]:
+        """Names of the measurement components (default z1..zm): the column headers a recorded
+        measurements file may use (``data:``, :mod:`pfx.config.data`; z1..zm always work too)."""
+        return tuple(f"z{i + 1}" for i in range(self.measurement_dimension))
+
+    @property
     def process_noise_dimension(self) -> int:
         return self.state_dimension
 
@@ -108,6 +133,10 @@ class Model(BaseModel):
         return 2.0 * math.pi
 
     time_unit: ClassVar[str] = "s"
+    # Whether the model reads :meth:`step_duration` (the time between steps may vary), so that
+    # recorded data with irregular times can be filtered with it; no built-in model does.
+    variable_dt: ClassVar[bool] = False
+    _recorded_times: Optional[np.ndarray] = PrivateAttr(None)    # set by use_recorded_times
 
     def control(self, step: int) -> Optional[np.ndarray]:
         """The control input u_k applied between step k-1 and step k (k = 1..T)."""
@@ -177,8 +206,44 @@ class Model(BaseModel):
         return self.measure(state, self.measurement_noise.sample(random, state.shape[1:-1]))
 
     def times(self) -> np.ndarray:
-        """Time of steps 1..T."""
+        """Time of steps 1..T (recorded data's own times when its file has a ``time`` column)."""
+        if self._recorded_times is not None:
+            return self._recorded_times.copy()
         return self.dt * np.arange(1, self.steps + 1)
+
+    def step_duration(self, step: int) -> float:
+        """The time from step k-1 to step k: ``dt``, or with recorded irregular times (only for
+        a model that declares ``variable_dt``) t_k - t_(k-1), and ``dt`` before the first step."""
+        if self._recorded_times is None or step <= 1:
+            return self.dt
+        return float(self._recorded_times[step - 1] - self._recorded_times[step - 2])
+
+    def use_recorded_times(self, times: np.ndarray) -> None:
+        """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`)."""
+        self._recorded_times = np.asarray(times, dtype=float).copy()
+
+    def check_contract(self, random: TrialStreams) -> None:
+        """Call the model's methods once on a tiny batch (2 trials, 3 particles drawn from the
+        initial law) and raise ``ValueError("<method> returned ...")`` where a result has the
+        wrong shape or is not a floating-point array: the public contract (module docstring),
+        checked before a run rather than deep inside the engine."""
+        trials, particles = 2, 3
+        d, m = self.state_dimension, self.measurement_dimension
+        for name in ("position_components", "angular_components"):
+            components = tuple(getattr(self, name))
+            if not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and 0 <= c < d
+                       for c in components):
+                raise ValueError(f"{name} returned {components!r}; expected indices of state components "
+                                 f"(integers 0..{d - 1}, e.g. (0,) for {self.state_names[0]})")
+        if not tuple(self.position_components):
+            raise ValueError("position_components returned no component; expected at least one index")
+        cloud = np.asarray(self.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
+        truth = cloud[:, 0, :].copy()
+        noise = np.zeros((trials, particles, self.process_noise_dimension))
+        _check_result("propagate", self.propagate(cloud, self.control(1), noise), (trials, particles, d))
+        _check_result("measurement_mean", self.measurement_mean(cloud), (trials, particles, m))
+        measurement = _check_result("simulate_measurement", self.simulate_measurement(truth, random), (trials, m))
+        _check_result("log_likelihood", self.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
 
     # -- validation ----------------------------------------------------------------------------
 
@@ -187,6 +252,8 @@ class Model(BaseModel):
         for name, value in self.presets().items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
+        if self.dt is None:     # a model without a time step of its own counts time in steps
+            self.dt = 1.0
         missing = [name for name in ("steps", "dt", "process_noise", "measurement_noise", "initial")
                    if getattr(self, name) is None]
         if missing:
@@ -199,6 +266,18 @@ class Model(BaseModel):
         return self
 
 
+def _check_result(method: str, value, shape: tuple) -> np.ndarray:
+    """A method's result, if it is a floating-point array of ``shape``; else ValueError."""
+    if not isinstance(value, np.ndarray):
+        raise ValueError(f"{method} returned {type(value).__name__}, not a numpy array of shape {shape}")
+    if value.shape != shape:
+        raise ValueError(f"{method} returned shape {value.shape} for a batch of 2 trials x 3 particles; "
+                         f"expected {shape}")
+    if not np.issubdtype(value.dtype, np.floating):
+        raise ValueError(f"{method} returned dtype {value.dtype}; expected floating point (float64)")
+    return value
+
+
 def _bind(component, dimension: int, key: str, **options) -> None:
     try:
         component.bind(dimension, **options)
@@ -207,6 +286,15 @@ def _bind(component, dimension: int, key: str, **options) -> None:
         if message.startswith("@"):
             raise ValueError(f"@{key}.{message[1:]}") from None
         raise ValueError(f"@{key}: {message}") from None
+
+
+# What every model must define itself: the rest of the interface has defaults.
+REQUIRED_METHODS = ("state_names", "measurement_dimension", "propagate", "measurement_mean")
+
+
+def missing_methods(model_class: type) -> list[str]:
+    """The required members (:data:`REQUIRED_METHODS`) a model class leaves to :class:`Model`."""
+    return [name for name in REQUIRED_METHODS if getattr(model_class, name) is getattr(Model, name)]
 
 
 def bind_law(law, dimension: int, key: str):

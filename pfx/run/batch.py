@@ -5,6 +5,10 @@ on all of them in one call, and returns the batch's table rows: one row per tria
 (trials.csv), the full per-step traces of the traced trials (steps.csv), the kept particle
 clouds (particles.csv) and every trial's per-step values (for steps_summary.csv). It is what an
 executor sends to a worker, so it depends on nothing but its arguments.
+
+With recorded data (``cell.data``, :mod:`pfx.config.data`) nothing is simulated: every trial
+filters the recorded measurements (trials replicate the filter's randomness), and the truth is
+the recorded one, or none: the columns that need it are then empty.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from typing import Optional
 import numpy as np
 import pandas as pd
 
-from pfx.analysis.metrics import MetricInputs, compute_metrics, normalised_squares, state_error
+from pfx.analysis.metrics import MetricInputs, compute_metrics, error_distance, normalised_squares, state_error
 from pfx.analysis.step_summary import step_values
 from pfx.config.plan import Cell
 from pfx.config.schema import ParticleSnapshots
@@ -39,7 +43,7 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
     """Simulate the truth and run the filter for some trials of one cell; return table rows."""
     truth_seeds = [truth_seed(seed, t) for t in trials]
     filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
-    states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
+    truth, measurements, observed = _truth_and_measurements(cell, truth_seeds)
     criterion = cell.metrics.convergence
     spread = SpreadCriterion(criterion.radius, criterion.weighted) if criterion.criterion == "spread" else None
     snapshot = None
@@ -49,24 +53,39 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
             steps_kept = "all" if snapshots.steps == "all" else frozenset(snapshots.steps)
             snapshot = SnapshotRequest(rows=rows, steps=steps_kept, stages=frozenset(snapshots.stages))
     options = {"snapshot": snapshot} if snapshot is not None else {}
+    traced = [i for i, t in enumerate(trials) if t < trace_trials]
+    if cell.planned_filter.takes_trace_rows:      # costly per-step diagnostics for these rows only
+        options["trace_rows"] = np.array(traced, dtype=np.intp)
     started = time.perf_counter()
     trace = cell.planned_filter.run(
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
         prior=cell.prior, spread_criterion=spread, consistency=cell.metrics.consistency, **options)
     elapsed = time.perf_counter() - started
-    truth = states[:, 1:]
     with np.errstate(over="ignore", invalid="ignore"):   # a diverged filter has infinite errors
         metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
-                                               config=cell.metrics))
+                                               config=cell.metrics, observed=observed))
     model = cell.truth_model
     rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
                          "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
                          **metrics, "run_time_s": elapsed / len(trials)})
-    traced = [i for i, t in enumerate(trials) if t < trace_trials]
     with np.errstate(over="ignore", invalid="ignore"):
         steps = _steps_frame(cell, trials, traced, truth, trace)
     particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
     return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model))
+
+
+def _truth_and_measurements(cell: Cell, truth_seeds: list[int]):
+    """(truth at steps 1..T or None, measurements, observed mask or None), all (trials, T, ...):
+    simulated from each trial's truth stream, or the recorded data repeated for every trial."""
+    if cell.data is None:
+        states, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds(truth_seeds))
+        return states[:, 1:], measurements, None
+    trials = len(truth_seeds)
+
+    def repeated(array):
+        return None if array is None else np.repeat(array[None], trials, axis=0)
+
+    return repeated(cell.data.truth), repeated(cell.data.measurements), repeated(cell.data.observed)
 
 
 def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
@@ -89,7 +108,7 @@ def steps_columns(cell: Cell) -> list[str]:
     """The columns of steps.csv for a cell (so that an empty table still has its header)."""
     states = cell.truth_model.state_names
     columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
-                                                               for kind in ("truth", "estimate")],
+                                                               for kind in ("truth", "estimate", "sd")],
                "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis"]
     return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
 
@@ -99,16 +118,18 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         return pd.DataFrame(columns=steps_columns(cell))
     model = cell.truth_model
     steps = model.steps
-    position = list(model.position_components)
+    deviations = trace.posterior_standard_deviations()
+    if truth is None:                      # recorded data without the truth: those columns stay empty
+        truth = np.full(trace.estimates.shape, np.nan)
     frames = []
     for i in traced:
-        error = trace.estimates[i][:, position] - truth[i][:, position]
         columns = {"cell": cell.key, **cell.labels, "trial": trials[i], "step": np.arange(1, steps + 1),
                    "time": model.times()}
         for j, name in enumerate(model.state_names):
             columns[f"truth_{name}"] = truth[i, :, j]
             columns[f"estimate_{name}"] = trace.estimates[i, :, j]
-        columns["error_distance"] = np.sqrt(np.sum(error * error, axis=-1))
+            columns[f"sd_{name}"] = deviations[i, :, j] if deviations is not None else np.nan
+        columns["error_distance"] = error_distance(truth[i], trace.estimates[i], model)
         columns["ess"] = trace.ess[i]
         columns["resampled"] = trace.resampled[i]
         columns["degenerate"] = trace.degenerate[i]

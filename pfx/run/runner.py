@@ -8,11 +8,19 @@ written atomically to ``cells/`` inside the result folder, by this process alone
 cell is done the tables, the summary and the figures are assembled and ``cells/`` is removed.
 Running again with the same config resumes from the finished cells; a folder made by a
 different config is refused unless ``--fresh`` is given.
+
+A config's plugins (:mod:`pfx.config.plugins`) are recorded in the manifest (name, file,
+sha256); their code's hash is part of the results hash, so a folder computed with other plugin
+code is refused, with a line naming the plugin that changed. Tasks of a config with plugins
+travel as the plugins (a file plugin's code included) and the pickled arguments: a worker
+process loads the plugins before it unpickles the arguments, whose model classes they define
+(:func:`run_batch_with_plugins`).
 """
 
 from __future__ import annotations
 
 import json
+import pickle
 import platform
 import shutil
 import subprocess
@@ -31,6 +39,8 @@ import pfx
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
+from pfx.config.plugins import LoadedPlugin, ensure_loaded
+from pfx.errors import ConfigError
 from pfx.figures import render_figures
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
@@ -72,7 +82,24 @@ def _now() -> str:
 def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool) -> FolderState:
     """Refuse, without touching anything, a result folder this run may not write to
     (:func:`pfx.result_folder.inspect_folder`); return what it holds."""
+    if not fresh:
+        _check_plugin_code(plan, Path(out))
     return inspect_folder(plan, Path(out), fresh)
+
+
+def _check_plugin_code(plan: Plan | StudyPlan, out: Path) -> None:
+    """Refuse to resume or keep results computed with other code of the same plugin (the
+    results hash differs too; this says why, in words)."""
+    from pfx.result_folder import read_manifest
+
+    if not (out / MANIFEST).is_file():
+        return
+    recorded = {entry.get("name"): entry.get("sha256") for entry in (read_manifest(out) or {}).get("plugins", [])}
+    for plugin in plan.plugins:
+        if plugin.name in recorded and recorded[plugin.name] != plugin.sha256:
+            raise ConfigError(f"plugin {plugin.name} has changed since these results were computed (sha256 "
+                              f"{str(recorded[plugin.name])[:12]} != {plugin.sha256[:12]}); use --fresh to "
+                              "recompute them or --out for another folder", file=str(out))
 
 
 def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Executor] = None,
@@ -108,9 +135,13 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
             with own or nullcontext(executor) as running:        # the caller closes an executor it gave
                 _run_and_assemble(plan, out, state, running, budget, progress, report)
     finally:
-        if created and not [path for path in out.iterdir() if path.name != LOCK_FILE]:
+        if created and not [path for path in out.iterdir() if path.name != LOCK_FILE and not _empty_folder(path)]:
             shutil.rmtree(out, ignore_errors=True)       # a run that kept nothing leaves no folder
     return out
+
+
+def _empty_folder(path: Path) -> bool:
+    return path.is_dir() and not any(path.iterdir())
 
 
 def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Executor, budget: int,
@@ -238,12 +269,17 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
             owner.append(number)
             sizes.append(len(batch))
         expected.append(len(batches))
+    function: Callable = run_batch
+    if plan.plugins:          # workers load the plugins before the arguments, which need their classes
+        function = run_batch_with_plugins
+        shipped = tuple(plan.plugins)
+        tasks = [(shipped, pickle.dumps(arguments, protocol=pickle.HIGHEST_PROTOCOL)) for arguments in tasks]
     returned: list[dict[int, BatchResult]] = [{} for _ in cells]
     by_tasks = executor.counts == "tasks"
     total = len(tasks) if by_tasks else sum(sizes)
     with _progress_bar(progress, total, experiment.name, executor.counts) as live:
         task_id = live.add_task(executor.counts, total=total) if live else None
-        for index, result in executor.run(run_batch, tasks):
+        for index, result in executor.run(function, tasks):
             raise_if_requested()                 # a stop signal whose exception was swallowed
             number = owner[index]
             returned[number][index] = result
@@ -253,6 +289,13 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
                 batches = returned[number]
                 _write_cell(out, cells[number], [batches[i] for i in sorted(batches)], cell_times)
                 returned[number] = {}
+
+
+def run_batch_with_plugins(plugins: tuple[LoadedPlugin, ...], arguments: bytes) -> BatchResult:
+    """:func:`run_batch` for a config with plugins, in any process: load the plugins (a file
+    plugin from its shipped code, once per process), then unpickle the arguments and run."""
+    ensure_loaded(plugins)
+    return run_batch(*pickle.loads(arguments))
 
 
 def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
@@ -309,6 +352,7 @@ def _provenance(plan: Plan | StudyPlan, started: str) -> dict:
         "complete": False,
         "figures": list(plan.experiment.outputs.figures),
         "formats": list(plan.experiment.outputs.formats),
+        **({"plugins": [plugin.record() for plugin in plan.plugins]} if plan.plugins else {}),
     }
 
 

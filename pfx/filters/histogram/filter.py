@@ -75,6 +75,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
 
     kernel, kernel_key = None, None
     chunk = max(1, CHUNK // (size * max(m, d)))
+    missing = np.isnan(measurements).any(axis=-1)          # (trials, T): predict-only steps
     for k in range(1, steps + 1):
         t = k - 1
         control = model.control(k)
@@ -84,7 +85,8 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
             kernel_key = key
 
         log_q, log_lik = transition.predict(
-            kernel, log_weights, lambda: _grid_log_likelihood(model, measurements[:, t], points, chunk, k))
+            kernel, log_weights, lambda: _observed_log_likelihood(model, measurements[:, t], missing[:, t],
+                                                                  points, chunk, k))
         q_normalised, q_total = log_normalise(log_q)
         if np.isneginf(q_total).any():
             raise ModelNumericalError(f"every bit of probability mass left the histogram filter's grid at step "
@@ -106,6 +108,10 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
         if underflow.any():
             degenerate[underflow, t] = True
             posterior[underflow] = q_normalised[underflow]
+        if missing[:, t].any():
+            # predict-only (a likelihood of 1): the posterior is the prediction and the
+            # increment 0, not the mass left on the grid (that is grid_lost_mass's business)
+            normaliser = np.where(missing[:, t], 0.0, normaliser)
         log_likelihood += normaliser
 
         weights = np.exp(posterior)
@@ -128,6 +134,17 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
     trace.within_radius = within
     trace.grid_lost_mass = lost
     return trace
+
+
+def _observed_log_likelihood(model, measurement: np.ndarray, missing: np.ndarray, points: np.ndarray,
+                             chunk: int, step: int) -> np.ndarray:
+    """The grid log-likelihood (trials, G), 0 (no information) for trials whose measurement is missing."""
+    if not missing.any():
+        return _grid_log_likelihood(model, measurement, points, chunk, step)
+    out = np.zeros((len(measurement), len(points)))
+    if not missing.all():
+        out[~missing] = _grid_log_likelihood(model, measurement[~missing], points, chunk, step)
+    return out
 
 
 def _grid_log_likelihood(model, measurement: np.ndarray, points: np.ndarray, chunk: int, step: int) -> np.ndarray:

@@ -1,5 +1,10 @@
 """The Gaussian filters' shared recursion: alternate predict and update over steps 1..T, the
-linear (Joseph-form) update, the innovation's NIS and log-likelihood (see :mod:`pfx.filters.kalman`)."""
+linear (Joseph-form) update, the innovation's NIS and log-likelihood (see :mod:`pfx.filters.kalman`).
+
+A trial whose measurement is missing at step k (a NaN row: recorded data) skips the update
+there: the posterior is the prediction, the log-likelihood increment 0 and the NIS NaN. The
+update runs on the trials that have a measurement only, so a kind's update never sees a NaN.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +16,16 @@ from pfx.errors import ConfigError, ModelNumericalError
 from pfx.filters.trace import FilterTrace
 
 
-def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predict, update) -> FilterTrace:
-    """Alternate predict(mean, cov, k) and update(mean, cov, z, k) over steps 1..T; build the trace."""
+def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predict, update,
+                       update_skipped=None) -> FilterTrace:
+    """Alternate predict(mean, cov, k) and update(mean, cov, z, k) over steps 1..T; build the trace.
+
+    At a step where some trials have no measurement, ``update`` gets the other trials' rows
+    only (or is not called), and then ``update_skipped()`` (if given) tells the kind, whose
+    update may keep state for the next prediction (the UKF's square root).
+    """
     trials, steps, _ = measurements.shape
+    missing = np.isnan(measurements).any(axis=-1)        # (trials, T): predict-only steps
     mean, covariance = prior_moments(prior, trials, model.state_dimension)
     d = mean.shape[-1]
     estimates = np.empty((trials, steps, d))
@@ -24,14 +36,33 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
         with np.errstate(over="ignore", invalid="ignore"):   # reported by check_finite
             mean, covariance = predict(mean, covariance, k)
         check_finite(kind, model, k, "prediction", mean, covariance)
-        with np.errstate(over="ignore", invalid="ignore"):
-            mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
+        if not missing[:, k - 1].any():
+            with np.errstate(over="ignore", invalid="ignore"):
+                mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
+        else:
+            mean, covariance, nis[:, k - 1], increment = _update_observed(
+                update, mean, covariance, measurements[:, k - 1], k, ~missing[:, k - 1])
+            if update_skipped is not None:
+                update_skipped()
         check_finite(kind, model, k, "update", mean, covariance)
         log_likelihood += increment
         estimates[:, k - 1] = mean
         covariances[:, k - 1] = covariance
     return FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
                                            position=list(model.position_components))
+
+
+def _update_observed(update, mean, covariance, z, k, observed):
+    """The update for the trials with a measurement (``observed``); the others keep the
+    prediction, with NIS NaN and log-likelihood increment 0."""
+    mean, covariance = mean.copy(), covariance.copy()
+    nis = np.full(len(mean), np.nan)
+    increment = np.zeros(len(mean))
+    if observed.any():
+        with np.errstate(over="ignore", invalid="ignore"):
+            mean[observed], covariance[observed], nis[observed], increment[observed] = update(
+                mean[observed], covariance[observed], z[observed], k)
+    return mean, covariance, nis, increment
 
 
 def prior_moments(prior, trials: int, dimension: int) -> tuple[np.ndarray, np.ndarray]:

@@ -146,7 +146,7 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
         return np.concatenate([mean[:, None], mean[:, None] + offsets, mean[:, None] - offsets], axis=1)
 
     def predict(mean, covariance, k):
-        if k == 1:
+        if "S" not in factor:          # the first step, or one whose update some trials skipped
             factor["S"], covariance = robust_square_root(covariance, repairs)
         control = model.control(k)
         points = sigma_points(mean, factor["S"])
@@ -170,7 +170,10 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
         factor["S"], covariance = robust_square_root(covariance, repairs)
         return mean, covariance, nis, log_density
 
-    trace = gaussian_recursion("ukf", model, measurements, prior, predict, update)
+    def update_skipped():
+        factor.pop("S", None)          # the update's square root covers only the observed trials
+
+    trace = gaussian_recursion("ukf", model, measurements, prior, predict, update, update_skipped)
     if diagnostics is not None:
         diagnostics.update(repairs)
     return trace

@@ -29,6 +29,11 @@ gets weight zero (log-weight -inf), its state is parked at 0 until resampling re
 it is counted per trial (``lost_particles``). A trial that loses every particle, a NaN or
 +inf log-likelihood of a finite particle, or a non-finite truth is a model error:
 :class:`ModelNumericalError` names the model and the step.
+
+A missing measurement (NaN in a trial's row at step k: recorded data with a blank row) makes
+the step predict-only for that trial: step 2 is skipped (the weights stay as they were, so
+:math:`L_k = 0` adds nothing to the log-likelihood), the estimate and the ESS are taken as
+usual, and the ESS rule may still resample.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ import numpy as np
 
 from pfx.errors import ModelNumericalError
 from pfx.filters.trace import FilterTrace
-from pfx.numerics.angles import circular_mean
+from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.compiled import compiled
 from pfx.numerics.seeding import TrialStreams
 
@@ -158,14 +163,20 @@ def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndar
 def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
-                        consistency: bool = False, snapshot: Optional[SnapshotRequest] = None) -> FilterTrace:
+                        consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
+                        trace_rows: Optional[np.ndarray] = None) -> FilterTrace:
     """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
     the normalised innovation squared of the predicted cloud, for NEES and NIS. With
-    ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``).
+    ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``). The weighted
+    posterior standard deviations are recorded for the rows ``trace_rows`` (the traced trials),
+    and only for them: a second moment per step costs about what the estimate does, and only
+    steps.csv shows it (None: for no row, as in ``pfx bench``, whose timings are the filter's).
     """
     recorders: list[Recorder] = [SpreadRecorder(model, spread_criterion)]
+    if trace_rows is not None and len(trace_rows):
+        recorders.append(StandardDeviationRecorder(model, trace_rows))
     if consistency:
         recorders.append(ConsistencyRecorder(model))
     if snapshot is not None:
@@ -197,6 +208,10 @@ class ParticleFilter:
         self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
         self.weights = np.full((self.trials, particles), 1.0 / particles)    # always exp(log_weights)
         self.lost: Optional[np.ndarray] = None            # this step's particles that left the domain
+        # (trials, T) True where a trial's measurement is missing (predict-only steps); None when
+        # every measurement is there, so that simulated runs never look at it again
+        missing = np.isnan(measurements).any(axis=-1)
+        self.missing: Optional[np.ndarray] = missing if missing.any() else None
         self.trace = FilterTrace(
             estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
             ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
@@ -243,9 +258,15 @@ class ParticleFilter:
         """log w_k = log w_{k-1} + log l_k(x_k), normalised by log-sum-exp; the normaliser adds to
         the log-likelihood estimate; a trial whose weights all underflow is degenerate."""
         t = k - 1
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :], self.state,
-                                                   self.weights)
+        skipped = None if self.missing is None or not self.missing[:, t].any() else self.missing[:, t]
+        if skipped is not None and skipped.all():
+            increment = np.zeros_like(self.log_weights)       # no measurement anywhere: nothing to weigh
+        else:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :], self.state,
+                                                       self.weights)
+            if skipped is not None:
+                increment[skipped] = 0.0
         if self.lost is not None:
             increment[self.lost] = -np.inf
         updated = self.log_weights + increment
@@ -266,6 +287,10 @@ class ParticleFilter:
             normalised[underflow] = self.uniform_log_weight
             new_weights[underflow] = 1.0 / self.particles
         self.log_weights = normalised
+        if skipped is not None:
+            # A predict-only step adds nothing: its normaliser is only the mass of the particles
+            # lost to the model's domain (they were renormalised away above).
+            normaliser = np.where(skipped, 0.0, normaliser)
         self.trace.log_likelihood += normaliser
         self.weights = new_weights
 
@@ -332,6 +357,33 @@ class SpreadRecorder(Recorder):
             run.trace.spread[:, step - 1] = _spread(run.weights, positions)
             if self.criterion is not None:
                 run.trace.within_radius[:, step - 1] = _share_within(run.weights, positions, self.criterion)
+
+
+class StandardDeviationRecorder(Recorder):
+    """The posterior standard deviation of each state component, weighted, before resampling
+    (at the estimate's stage), for some rows of the batch (None: all); the other rows stay NaN.
+
+    An angular component's deviations are taken from the circular mean, wrapped into half a
+    turn either side, as its errors are.
+    """
+
+    def __init__(self, model, rows: Optional[np.ndarray]):
+        every = rows is None
+        self.rows = slice(None) if every else np.asarray(rows, dtype=np.intp)   # a slice: no copies
+        self.angular = list(model.angular_components)
+        self.full_turn = model.full_turn
+
+    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
+        trace, t = run.trace, step - 1
+        if stage == "prior":
+            trace.standard_deviations = np.full((run.trials, run.steps, run.state.shape[-1]), np.nan)
+        elif stage == "weighted":
+            with np.errstate(over="ignore", invalid="ignore"):    # a diverging cloud: infinite spread
+                centred = run.state[self.rows] - trace.estimates[self.rows, t, None, :]
+                if self.angular:
+                    centred[..., self.angular] = wrap_difference(centred[..., self.angular], self.full_turn)
+                variances = np.einsum("rn,rnd->rd", run.weights[self.rows], centred * centred)
+                trace.standard_deviations[self.rows, t] = np.sqrt(variances)
 
 
 class ConsistencyRecorder(Recorder):

@@ -17,6 +17,7 @@ class SampleImportanceResampling(FilterKind):
     kind = "particle"
     reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion"})
     carries_particles = True
+    takes_trace_rows = True
 
     @classmethod
     def ess_threshold(cls, settings) -> float:
@@ -24,12 +25,12 @@ class SampleImportanceResampling(FilterKind):
         return settings.ess_threshold
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
-            snapshot=None):
+            snapshot=None, trace_rows=None):
         return run_particle_filter(
             model, measurements, random, prior=prior, particles=settings.particles,
             resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
             weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-            consistency=consistency, snapshot=snapshot)
+            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows)
 
 
 @FILTERS.register_kind

@@ -1,0 +1,438 @@
+r"""Recorded data: filtering measurements that were read from files, not simulated.
+
+A config names its files under ``data:``, each path relative to the config's folder::
+
+    data:
+      measurements: ../../examples/data/nile.csv   # required
+      truth: truth.csv                             # optional: the true states, for the error metrics
+      controls: controls.csv                       # optional: the control input of every step
+
+**The format.** A CSV file with a header row. The first column is ``step`` (the integers
+1..T, in order: the step of each row) or ``time`` (increasing numbers: the time of each step);
+then one column per component, in any order:
+
+* measurements: the model's measurement components, named ``z1..zm`` (always accepted) or by
+  the model's own names (:attr:`pfx.models.base.Model.measurement_names`). A blank row (every
+  measurement cell blank) is a missing measurement: that step is predict-only in every filter
+  kind (no weight update, log-likelihood increment 0, no NIS). A row with some cells blank and
+  others not is refused: the model interface has no likelihood of part of a measurement.
+* truth: the model's state components by name (``pfx list models`` shows them); no blanks.
+* controls: one column per control component (any names); no blanks. Its rows become the
+  model's ``controls`` (one vector per step): only models with a ``controls`` setting take
+  them (``linear_gaussian``, with its ``control_matrix``), and the config must not give both.
+
+Every file must have the same first column as the measurements (``step`` or ``time``) with the
+same values row by row.
+
+**Steps and times.** T is the number of rows; a ``steps`` given in the model must equal it. A
+``time`` column gives the times of steps 1..T (steps.csv's ``time``). Equally spaced times set
+the model's ``dt`` to their spacing (a ``dt`` given in the model must agree); irregular times
+are refused unless the model declares ``variable_dt`` (it then reads
+:meth:`~pfx.models.base.Model.step_duration`): no built-in model does, since none has a
+dt-dependent form that recorded data would need (``linear_gaussian``'s matrices are per step).
+
+**Trials.** With data every trial filters the same measurements: trials are replicates of the
+filter's own randomness (its stream, seeded per trial as always), and ``outputs.trace_trials``
+defaults to every trial (10,000, the most it may be). Metrics that need the truth are empty
+without a truth file.
+
+**Bad data** is a :class:`~pfx.errors.ConfigError`: one line naming the data file, its line
+(the header is line 1) and the column, before anything runs. The cell keys include a digest of
+the data, so a result folder is never reused for other data; the resolved config records the
+files' absolute paths, so that a result folder's ``config.yaml`` reruns from anywhere.
+
+:func:`prepare_recorded_data` reads and checks the files and fills the model's ``steps``,
+``dt`` and ``controls`` before the config is validated; :func:`attach_recorded_data` checks the
+columns against each cell's models and gives each cell its arrays (:class:`CellData`).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from pfx.config.validation import validate
+from pfx.errors import ConfigError
+from pfx.models import MODELS
+from pfx.numerics.hashing import canonical_hash
+
+TRACE_ALL_TRIALS = 10_000      # outputs.trace_trials' maximum: every trial of a data run
+MAX_FILE_BYTES = 100 * 1024 * 1024
+INDEX_COLUMNS = ("step", "time")
+RELATIVE_TIME_TOLERANCE = 1e-9  # spacings equal to this relative precision count as regular
+
+
+class DataConfig(BaseModel):
+    """Recorded data to filter instead of simulated measurements (see docs/recorded-data.md)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    measurements: str = Field(
+        description="CSV file (relative to the config's folder): a `step` (1..T) or `time` column, then one "
+                    "column per measurement component (z1..zm or the model's names); a blank row is a "
+                    "missing measurement")
+    truth: Optional[str] = Field(
+        None, description="CSV file of the true states: `step`/`time`, then the state components by name "
+                          "(without it the metrics that need the truth are empty)")
+    controls: Optional[str] = Field(
+        None, description="CSV file of the control inputs: `step`/`time`, then one column per control "
+                          "component (fills the model's `controls`)")
+
+
+@dataclass
+class DataTable:
+    """One data file, read and checked on its own."""
+
+    file: str                      # the path as shown in messages (relative to the working directory)
+    index_name: str                # "step" or "time"
+    index: np.ndarray              # (T,) the first column
+    columns: list[str]             # the other columns' names
+    values: np.ndarray             # (T, columns) NaN where a cell is blank
+    lines: list[int]               # the file line of each row (the header is line 1)
+    header_line: int
+
+    def column_error(self, reason: str, column: Optional[str] = None, line: Optional[int] = None) -> ConfigError:
+        return ConfigError(reason, file=self.file, line=line or self.header_line,
+                           key=f"column {column}" if column else None)
+
+
+@dataclass
+class CellData:
+    """What a cell's batches filter: the arrays in the model's component order."""
+
+    measurements: np.ndarray             # (T, m), NaN rows where the measurement is missing
+    truth: Optional[np.ndarray]          # (T, d) or None
+    observed: Optional[np.ndarray]       # (T,) False where missing; None when every step is measured
+
+
+@dataclass
+class RecordedData:
+    """The files a config's ``data:`` names, read and checked (before the models exist)."""
+
+    measurements: DataTable
+    truth: Optional[DataTable]
+    controls: Optional[DataTable]
+
+    @property
+    def steps(self) -> int:
+        return len(self.measurements.index)
+
+    @property
+    def times(self) -> Optional[np.ndarray]:
+        return self.measurements.index if self.measurements.index_name == "time" else None
+
+    @property
+    def digest(self) -> str:
+        """A hash of the data's content (not of its paths): part of every cell key."""
+        hasher = hashlib.sha256()
+        for table in (self.measurements, self.truth, self.controls):
+            if table is None:
+                hasher.update(b"-")
+                continue
+            hasher.update(repr((table.index_name, table.columns, table.values.shape)).encode())
+            hasher.update(np.ascontiguousarray(table.index, dtype=float).tobytes())
+            hasher.update(np.ascontiguousarray(table.values, dtype=float).tobytes())
+        return hasher.hexdigest()
+
+
+# -- reading one file ------------------------------------------------------------------------------
+
+def _display_path(given: str, config_file: Optional[str]) -> tuple[str, Path]:
+    """(the path as messages show it, the path to open): relative to the config's folder."""
+    path = Path(given).expanduser()
+    if not path.is_absolute() and config_file:
+        path = Path(config_file).parent / path
+    return os.path.normpath(str(path)), path
+
+
+def _number(text: str, table_file: str, line: int, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"{text!r} is not a number (leave a missing value blank)", file=table_file,
+                          line=line, key=f"column {column}") from None
+    if not math.isfinite(value):
+        raise ConfigError(f"{text!r} is not a finite number (leave a missing value blank)", file=table_file,
+                          line=line, key=f"column {column}")
+    return value
+
+
+def read_table(given: str, *, config_file: Optional[str], key: str, blanks: bool) -> DataTable:
+    """Read one data file (see the module docstring); ``blanks``: whether blank rows are allowed
+    (missing measurements). ``key`` (``data.measurements``, ...) locates a file that cannot be read."""
+    shown, path = _display_path(given, config_file)
+    try:
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise ConfigError(f"{shown} is larger than {MAX_FILE_BYTES // 2**20} MB", file=config_file, key=key)
+        text = path.read_bytes().decode("utf-8-sig")
+    except FileNotFoundError:
+        raise ConfigError(f"no such file: {shown}", file=config_file, key=key) from None
+    except UnicodeDecodeError:
+        raise ConfigError("not a UTF-8 text file", file=shown) from None
+    except OSError as error:
+        raise ConfigError(f"cannot read {shown}: {error.strerror or error}", file=config_file, key=key) from None
+
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header, header_line, rows, lines = None, 0, [], []
+    try:
+        for row in reader:
+            if not row or all(not cell.strip() for cell in row) and header is None:
+                continue                       # blank lines before the header, or empty lines
+            if header is None:
+                header, header_line = [cell.strip() for cell in row], reader.line_num
+            else:
+                rows.append(row)
+                lines.append(reader.line_num)
+    except csv.Error as error:
+        raise ConfigError(f"not a valid CSV file: {error}", file=shown, line=reader.line_num) from None
+    if header is None:
+        raise ConfigError("the file is empty: it needs a header row (step or time, then one column per "
+                          "component) and one row per step", file=shown)
+    if header[0] not in INDEX_COLUMNS:
+        raise ConfigError(f"the first column must be `step` or `time`, not {header[0]!r}", file=shown,
+                          line=header_line, key="column 1")
+    for position, name in enumerate(header):
+        if not name:
+            raise ConfigError("a column without a name", file=shown, line=header_line, key=f"column {position + 1}")
+        if header.index(name) != position:
+            raise ConfigError("appears twice in the header", file=shown, line=header_line, key=f"column {name}")
+    if len(header) < 2:
+        raise ConfigError(f"no column after `{header[0]}`: give one column per component", file=shown,
+                          line=header_line)
+    if not rows:
+        raise ConfigError("the file has a header but no rows: give one row per step", file=shown, line=header_line)
+
+    columns = header[1:]
+    index = np.empty(len(rows))
+    values = np.full((len(rows), len(columns)), np.nan)
+    for r, (row, line) in enumerate(zip(rows, lines)):
+        if len(row) != len(header):
+            raise ConfigError(f"{len(row)} cells, the header has {len(header)} columns", file=shown, line=line)
+        first = row[0].strip()
+        if not first:
+            raise ConfigError(f"the {header[0]} is blank", file=shown, line=line, key=f"column {header[0]}")
+        index[r] = _number(first, shown, line, header[0])
+        blank = [not cell.strip() for cell in row[1:]]
+        if any(blank) and not blanks:
+            name = columns[blank.index(True)]
+            raise ConfigError(f"a blank cell: this file ({key}) takes no missing values", file=shown, line=line,
+                              key=f"column {name}")
+        if any(blank) and not all(blank):
+            name = columns[blank.index(True)]
+            raise ConfigError("a partly blank measurement: a row is either complete or entirely blank (a "
+                              "missing measurement); partial rows are not supported", file=shown, line=line,
+                              key=f"column {name}")
+        for c, cell in enumerate(row[1:]):
+            if not blank[c]:
+                values[r, c] = _number(cell.strip(), shown, line, columns[c])
+    table = DataTable(file=shown, index_name=header[0], index=index, columns=columns, values=values,
+                      lines=lines, header_line=header_line)
+    _check_index(table)
+    return table
+
+
+def _check_index(table: DataTable) -> None:
+    """Steps 1..T in order (no gap, no repeat), or strictly increasing times."""
+    index, lines, name = table.index, table.lines, table.index_name
+    if name == "step":
+        for r, value in enumerate(index):
+            if value != int(value):
+                raise ConfigError(f"step {value:g} is not a whole number", file=table.file, line=lines[r],
+                                  key="column step")
+            expected = r + 1
+            if value == expected:
+                continue
+            if r and value == index[r - 1]:
+                reason = f"step {int(value)} appears twice (lines {lines[r - 1]} and {lines[r]})"
+            elif value > expected:
+                reason = (f"step {expected} is missing (this row has step {int(value)}): give one row per step, "
+                          "blank for a missing measurement")
+            else:
+                reason = f"steps must run 1, 2, ..., T in order; this row has step {int(value)}, expected {expected}"
+            raise ConfigError(reason, file=table.file, line=lines[r], key="column step")
+        return
+    for r in range(1, len(index)):
+        if index[r] == index[r - 1]:
+            raise ConfigError(f"time {index[r]:g} appears twice (lines {lines[r - 1]} and {lines[r]})",
+                              file=table.file, line=lines[r], key="column time")
+        if index[r] < index[r - 1]:
+            raise ConfigError(f"times must increase: {index[r]:g} comes after {index[r - 1]:g}",
+                              file=table.file, line=lines[r], key="column time")
+
+
+def _check_alignment(table: DataTable, measurements: DataTable) -> None:
+    """A truth or controls file has the measurements' first column, row for row."""
+    if table.index_name != measurements.index_name:
+        raise ConfigError(f"the first column is `{table.index_name}`, the measurements' ({measurements.file}) "
+                          f"`{measurements.index_name}`: use the same", file=table.file, line=table.header_line,
+                          key="column 1")
+    name = table.index_name
+    for r in range(min(len(table.index), len(measurements.index))):
+        if table.index[r] != measurements.index[r]:
+            raise ConfigError(f"{name} {table.index[r]:g} differs from the measurements' {name} "
+                              f"{measurements.index[r]:g} (line {measurements.lines[r]} of {measurements.file})",
+                              file=table.file, line=table.lines[r], key=f"column {name}")
+    if len(table.index) > len(measurements.index):
+        r = len(measurements.index)
+        raise ConfigError(f"{len(table.index)} rows, the measurements ({measurements.file}) {len(measurements.index)}: "
+                          f"{name} {table.index[r]:g} has no measurement row", file=table.file, line=table.lines[r],
+                          key=f"column {name}")
+    if len(table.index) < len(measurements.index):
+        r = len(table.index)
+        raise ConfigError(f"{len(table.index)} rows, the measurements ({measurements.file}) {len(measurements.index)}: "
+                          f"the file ends before {name} {measurements.index[r]:g}", file=table.file,
+                          line=table.lines[-1], key=f"column {name}")
+
+
+def _spacing(times: np.ndarray) -> tuple[Optional[float], Optional[int]]:
+    """(the common spacing of regular times, None) or (None, the first row whose spacing differs)."""
+    if len(times) < 2:
+        return None, None
+    gaps = np.diff(times)
+    irregular = np.abs(gaps - gaps[0]) > RELATIVE_TIME_TOLERANCE * np.abs(times).max()
+    if irregular.any():
+        return None, int(np.argmax(irregular)) + 2        # the row at the end of the first odd gap
+    return float(gaps[0]), None
+
+
+# -- before validation: the files, and what they fix in the model ---------------------------------
+
+def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedData]:
+    """Read and check the files ``raw["data"]`` names, and fill in what they fix before the
+    config is validated: the model's ``steps`` (and ``dt``, ``controls``), the default
+    ``outputs.trace_trials`` (every trial), and the files' absolute paths (for the resolved
+    config). ``raw`` is changed in place; None when the config has no ``data``."""
+    if not isinstance(raw, dict) or raw.get("data") is None:
+        return None
+    config = validate(DataConfig, raw["data"], file=file, prefix="data")
+    measurements = read_table(config.measurements, config_file=file, key="data.measurements", blanks=True)
+    truth = controls = None
+    if config.truth is not None:
+        truth = read_table(config.truth, config_file=file, key="data.truth", blanks=False)
+        _check_alignment(truth, measurements)
+    if config.controls is not None:
+        controls = read_table(config.controls, config_file=file, key="data.controls", blanks=False)
+        _check_alignment(controls, measurements)
+    data = RecordedData(measurements, truth, controls)
+
+    model = raw.get("model")
+    if isinstance(model, dict):
+        _fix_steps_and_dt(model, data, file)
+        if controls is not None:
+            _fill_controls(model, controls, file)
+    outputs = raw.get("outputs")
+    if outputs is None:
+        raw["outputs"] = outputs = {}
+    if isinstance(outputs, dict) and "trace_trials" not in outputs:
+        outputs["trace_trials"] = TRACE_ALL_TRIALS
+    raw["data"] = {key: os.path.abspath(_display_path(value, file)[1])
+                   for key, value in config.model_dump().items() if value is not None}
+    return data
+
+
+def _fix_steps_and_dt(model: dict, data: RecordedData, file: Optional[str]) -> None:
+    steps = model.get("steps")
+    if steps is None:
+        model["steps"] = data.steps
+    elif steps != data.steps:
+        raise ConfigError(f"{steps} disagrees with the {data.steps} rows of {data.measurements.file}: drop it "
+                          f"(the data sets T) or make it {data.steps}", file=file, key="model.steps")
+    if data.times is None:
+        return
+    spacing, _ = _spacing(data.times)
+    if spacing is None:
+        return                        # irregular (checked against the model once it exists) or one step
+    dt = model.get("dt")
+    if dt is None:
+        model["dt"] = spacing
+    elif not isinstance(dt, (int, float)) or abs(dt - spacing) > RELATIVE_TIME_TOLERANCE * abs(spacing):
+        raise ConfigError(f"{dt} disagrees with the spacing {spacing:g} of the times in {data.measurements.file}: "
+                          "drop it (the data sets dt) or make them agree", file=file, key="model.dt")
+
+
+def _fill_controls(model: dict, controls: DataTable, file: Optional[str]) -> None:
+    kind = model.get("kind")
+    if kind not in MODELS:
+        return                       # the config's validation names the unknown kind
+    if "controls" not in MODELS[kind].model_fields:
+        raise ConfigError(f"model {kind} takes no control inputs (no `controls` setting)", file=file,
+                          key="data.controls")
+    if model.get("controls") is not None:
+        raise ConfigError("controls are given twice: in model.controls and in data.controls; keep one",
+                          file=file, key="data.controls")
+    model["controls"] = controls.values.tolist()
+    try:                             # the model's own check of the vectors' length, located in the file
+        validate(MODELS[kind], model, file=file, prefix="model")
+    except ConfigError as error:
+        if error.key and error.key.startswith("model.controls"):
+            raise controls.column_error(f"{len(controls.columns)} control column(s) for model {kind}: "
+                                        f"{error.reason}") from None
+
+
+# -- after the cells exist: columns against the models, and each cell's arrays ---------------------
+
+def attach_recorded_data(cells: list, data: Optional[RecordedData], file: Optional[str]) -> None:
+    """Check the files' columns against every cell's models, give each cell its arrays
+    (``cell.data``, a :class:`CellData`) and the data's times, and make the data part of the
+    cell's key (its filter stream key is kept: seeds as without data)."""
+    if data is None:
+        return
+    digest = data.digest
+    for cell in cells:
+        for where, model in (("model", cell.truth_model), ("filter.model", cell.filter_model)):
+            if model.steps != data.steps:
+                raise ConfigError(f"{model.steps} disagrees with the {data.steps} rows of {data.measurements.file}",
+                                  file=file, key=f"{where}.steps")
+        _check_times(cell, data, file)
+        cell.data = _cell_arrays(cell.truth_model, data)
+        cell.key = canonical_hash({"cell": cell.key, "data": digest}, 12)
+
+
+def _check_times(cell, data: RecordedData, file: Optional[str]) -> None:
+    if data.times is None:
+        return
+    spacing, odd_row = _spacing(data.times)
+    for where, model in (("model", cell.truth_model), ("filter.model", cell.filter_model)):
+        if odd_row is not None and not type(model).variable_dt:
+            table = data.measurements
+            gap = data.times[odd_row - 1] - data.times[odd_row - 2]
+            raise ConfigError(f"irregular times ({gap:g} since the previous row, {data.times[1] - data.times[0]:g} "
+                              f"between the first two): model {model.kind} takes a fixed dt (only a model that "
+                              "declares variable_dt takes irregular times); use a `step` column or regular times",
+                              file=table.file, line=table.lines[odd_row - 1], key="column time")
+        if spacing is not None and abs(model.dt - spacing) > RELATIVE_TIME_TOLERANCE * abs(spacing):
+            raise ConfigError(f"{model.dt} disagrees with the spacing {spacing:g} of the times in "
+                              f"{data.measurements.file}", file=file, key=f"{where}.dt")
+        model.use_recorded_times(data.times)
+
+
+def _ordered(table: DataTable, accepted: list[tuple[str, ...]], what: str) -> np.ndarray:
+    """The table's values with its columns in the order of the first accepted list of names they match."""
+    for names in accepted:
+        if sorted(table.columns) == sorted(names):
+            return table.values[:, [table.columns.index(name) for name in names]]
+    alternatives = " or ".join(", ".join(names) for names in accepted)
+    unknown = [name for name in table.columns if all(name not in names for names in accepted)]
+    column = unknown[0] if unknown else None
+    raise table.column_error(f"{len(table.columns)} column(s) after `{table.index_name}`, the model needs the "
+                             f"{len(accepted[0])} {what}: {alternatives}", column)
+
+
+def _cell_arrays(model, data: RecordedData) -> CellData:
+    numbered = tuple(f"z{i + 1}" for i in range(model.measurement_dimension))
+    names = tuple(model.measurement_names)
+    accepted = [numbered] if names == numbered else [names, numbered]
+    measurements = _ordered(data.measurements, accepted, f"measurement component(s) of model {model.kind}")
+    truth = None
+    if data.truth is not None:
+        truth = _ordered(data.truth, [tuple(model.state_names)], f"state component(s) of model {model.kind}")
+    missing = np.isnan(measurements).any(axis=1)
+    return CellData(measurements=measurements, truth=truth, observed=~missing if missing.any() else None)

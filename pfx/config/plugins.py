@@ -1,0 +1,343 @@
+"""Plugins: components (models, resamplers, weightings, filter kinds) from outside pfx.
+
+A plugin is Python code that registers components with the decorators of the public API
+(``pfx.register_model``, ``pfx.register_resampler``, ``pfx.register_weighting``,
+``pfx.register_filter_kind``; docs/plugins.md). It reaches pfx in one of three ways:
+
+* a config's ``plugins:`` list names it: a Python file (its name ends in ``.py`` or holds a
+  ``/``; relative to the config's folder), or an importable module, or the name of an entry
+  point of an installed package (below). :func:`load_config_plugins` imports exactly these,
+  before the config is validated, and nothing else: **a config naming a plugin runs its code**,
+  and a config without ``plugins:`` runs none;
+* ``pfx list --plugin FILE`` and ``pfx schema --plugin FILE`` load the files given;
+* installed packages offer plugins through the entry-point group ``pfx.plugins`` (in their
+  ``pyproject.toml``: ``[project.entry-points."pfx.plugins"] name = "package.module"``).
+  These are loaded only by ``pfx list``, which shows what is installed, and when a config names
+  one in ``plugins:``. Never at startup, never behind a config's back: a run depends on a
+  plugin's code, whose hash goes into the run's record, so every run names what it uses.
+
+A loaded plugin is a :class:`LoadedPlugin`: its name as written, the file its code came from,
+the sha256 of that code (recorded in ``manifest.json`` and mixed into the config and results
+hashes, so a result folder is never resumed with changed plugin code), and what it registered.
+The registries remember which plugin registered what (:mod:`pfx.registry`), and a config sees
+only the built-in components and those of its own plugins.
+
+A file plugin is executed from the very bytes that were hashed, as the module
+``pfx_plugin_<stem>_<hash>``; worker processes (local or Dask) receive the bytes with each task
+and execute them the same way (:func:`ensure_loaded`), so no shared file system is needed.
+Module plugins must be installed on the workers, like pfx itself.
+
+Every failure is one :class:`~pfx.errors.ConfigError` line naming the plugin: a missing file or
+module, an exception while importing it (located at its last line in the plugin's own file,
+``plugin.py:12: NameError: ...``), a name that clashes with a built-in component, a model class
+that does not define a required method.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import re
+import sys
+import types
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Optional
+
+from pfx.errors import ConfigError, ExecutorError, UsageError
+from pfx.registry import RegistrationClash, registering_for
+
+ENTRY_POINT_GROUP = "pfx.plugins"
+
+
+class PluginError(ValueError):
+    """A plugin breaks the contract of a decorator (reported as one line, without a type name)."""
+
+
+@dataclass(frozen=True)
+class LoadedPlugin:
+    """A plugin imported into this process (see the module docstring)."""
+
+    name: str                        # as the config (or --plugin) wrote it
+    origin: str                      # its owner name in the registries: the file's absolute path, or the module
+    path: str                        # its source file, as shown in messages
+    sha256: str                      # of the source file's bytes
+    module: str                      # its module name in sys.modules
+    source: Optional[bytes] = field(default=None, repr=False)   # a file plugin's code, for the workers
+    registered: tuple[str, ...] = ()  # "model damped_walk", ...
+
+    def record(self) -> dict:
+        """What manifest.json says of it."""
+        return {"name": self.name, "file": self.path, "sha256": self.sha256}
+
+    def summary(self) -> str:
+        return f"{self.name} ({', '.join(self.registered) or 'registered nothing'})"
+
+
+# -- the public decorators ------------------------------------------------------------------------
+
+
+def register_model(model_class):
+    """Class decorator: register a :class:`pfx.Model` subclass under its ``kind``.
+
+    Checks the contract where it can before anything runs: the class is a Model, has a
+    ``kind: Literal["<name>"] = "<name>"`` field, and defines ``state_names``,
+    ``measurement_dimension``, ``propagate`` and ``measurement_mean``. (The shapes and dtypes
+    its methods return are checked at plan time, on a tiny batch: :meth:`pfx.models.base.Model.check_contract`.)
+    """
+    from pfx.models.base import MODELS, Model, missing_methods
+
+    if not (isinstance(model_class, type) and issubclass(model_class, Model)):
+        raise PluginError(f"register_model: {getattr(model_class, '__name__', model_class)!r} "
+                          "is not a subclass of pfx.Model")
+    kind = _declared_kind(model_class, "register_model")
+    missing = missing_methods(model_class)
+    if missing:
+        raise PluginError(f"model {kind} (class {model_class.__name__}) does not define "
+                          f"{', '.join(missing)}, which every model must (docs/plugins.md)")
+    return MODELS.register_kind(model_class)
+
+
+def register_weighting(weighting_class):
+    """Class decorator: register a weighting (a pydantic class with a ``kind`` literal and
+    ``log_weights(model, measurement, particles, weights) -> (trials, N)``; docs/extending.md)."""
+    from pfx.filters.particle.weighting import WEIGHTINGS
+
+    _declared_kind(weighting_class, "register_weighting")
+    if not callable(getattr(weighting_class, "log_weights", None)):
+        raise PluginError(f"weighting class {weighting_class.__name__} does not define log_weights")
+    if not callable(getattr(weighting_class, "label", None)):      # the tables' name for it
+        weighting_class.label = lambda self: self.kind
+    return WEIGHTINGS.register_kind(weighting_class)
+
+
+def register_resampler(name: str, *, unbiased: bool, description: Optional[str] = None) -> Callable:
+    """Function decorator: register ``(weights (R, N), random) -> indices (R, N)`` as resampler
+    ``name``; ``unbiased`` says whether E[N_j] = N w_j (the tables flag biased ones)."""
+    from pfx.filters.particle.resampling import RESAMPLERS, Resampler
+
+    def decorate(function):
+        RESAMPLERS.add(name, Resampler(function, unbiased=unbiased), description)
+        return function
+
+    return decorate
+
+
+def register_filter_kind(kind_class):
+    """Class decorator: register a :class:`pfx.filters.base.FilterKind` subclass under its ``kind``."""
+    from pfx.filters.base import FILTERS, FilterKind
+
+    if not (isinstance(kind_class, type) and issubclass(kind_class, FilterKind)):
+        raise PluginError(f"register_filter_kind: {getattr(kind_class, '__name__', kind_class)!r} "
+                          "is not a subclass of pfx.filters.base.FilterKind")
+    if not isinstance(getattr(kind_class, "kind", None), str):
+        raise PluginError(f"filter kind class {kind_class.__name__} needs a class attribute kind = '<name>'")
+    return FILTERS.register_kind(kind_class)
+
+
+def _declared_kind(component_class, decorator: str) -> str:
+    fields = getattr(component_class, "model_fields", {})
+    kind = fields["kind"].default if "kind" in fields else None
+    if not isinstance(kind, str):
+        raise PluginError(f"{decorator}: class {getattr(component_class, '__name__', component_class)} needs "
+                          f'a field kind: Literal["<name>"] = "<name>"')
+    return kind
+
+
+# -- loading ---------------------------------------------------------------------------------------
+
+_LOADED: dict[str, LoadedPlugin] = {}        # origin -> the plugin as last loaded in this process
+
+
+def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
+    """Import the plugins a config names (``plugins:``; files relative to its folder).
+
+    Only the list's shape is checked here; everything else in the config is validated after,
+    with the plugins' components known.
+    """
+    entries = raw.get("plugins") if isinstance(raw, dict) else None
+    if entries is None or entries == []:
+        return []
+    if not isinstance(entries, list) or not all(isinstance(entry, str) and entry.strip() for entry in entries):
+        raise ConfigError("must be a list of plugin file names (.py) or module names", file=config_file,
+                          key="plugins")
+    folder = Path(config_file).parent
+    return [load_plugin(entry, folder, config_file=config_file, key=f"plugins[{index}]")
+            for index, entry in enumerate(entries)]
+
+
+def load_plugin(entry: str, folder: Path = Path("."), *, config_file: Optional[str] = None,
+                key: Optional[str] = None) -> LoadedPlugin:
+    """Import one plugin: a file (relative to ``folder``), an entry point's name or a module name.
+
+    ``config_file`` and ``key`` locate the errors about the entry itself (a missing file);
+    without a config file they are command-line errors (``--plugin``).
+    """
+    refuse = ConfigError if config_file else UsageError
+    if entry.endswith(".py") or "/" in entry or "\\" in entry:
+        path = folder / entry
+        if not path.is_file():
+            raise refuse(f"plugin file not found: {path}", file=config_file, key=key)
+        return _load_file(entry, path)
+    entry_point = installed_entry_points().get(entry)
+    module = entry_point.module if entry_point is not None else entry
+    if not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*", module) or _find_spec(module) is None:
+        raise refuse(f"no plugin module or installed plugin named {entry!r} (a plugin file's name "
+                     "ends in .py)", file=config_file, key=key)
+    return _load_module(entry, module)
+
+
+def load_plugins(entries: Iterable[str], folder: Path = Path("."), *, what: str = "--plugin") -> list[LoadedPlugin]:
+    """Load plugins given on the command line (``--plugin``), files relative to ``folder``."""
+    return [load_plugin(entry, folder, key=what) for entry in entries]
+
+
+def installed_entry_points() -> dict:
+    """The installed packages' plugins: entry point name -> entry point (group ``pfx.plugins``)."""
+    from importlib.metadata import entry_points
+
+    return {entry_point.name: entry_point for entry_point in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def load_installed_plugins(entry_points: Optional[Iterable] = None) -> list[LoadedPlugin]:
+    """Import every installed plugin (``pfx list`` shows them); ``entry_points`` for tests."""
+    chosen = list(installed_entry_points().values()) if entry_points is None else list(entry_points)
+    return [_load_module(entry_point.name, entry_point.module) for entry_point in chosen]
+
+
+def _find_spec(module: str):
+    try:
+        return importlib.util.find_spec(module)
+    except (ImportError, ValueError):      # a parent package that is missing or broken
+        return None
+
+
+def _load_file(name: str, path: Path) -> LoadedPlugin:
+    source = path.read_bytes()
+    digest = hashlib.sha256(source).hexdigest()
+    origin = str(path.resolve())
+    earlier = _LOADED.get(origin)
+    if earlier is not None and earlier.sha256 == digest:
+        return _renamed(earlier, name, str(path))
+    module = f"pfx_plugin_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest[:12]}"
+    plugin = LoadedPlugin(name=name, origin=origin, path=str(path), sha256=digest, module=module, source=source)
+    return _remember(_execute(plugin))
+
+
+def _load_module(name: str, module: str) -> LoadedPlugin:
+    earlier = _LOADED.get(module)
+    if earlier is not None:
+        return _renamed(earlier, name, earlier.path)
+    spec = _find_spec(module)
+    source_file = spec.origin if spec is not None and spec.origin and Path(spec.origin).is_file() else None
+    digest = hashlib.sha256(Path(source_file).read_bytes()).hexdigest() if source_file else ""
+    plugin = LoadedPlugin(name=name, origin=module, path=source_file or module, sha256=digest, module=module)
+    _prepare_registries()
+    with registering_for(plugin.origin):
+        try:
+            importlib.import_module(module)
+        except Exception as error:
+            _forget(plugin.origin)
+            raise import_failure(error, plugin) from None
+    return _remember(plugin)
+
+
+def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
+    """Run a file plugin's code (the hashed bytes) as its module, its registrations owned by it."""
+    _prepare_registries()
+    _forget(plugin.origin)                   # an earlier version of the same file, in this process
+    module = types.ModuleType(plugin.module)
+    module.__file__ = plugin.path
+    sys.modules[plugin.module] = module      # classes pickle by module name: workers find it too
+    with registering_for(plugin.origin):
+        try:
+            exec(compile(plugin.source, plugin.path, "exec"), module.__dict__)
+        except (Exception, SystemExit) as error:
+            del sys.modules[plugin.module]
+            _forget(plugin.origin)
+            raise import_failure(error, plugin) from None
+    return plugin
+
+
+def _remember(plugin: LoadedPlugin) -> LoadedPlugin:
+    registered = tuple(f"{registry.what} {name}" for registry in _registries() for name in registry
+                       if registry.origin(name) == plugin.origin)
+    plugin = LoadedPlugin(**{**plugin.__dict__, "registered": registered})
+    _LOADED[plugin.origin] = plugin
+    return plugin
+
+
+def _renamed(plugin: LoadedPlugin, name: str, path: str) -> LoadedPlugin:
+    return LoadedPlugin(**{**plugin.__dict__, "name": name, "path": path})
+
+
+def import_failure(error: BaseException, plugin: LoadedPlugin) -> ConfigError:
+    """The one line for an exception raised while importing a plugin: the plugin's file and its
+    last line in the traceback, the exception's type and message."""
+    line = None
+    if isinstance(error, SyntaxError) and error.filename == plugin.path:
+        line = error.lineno
+    traceback = error.__traceback__
+    while traceback is not None:
+        if traceback.tb_frame.f_code.co_filename == plugin.path:
+            line = traceback.tb_lineno
+        traceback = traceback.tb_next
+    message = " ".join(str(error.msg if isinstance(error, SyntaxError) else error).split())
+    reason = message if isinstance(error, (PluginError, RegistrationClash)) else \
+        f"{type(error).__name__}: {message}" if message else type(error).__name__
+    return ConfigError(reason, file=plugin.path, line=line)
+
+
+def _registries() -> list:
+    """Every registry a plugin may add to."""
+    from pfx.analysis.metrics import METRICS
+    from pfx.figures import FIGURES
+    from pfx.filters import FILTERS
+    from pfx.filters.particle.diffusion import DIFFUSIONS
+    from pfx.filters.particle.resampling import RESAMPLERS
+    from pfx.filters.particle.weighting import WEIGHTINGS
+    from pfx.laws.noise import NOISE_FAMILIES
+    from pfx.models import MODELS
+    from pfx.studies import STUDIES
+
+    return [MODELS, FILTERS, RESAMPLERS, WEIGHTINGS, DIFFUSIONS, NOISE_FAMILIES, METRICS, FIGURES, STUDIES]
+
+
+def _prepare_registries() -> None:
+    """Import pfx's own components before a plugin runs, so that none is taken for the plugin's
+    (importing ``pfx.models.base`` from a plugin would otherwise register the built-in models
+    while the plugin's name is the registries' current owner)."""
+    _registries()
+
+
+def _forget(origin: str) -> None:
+    for registry in _registries():
+        registry.forget(origin)
+
+
+def ensure_loaded(plugins: Iterable[LoadedPlugin]) -> None:
+    """In a worker process: make the plugins of a task importable (their classes unpickle),
+    executing a file plugin's shipped code once per process."""
+    for plugin in plugins:
+        if plugin.module in sys.modules:
+            continue
+        if plugin.source is not None:
+            try:
+                _execute(plugin)
+            except ConfigError as error:
+                raise ExecutorError(f"plugin {plugin.name} failed on a worker: {error}") from None
+            continue
+        try:
+            with registering_for(plugin.origin):
+                importlib.import_module(plugin.module)
+        except Exception as error:
+            raise ExecutorError(f"plugin module {plugin.module!r} cannot be imported on a worker "
+                                f"({type(error).__name__}: {error}); install it there, as pfx itself") from None
+
+
+def unknown_name_hint(plugins: list[LoadedPlugin]) -> str:
+    """For an unknown component name: which plugins were loaded and what they registered."""
+    if not plugins:
+        return ""
+    return "; plugins loaded: " + ", ".join(plugin.summary() for plugin in plugins)

@@ -1,0 +1,273 @@
+"""Plugins (docs/plugins.md): components from outside pfx, through the real command line.
+
+The minimal plugin of the docs, from a file, is validated, listed, documented, run by every
+filter kind that can run it, resumed and (with the Dask extra) run on Dask, like a built-in
+model. Every way a plugin can fail is one exact error line, exit status 2, nothing written. A
+changed plugin refuses a resume. The two examples in examples/plugins/ run and pass checks
+derived from theory, and installed packages' plugins are found through their entry points.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from conftest import REPO_ROOT, write_config_file
+
+EXAMPLES = REPO_ROOT / "examples" / "plugins"
+PREFIX = "pfx: error: "
+
+MINIMAL = '''from typing import Literal
+import pfx
+
+@pfx.register_model
+class DampedWalk(pfx.Model):
+    """x_k = a x_{k-1} + w_k, z_k = x_k + v_k."""
+    kind: Literal["damped_walk"] = "damped_walk"
+    a: float = 0.8
+
+    @property
+    def state_names(self): return ("x",)
+    @property
+    def measurement_dimension(self): return 1
+    def propagate(self, state, control, noise): return self.a * state + noise
+    def measurement_mean(self, state): return state
+'''
+
+
+def minimal_config(plugin: str = "damped_walk.py", kind: str = "damped_walk", **changes) -> dict:
+    config = {"name": "damped", "plugins": [plugin], "trials": 3,
+              "model": {"kind": kind, "steps": 15, "process_noise": {"variance": 1.0},
+                        "measurement_noise": {"variance": 0.5},
+                        "initial": {"kind": "gaussian", "mean": [0.0], "covariance": 1.0}},
+              "filter": {"particles": 200}, "outputs": {"figures": []}}
+    config.update(changes)
+    return config
+
+
+def write_plugin(folder: Path, source: str = MINIMAL, name: str = "damped_walk.py") -> Path:
+    path = folder / name
+    path.write_text(source)
+    return path
+
+
+def one_error_line(result) -> str:
+    assert result.returncode == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.output, result.output
+    return lines[0].removeprefix(PREFIX)
+
+
+ALL_KINDS = {"pf": {"kind": "particle"}, "sis": {"kind": "sis"}, "hist": {"kind": "histogram"},
+             "ekf": {"kind": "ekf"}, "ukf": {"kind": "ukf"}}
+
+
+def test_minimal_plugin_runs_with_every_filter_kind(run_pfx, tmp_path):
+    plugin = write_plugin(tmp_path)
+    config = write_config_file(tmp_path, minimal_config(arms=ALL_KINDS))
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 0, result.output
+    trials = pd.read_csv(tmp_path / "out" / "trials.csv")
+    assert set(trials["filter"]) == {"particle", "sis", "histogram", "ekf", "ukf"}
+    assert set(trials["model"]) == {"damped_walk"} and len(trials) == 5 * 3
+    assert np.isfinite(trials["rmse_position"]).all()
+    # a walk of stationary variance 1 / (1 - 0.8^2), seen with noise variance 0.5: every filter
+    # does better than the measurements alone (RMSE sqrt(0.5))
+    assert (trials.groupby("filter")["rmse_position"].mean() < np.sqrt(0.5)).all()
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["plugins"] == [{"name": "damped_walk.py", "file": str(plugin),
+                                    "sha256": hashlib.sha256(plugin.read_bytes()).hexdigest()}]
+    resolved = yaml.safe_load((tmp_path / "out" / "config.yaml").read_text())
+    assert resolved["plugins"] == ["damped_walk.py"] and resolved["model"]["a"] == 0.8
+
+
+def test_a_config_without_plugins_runs_no_plugin_code(run_pfx, tmp_path):
+    marker = tmp_path / "imported"
+    write_plugin(tmp_path, MINIMAL + f"\nopen({str(marker)!r}, 'w').close()\n")
+    config = minimal_config()
+    del config["plugins"]
+    write_config_file(tmp_path, config)
+    result = run_pfx("validate", "config.yaml", cwd=tmp_path)
+    assert one_error_line(result).startswith("config.yaml: model.kind: unknown model kind 'damped_walk'")
+    assert not marker.exists()
+
+
+FAILURES = {
+    "missing file": (None, "config.yaml: plugins[0]: plugin file not found: damped_walk.py"),
+    "exception at import": (MINIMAL.replace('    a: float = 0.8\n', '    a: float = 0.8\n    b: float = oops\n'),
+                            "damped_walk.py:9: NameError: name 'oops' is not defined"),
+    "syntax error": (MINIMAL.replace("a: float = 0.8", "a: float = = 0.8"),
+                     "damped_walk.py:8: SyntaxError: invalid syntax"),
+    "clash with a built-in": (MINIMAL.replace('"damped_walk"', '"linear_gaussian"'),
+                              "damped_walk.py:4: model 'linear_gaussian' is a built-in model of pfx; "
+                              "choose another name"),
+    "missing method": (MINIMAL.replace("    def measurement_mean(self, state): return state\n", ""),
+                       "damped_walk.py:4: model damped_walk (class DampedWalk) does not define measurement_mean, "
+                       "which every model must (docs/plugins.md)"),
+    "wrong shape": (MINIMAL.replace("return self.a * state + noise", "return (self.a * state + noise)[..., 0]"),
+                    "damped_walk.py: model damped_walk: propagate returned shape (2, 3) for a batch of 2 trials "
+                    "x 3 particles; expected (2, 3, 1)"),
+    "wrong dtype": (MINIMAL.replace("def measurement_mean(self, state): return state",
+                                    "def measurement_mean(self, state): return state > 0"),
+                    "damped_walk.py: model damped_walk: measurement_mean returned dtype bool; expected floating "
+                    "point (float64)"),
+    "kind not registered": (MINIMAL, "config.yaml: model.kind: unknown model kind 'damped_wlak' (did you mean "
+                                     "'damped_walk'?); plugins loaded: damped_walk.py (model damped_walk)"),
+    "components that are not indices": (
+        MINIMAL + "    @property\n    def angular_components(self): return ('x',)\n",
+        "damped_walk.py: model damped_walk: angular_components returned ('x',); expected indices of state "
+        "components (integers 0..0, e.g. (0,) for x)"),
+}
+
+
+@pytest.mark.parametrize("case", list(FAILURES))
+def test_plugin_failures_are_one_line(run_pfx, tmp_path, case):
+    source, expected = FAILURES[case]
+    if source is not None:
+        write_plugin(tmp_path, source)
+    # with arms, as a comparison has: the plugin's mistake is still located in the plugin file
+    config = minimal_config(kind="damped_wlak" if case == "kind not registered" else "damped_walk",
+                            arms={"particle": {"kind": "particle"}, "ekf": {"kind": "ekf"}})
+    write_config_file(tmp_path, config)
+    before = sorted(tmp_path.iterdir())
+    result = run_pfx("run", "config.yaml", "--out", "out", cwd=tmp_path)
+    assert one_error_line(result) == expected
+    assert sorted(tmp_path.iterdir()) == before            # nothing written
+
+
+def test_list_and_schema_with_plugin(run_pfx, tmp_path):
+    write_plugin(tmp_path)
+    listed = run_pfx("list", "models", "--plugin", "damped_walk.py", cwd=tmp_path)
+    assert listed.returncode == 0, listed.output
+    assert "damped_walk        x_k = a x_{k-1} + w_k, z_k = x_k + v_k. [plugin damped_walk.py]" in listed.stdout
+    assert "linear_gaussian" in listed.stdout
+    assert "damped_walk" not in run_pfx("list", "models", cwd=tmp_path).stdout
+    schema = json.loads(run_pfx("schema", "--plugin", "damped_walk.py", cwd=tmp_path).stdout)
+    assert "DampedWalk" in schema["$defs"]
+    assert schema["$defs"]["DampedWalk"]["properties"]["a"]["default"] == 0.8
+    built_in = run_pfx("schema", cwd=tmp_path).stdout
+    assert built_in == (REPO_ROOT / "docs" / "config.schema.json").read_text()
+    markdown = run_pfx("schema", "--format", "markdown", "--plugin", "damped_walk.py", cwd=tmp_path).stdout
+    assert "#### `kind: damped_walk`" in markdown
+    missing = run_pfx("list", "--plugin", "nothere.py", cwd=tmp_path)
+    assert one_error_line(missing) == "--plugin: plugin file not found: nothere.py"
+
+
+def test_resume_refused_after_plugin_change(run_pfx, tmp_path):
+    plugin = write_plugin(tmp_path)
+    config = write_config_file(tmp_path, minimal_config())
+    assert run_pfx("run", config, "--out", "out", cwd=tmp_path).returncode == 0
+    again = run_pfx("run", config, "--out", "out", cwd=tmp_path)
+    assert again.returncode == 0 and "up to date" in again.output
+    plugin.write_text(MINIMAL.replace("a: float = 0.8", "a: float = 0.7"))
+    manifest_before = (tmp_path / "out" / "manifest.json").read_text()
+    changed = run_pfx("run", config, "--out", "out", cwd=tmp_path)
+    line = one_error_line(changed)
+    assert line.startswith("out: plugin damped_walk.py has changed since these results were computed (sha256 ")
+    assert line.endswith("); use --fresh to recompute them or --out for another folder")
+    assert (tmp_path / "out" / "manifest.json").read_text() == manifest_before
+    assert run_pfx("run", config, "--out", "out", "--fresh", cwd=tmp_path).returncode == 0
+
+
+def test_dask_runs_plugin_models(run_pfx, tmp_path):
+    pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
+    write_plugin(tmp_path)
+    config = write_config_file(tmp_path, minimal_config(trials=6, arms={"pf": {"kind": "particle"},
+                                                                        "ekf": {"kind": "ekf"}}))
+    local = run_pfx("run", config, "--out", "local", cwd=tmp_path)
+    dask = run_pfx("run", config, "--out", "dask", "--executor", "dask-local", "--workers", "2", cwd=tmp_path)
+    assert local.returncode == 0 and dask.returncode == 0, local.output + dask.output
+    columns = ["cell", "trial", "rmse_position", "log_likelihood"]
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "local" / "trials.csv")[columns],
+                                  pd.read_csv(tmp_path / "dask" / "trials.csv")[columns])
+
+
+# -- the examples -------------------------------------------------------------------------------
+
+
+def test_stochastic_volatility_loglikelihood_spread_shrinks_with_particles():
+    """The bootstrap filter's log-likelihood estimate is finite, and its spread over filter seeds
+    on one data set shrinks with N (its variance is O(1/N): 16 times the particles, a quarter
+    of the spread)."""
+    from pfx.config.plan import build_plan
+    from pfx.filters import run_filter
+    from pfx.numerics.seeding import TrialStreams
+
+    config = yaml.safe_load((EXAMPLES / "stochastic-volatility.yaml").read_text())
+    config.update(trials=1, sweep={})
+    plan = build_plan(config, str(EXAMPLES / "stochastic-volatility.yaml"))
+    cell = plan.cells[0]
+    model = cell.truth_model
+    random = TrialStreams.from_seeds([2024])
+    state, measurements = model.initial.sample(random), []
+    for step in range(1, model.steps + 1):
+        state = model.transition(state, step, random)
+        measurements.append(model.simulate_measurement(state, random))
+    data = np.repeat(np.stack(measurements, axis=1), 40, axis=0)      # one data set, 40 filter seeds
+    spreads = {}
+    for particles in (100, 1600):
+        settings = cell.filter.model_copy(update={"particles": particles})
+        trace = run_filter("particle", model, data, TrialStreams.from_seeds(range(40)), settings=settings,
+                           prior=cell.prior)
+        assert np.isfinite(trace.log_likelihood).all()
+        spreads[particles] = np.std(trace.log_likelihood)
+    assert spreads[1600] < 0.5 * spreads[100]
+
+
+def test_examples_run(run_pfx, tmp_path):
+    """Both examples through the command line: the stochastic-volatility filters track the
+    log-variance better than its stationary spread; the bearings-only particle filter's position
+    error is far below the prior's spread (sqrt(0.5^2 + 0.3^2)), and the EKF and UKF run."""
+    runs = run_pfx.many({name: (("run", EXAMPLES / f"{name}.yaml", "--out", tmp_path / name, "--trials", "8"),
+                                tmp_path) for name in ("stochastic-volatility", "bearings-only")})
+    for result in runs.values():
+        assert result.returncode == 0, result.output
+    volatility = pd.read_csv(tmp_path / "stochastic-volatility" / "trials.csv")
+    stationary_sd = 0.25 / np.sqrt(1 - 0.95**2)
+    assert np.isfinite(volatility["log_likelihood"]).all()
+    assert volatility[volatility["filter"] == "particle"]["rmse_position"].mean() < stationary_sd
+    bearings = pd.read_csv(tmp_path / "bearings-only" / "trials.csv")
+    particle = bearings[bearings["arm"] == "roughened"]["rmse_position"]
+    assert particle.mean() < 0.25 * np.hypot(0.5, 0.3)
+    assert set(bearings["filter"]) == {"particle", "ekf", "ukf"}
+    assert np.isfinite(bearings["rmse_position"]).all()
+
+
+# -- installed plugins ---------------------------------------------------------------------------
+
+
+def test_entry_point_plugins(tmp_path, monkeypatch):
+    """A fake installed distribution (a .dist-info folder with entry_points.txt on sys.path)
+    offers a model through the group ``pfx.plugins``; `pfx list` loads it, and a config naming
+    the entry point uses it."""
+    from pfx.config.plan import build_plan
+    from pfx.config.plugins import installed_entry_points, load_installed_plugins
+    from pfx.models import MODELS
+
+    source = MINIMAL.replace("damped_walk", "installed_walk").replace("DampedWalk", "InstalledWalk")
+    (tmp_path / "pfx_test_installed_walk.py").write_text(source)
+    info = tmp_path / "pfx_test_installed-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: pfx-test-installed\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[pfx.plugins]\ninstalled-walk = pfx_test_installed_walk\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert "installed-walk" in installed_entry_points()
+    assert "installed_walk" not in MODELS                         # nothing is loaded behind one's back
+    loaded = [plugin for plugin in load_installed_plugins() if plugin.name == "installed-walk"]
+    assert loaded and loaded[0].registered == ("model installed_walk",)
+    assert MODELS.origin("installed_walk") == "pfx_test_installed_walk"
+    config = minimal_config(plugin="installed-walk", kind="installed_walk")
+    plan = build_plan(config, str(tmp_path / "config.yaml"))
+    assert plan.cells[0].truth_model.kind == "installed_walk" and plan.plugins[0].sha256
+    # a config that does not name the plugin does not see its model
+    del config["plugins"]
+    from pfx.errors import ConfigError
+    with pytest.raises(ConfigError, match="unknown model kind 'installed_walk'"):
+        build_plan(config, str(tmp_path / "config.yaml"))
+    sys.modules.pop("pfx_test_installed_walk", None)
