@@ -235,6 +235,20 @@ def lost_particle_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"lost_particles": inputs.trace.lost_particles}
 
 
+@METRICS.register("particle_count")
+def particle_count_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Particle filters: the mean particle count over the steps (particles_mean: N, or the mean
+    adaptive count) and the mean number injected per step (injected_mean; 0 without injection).
+    Empty for other filters."""
+    trace = inputs.trace
+    counts = getattr(trace, "particle_counts", None)
+    if counts is None:
+        return {"particles_mean": inputs.empty(), "injected_mean": inputs.empty()}
+    injected = getattr(trace, "injected", None)
+    return {"particles_mean": counts.mean(axis=1),
+            "injected_mean": injected.mean(axis=1) if injected is not None else np.zeros(inputs.trials)}
+
+
 @METRICS.register("grid_lost_mass")
 def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Grid filter: the largest probability mass that left the grid in one step (empty for

@@ -19,13 +19,15 @@ of the built-in components alone.
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Collection, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model, model_validator
 
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS
+from pfx.filters.particle.adaptive import KLDSampling
 from pfx.filters.particle.diffusion import DIFFUSIONS, NoDiffusion
+from pfx.filters.particle.injection import AugmentedMCL
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
 from pfx.laws.initial import InitialLaw
@@ -131,6 +133,12 @@ def _build(plugins: frozenset) -> ConfigSchema:
             default_factory=NoDiffusion,
             description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
         initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
+        adaptive: Optional[KLDSampling] = Field(
+            None, description="adaptive particle count: {kind: kld, epsilon, delta, bin_size, min_particles} "
+                              "(KLD-sampling, Fox 2003; `particles` is the maximum); default none: N fixed")
+        injection: Optional[AugmentedMCL] = Field(
+            None, description="particle injection at resampling: {kind: augmented, alpha_slow, alpha_fast} "
+                              "(augmented MCL: prior draws when the likelihood drops); default none")
 
         # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
         # kind's own settings blocks (every other setting applies to every kind)
@@ -145,6 +153,15 @@ def _build(plugins: frozenset) -> ConfigSchema:
             # Pickled (to worker processes) as "the FilterConfig of these plugins" and its
             # state, not by class identity: each process builds its own classes (config_schema).
             return (_filter_settings, (self.PLUGINS, self.__getstate__()))
+
+        @model_validator(mode="after")
+        def _particle_stages(self):
+            # adaptive counts and injection are stages of resampling: only kinds that read them
+            for key in ("adaptive", "injection"):
+                if getattr(self, key) is not None and self.kind not in self.KIND_SPECIFIC.get(key, ()):
+                    raise ValueError(f"@{key}: the {self.kind} filter has no resampling stage to apply it to "
+                                     f"(use kind particle)")
+            return self
 
         @property
         def uses_particles(self) -> bool:

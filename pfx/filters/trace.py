@@ -36,6 +36,11 @@ class FilterTrace:
     # apart from ``covariances`` (the particle filter: weighted, before resampling, for the
     # traced trials only; NaN in the rows not recorded)
     standard_deviations: Optional[np.ndarray] = None
+    # particle filters: (trials, T) the particles the step's cloud was weighted with (N, or the
+    # adaptive count, pfx.filters.particle.adaptive), and the particles injected at its
+    # resampling (pfx.filters.particle.injection; None: no injection)
+    particle_counts: Optional[np.ndarray] = None
+    injected: Optional[np.ndarray] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -201,6 +201,11 @@ class Model(BaseModel):
         noise = self.process_noise.sample(random, state.shape[1:-1])
         return self.propagate(state, self.control(step), noise)
 
+    def truth_event(self, state: np.ndarray, step: int) -> np.ndarray:
+        """What happens to the true state at step k beyond the transition (a kidnapping): applied
+        by the truth simulation only, after the transition; a filter never calls it. Default: nothing."""
+        return state
+
     def simulate_measurement(self, state: np.ndarray, random: TrialStreams) -> np.ndarray:
         """Sample z_k ~ p(z_k | x_k)."""
         return self.measure(state, self.measurement_noise.sample(random, state.shape[1:-1]))

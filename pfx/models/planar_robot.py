@@ -55,6 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, Str
 from pfx.laws.initial import PointLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
+from pfx.models.kidnap import Kidnap
 from pfx.motion.distributions import MotionNoise
 from pfx.motion.odometry import OdometryAlphas, move_by_odometry, relative_motion, sample_motion_model_odometry
 from pfx.motion.velocity import VelocityAlphas, move_on_arc, sample_motion_model_velocity
@@ -133,6 +134,9 @@ class PlanarRobot(Model):
     landmarks: Optional[list[Point]] = Field(None, min_length=1, description="landmark positions [[x, y], ...]")
     bearings: bool = Field(False, description="also measure the bearing to each landmark (after the ranges)")
     unit: str = Field("m", description="length unit, for labels")
+    kidnap: Optional[Kidnap] = Field(
+        None, description="{step: k, to: [x, y, theta]}: the true robot is carried to `to` at step k "
+                          "(the filter is not told); default none")
 
     _commands: np.ndarray = PrivateAttr(None)
     _nominal_path: np.ndarray = PrivateAttr(None)
@@ -159,6 +163,8 @@ class PlanarRobot(Model):
         return Noise(family=_NOISE_FAMILY[self.motion.noise], variance=1.0)
 
     def check(self):
+        if self.kidnap is not None:
+            self.kidnap.check(self.steps)
         available = sum(segment.steps for segment in self.controls)
         if self.steps > available:
             raise ValueError(f"@steps: the controls cover {available} step(s), fewer than steps = {self.steps}")
@@ -167,6 +173,9 @@ class PlanarRobot(Model):
         if self.process_noise.family != _NOISE_FAMILY[self.motion.noise] or not unit or self.process_noise.df:
             raise ValueError("@process_noise: fixed by the motion model (unit variance, family of motion.noise); "
                              "set the motion noise with motion.alphas and motion.noise instead")
+
+    def truth_event(self, state, step):
+        return state if self.kidnap is None else self.kidnap.apply(state, step)
 
     def setup(self):
         self._commands = np.repeat([[s.v, s.w] for s in self.controls],

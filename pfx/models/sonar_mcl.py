@@ -65,6 +65,7 @@ from pfx.errors import ModelNumericalError
 from pfx.laws.initial import GaussianLaw, InitialLaw, PointLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
+from pfx.models.kidnap import Kidnap
 from pfx.models.walls import WallMap, read_wall_file
 from pfx.numerics.angles import wrap_into_turn
 
@@ -202,6 +203,9 @@ class SonarMCL(Model):
                                  "ultrasonic sensor: 255)")
     clearance: StrictFloat = Field(
         1.0, ge=0, description="a move that would cross a wall stops this many cm short of it")
+    kidnap: Optional[Kidnap] = Field(
+        None, description="{step: k, to: [x, y, heading]}: the true robot is carried to `to` at step k "
+                          "(the filter is not told); default none")
 
     _map: WallMap = PrivateAttr(None)
     _controls: np.ndarray = PrivateAttr(None)
@@ -257,6 +261,11 @@ class SonarMCL(Model):
                 raise ValueError(f"@route[{index}]: an action of 0 does nothing; remove it")
         if self.steps > len(self.route):
             raise ValueError(f"@steps: the route has only {len(self.route)} action(s), one per step")
+        if self.kidnap is not None:
+            self.kidnap.check(self.steps)
+            x, y, _ = self.kidnap.to
+            if not wall_map.contains(x, y):
+                raise ValueError(f"@kidnap.to: the position ({x:g}, {y:g}) is not in the arena's free space")
         start, key = None, None
         if isinstance(self.initial, PointLaw):
             start, key = self.initial.state, "initial.state"
@@ -325,6 +334,9 @@ class SonarMCL(Model):
                 heading = float(wrap_into_turn(np.asarray(heading + angle), FULL_TURN))
                 elements.append({"element": "path", "x": x, "y": y, "heading": heading, "label": str(number)})
         return elements
+
+    def truth_event(self, state, step):
+        return state if self.kidnap is None else self.kidnap.apply(state, step)
 
     def control(self, step):
         """u_k = [d, 0] for a move of d cm, [0, alpha] for a turn of alpha degrees."""

@@ -109,7 +109,7 @@ def steps_columns(cell: Cell) -> list[str]:
     states = cell.truth_model.state_names
     columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
                                                                for kind in ("truth", "estimate", "sd")],
-               "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis"]
+               "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis", "particles"]
     return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
 
 
@@ -138,6 +138,8 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
                                               trace.covariances[i])
                            if trace.covariances is not None else np.nan)
         columns["nis"] = trace.nis[i] if trace.nis is not None else np.nan
+        counts = getattr(trace, "particle_counts", None)
+        columns["particles"] = counts[i] if counts is not None else np.nan
         if cell.metrics.convergence.criterion == "spread":
             columns["within_radius"] = trace.within_radius[i] if trace.within_radius is not None else np.nan
         frames.append(pd.DataFrame(columns))

@@ -164,7 +164,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
                         consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
-                        trace_rows: Optional[np.ndarray] = None) -> FilterTrace:
+                        trace_rows: Optional[np.ndarray] = None, adaptive=None, injection=None) -> FilterTrace:
     """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
@@ -183,7 +183,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
         recorders.append(SnapshotRecorder(snapshot))
     return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
                           ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
-                          recorders=recorders).run()
+                          recorders=recorders, adaptive=adaptive, injection=injection).run()
 
 
 class ParticleFilter:
@@ -197,12 +197,17 @@ class ParticleFilter:
     """
 
     def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
-                 resampler, ess_threshold: float, weighting, move, recorders=()):
+                 resampler, ess_threshold: float, weighting, move, recorders=(), adaptive=None, injection=None):
         self.model, self.measurements, self.random = model, measurements, random
         self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
         self.recorders = list(recorders)
         self.trials, self.steps, _ = measurements.shape
-        self.particles = particles                       # the particle count: fixed for now
+        self.particles = particles                       # the particle count (with ``adaptive``: the maximum)
+        # the adaptive count (pfx.filters.particle.adaptive): active particles per trial, None: all N
+        self.adaptive, self.prior = adaptive, prior
+        self.active: Optional[np.ndarray] = None if adaptive is None else np.full(self.trials, particles)
+        # particle injection (pfx.filters.particle.injection): its running averages, or None
+        self.injection = None if injection is None else injection.start(self.trials)
         self.uniform_log_weight = -np.log(particles)
         self.state = prior.sample(random, (particles,))
         self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
@@ -216,7 +221,9 @@ class ParticleFilter:
             estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
             ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
             degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.empty((self.trials, self.steps)),
-            log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64))
+            log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64),
+            particle_counts=np.full((self.trials, self.steps), particles),
+            injected=None if injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
 
     def run(self) -> FilterTrace:
         self.record("prior", 0)
@@ -286,12 +293,16 @@ class ParticleFilter:
             self.trace.degenerate[underflow, t] = True
             normalised[underflow] = self.uniform_log_weight
             new_weights[underflow] = 1.0 / self.particles
+            if self.active is not None:            # uniform over the active particles only
+                normalised[underflow], new_weights[underflow] = active_uniform(self.active[underflow], self.particles)
         self.log_weights = normalised
         if skipped is not None:
             # A predict-only step adds nothing: its normaliser is only the mass of the particles
             # lost to the model's domain (they were renormalised away above).
             normaliser = np.where(skipped, 0.0, normaliser)
         self.trace.log_likelihood += normaliser
+        if self.injection is not None:              # w_avg = exp(L_k), the weighted mean likelihood
+            self.injection.observe(normaliser, None if skipped is None else ~skipped)
         self.weights = new_weights
 
     def estimate(self, k: int) -> None:
@@ -306,10 +317,13 @@ class ParticleFilter:
     def resample_and_move(self, k: int) -> None:
         """Resample the trials whose ESS fell below the threshold, then move their particles."""
         t = k - 1
+        if self.active is not None:                  # the count this step's cloud was weighted with
+            self.trace.particle_counts[:, t] = self.active
         if self.ess_threshold >= 1.0:
             rows = np.arange(self.trials)
         elif self.ess_threshold > 0.0:
-            rows = np.flatnonzero(self.trace.ess[:, t] < self.ess_threshold * self.particles)
+            count = self.particles if self.active is None else self.active     # relative to the active count
+            rows = np.flatnonzero(self.trace.ess[:, t] < self.ess_threshold * count)
         else:
             rows = np.empty(0, dtype=np.intp)
         if not rows.size:
@@ -318,14 +332,33 @@ class ParticleFilter:
         selected = slice(None) if every else rows      # a slice spares fancy-index copies
         streams = self.random if every else self.random.subset(rows)
         indices = self.resampler(self.weights[selected], streams)
-        moved = self.move.apply(resample_rows(self.state, rows, indices), streams)
+        resampled = resample_rows(self.state, rows, indices)
+        if self.adaptive is not None:                # KLD: keep the first n of a random order
+            resampled, counts = self._adapt_count(resampled, streams)
+        moved = self.move.apply(resampled, streams)
+        if self.injection is not None:               # augmented MCL: replace some by prior draws
+            active = np.full(rows.size, self.particles) if self.active is None else self.active[rows]
+            self.trace.injected[rows, t] = self.injection.inject(moved, active, rows, streams, self.prior)
         if every:
             self.state = moved
         else:
             self.state[rows] = moved
-        self.log_weights[selected] = self.uniform_log_weight
-        self.weights[selected] = 1.0 / self.particles
+        if self.adaptive is not None:
+            self.active[rows] = counts
+            self.log_weights[selected], self.weights[selected] = active_uniform(counts, self.particles)
+        else:
+            self.log_weights[selected] = self.uniform_log_weight
+            self.weights[selected] = 1.0 / self.particles
         self.trace.resampled[selected, t] = True
+
+    def _adapt_count(self, resampled: np.ndarray, streams: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
+        """The resampled clouds in a random order with the KLD count of each
+        (:mod:`pfx.filters.particle.adaptive`); particles past the count are parked on particle 0."""
+        order, counts = self.adaptive.select(resampled, streams)
+        ordered = np.take_along_axis(resampled, order[..., None], axis=1)
+        inactive = np.arange(self.particles) >= counts[:, None]
+        ordered = np.where(inactive[..., None], ordered[:, :1], ordered)
+        return ordered, counts
 
 
 class Recorder:
@@ -356,7 +389,8 @@ class SpreadRecorder(Recorder):
         with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
             run.trace.spread[:, step - 1] = _spread(run.weights, positions)
             if self.criterion is not None:
-                run.trace.within_radius[:, step - 1] = _share_within(run.weights, positions, self.criterion)
+                run.trace.within_radius[:, step - 1] = _share_within(run.weights, positions, self.criterion,
+                                                                     run.active)
 
 
 class StandardDeviationRecorder(Recorder):
@@ -435,17 +469,29 @@ def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("rn,rn->r", weights, squared))
 
 
-def _share_within(weights: np.ndarray, positions: np.ndarray, criterion: SpreadCriterion) -> np.ndarray:
-    """Share of particles (by weight, or by count) within the radius of the (matching) mean."""
+def _share_within(weights: np.ndarray, positions: np.ndarray, criterion: SpreadCriterion,
+                  active: Optional[np.ndarray] = None) -> np.ndarray:
+    """Share of particles (by weight, or by count: of the active ones) within the radius of the
+    (matching) mean."""
     if not criterion.weighted:
-        weights = np.full_like(weights, 1.0 / weights.shape[-1])
+        weights = np.full_like(weights, 1.0 / weights.shape[-1]) if active is None \
+            else active_uniform(active, weights.shape[-1])[1]
     centre = weighted_mean(weights, positions)[:, None, :]
     inside = np.sum((positions - centre) ** 2, axis=-1) <= criterion.radius ** 2
     return np.sum(weights * inside, axis=-1)
 
 
+def active_uniform(counts: np.ndarray, maximum: int) -> tuple[np.ndarray, np.ndarray]:
+    """(log-weights, weights) uniform over the first ``counts[r]`` particles of each row
+    (log 1/n, 1/n), -inf and 0 past them: an adaptive count's inactive particles."""
+    active = np.arange(maximum) < counts[:, None]
+    uniform = 1.0 / counts[:, None]
+    return np.where(active, -np.log(counts)[:, None], -np.inf), np.where(active, uniform, 0.0)
+
+
 def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
-    """True states x_0..x_T (R, T+1, d) and measurements z_1..z_T (R, T, m) from ``model``."""
+    """True states x_0..x_T (R, T+1, d) and measurements z_1..z_T (R, T, m) from ``model``;
+    the model's truth events (a kidnapping: :meth:`truth_event`) apply here, never in a filter."""
     trials = len(random)
     state = model.initial.sample(random)
     states = np.empty((trials, model.steps + 1, state.shape[-1]))
@@ -454,6 +500,7 @@ def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]
     for k in range(1, model.steps + 1):
         with np.errstate(over="ignore", invalid="ignore"):   # reported just below
             state = model.transition(state, k, random)
+            state = model.truth_event(state, k)
             states[:, k] = state
             measurements[:, k - 1] = model.simulate_measurement(state, random)
         if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):

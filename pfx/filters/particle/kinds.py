@@ -15,9 +15,15 @@ class SampleImportanceResampling(FilterKind):
     """Particle filter: resample when ESS < ess_threshold * N."""
 
     kind = "particle"
-    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion"})
+    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "adaptive", "injection"})
     carries_particles = True
     takes_trace_rows = True
+
+    @classmethod
+    def plan(cls, model, settings, prior):
+        if settings.adaptive is not None:
+            settings.adaptive.check(model.state_dimension, settings.particles)
+        return super().plan(model, settings, prior)
 
     @classmethod
     def ess_threshold(cls, settings) -> float:
@@ -30,7 +36,8 @@ class SampleImportanceResampling(FilterKind):
             model, measurements, random, prior=prior, particles=settings.particles,
             resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
             weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows)
+            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
+            adaptive=getattr(settings, "adaptive", None), injection=getattr(settings, "injection", None))
 
 
 @FILTERS.register_kind

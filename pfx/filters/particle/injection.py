@@ -1,0 +1,111 @@
+r"""Particle injection: augmented MCL (Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 8.3).
+
+Two exponential averages of the measurement likelihood, a slow and a fast one,
+
+.. math:: w_\text{slow} \leftarrow w_\text{slow} + \alpha_\text{slow}(w_\text{avg} - w_\text{slow}),
+          \qquad
+          w_\text{fast} \leftarrow w_\text{fast} + \alpha_\text{fast}(w_\text{avg} - w_\text{fast}),
+
+(both start at 0, :math:`0 \le \alpha_\text{slow} < \alpha_\text{fast}`), and at resampling each
+particle is replaced, with probability :math:`p = \max(0,\ 1 - w_\text{fast}/w_\text{slow})`, by
+a draw from the filter's prior (its initial law: for ``sonar_mcl``, uniform over free space).
+A sudden drop of the likelihood (the robot was kidnapped, the filter converged on the wrong
+place) pulls :math:`w_\text{fast}` below :math:`w_\text{slow}` and injects particles.
+
+:math:`w_\text{avg}`: the book takes the mean over particles of :math:`p(z_k \mid x_{k,i})` with
+the particles just resampled (equal weights). pfx takes the weighted mean with the previous
+weights, :math:`w_\text{avg} = \sum_i w_{k-1,i}\, p(z_k \mid x_{k,i}) = e^{L_k}`, the step's
+log-normaliser (:mod:`pfx.filters.particle.engine`): the same number when the filter resampled
+at the previous step, and the estimate of the predictive likelihood
+:math:`p(z_k \mid z_{1:k-1})` when it did not (an unweighted mean would count the particles
+that the previous measurements already ruled out). The averages are kept as logarithms
+(log-sum-exp of the two terms), so a likelihood of :math:`e^{-800}` neither underflows nor
+stops the averages. A step without a measurement leaves them unchanged.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
+
+from pfx.numerics.seeding import TrialStreams
+
+
+class AugmentedMCL(BaseModel):
+    """Augmented MCL: inject prior draws at rate max(0, 1 - w_fast / w_slow)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    kind: Literal["augmented"] = "augmented"
+    alpha_slow: StrictFloat = Field(0.001, ge=0, lt=1, description="decay rate of the slow average (book: 0.001)")
+    alpha_fast: StrictFloat = Field(0.1, gt=0, le=1, description="decay rate of the fast average (book: 0.1)")
+
+    @model_validator(mode="after")
+    def _rates(self) -> "AugmentedMCL":
+        if not self.alpha_slow < self.alpha_fast:
+            raise ValueError(f"@alpha_slow: must be less than alpha_fast ({self.alpha_slow:g} >= "
+                             f"{self.alpha_fast:g}): the slow average must be the slower one")
+        return self
+
+    def start(self, trials: int) -> "InjectionState":
+        return InjectionState(self, trials)
+
+
+class InjectionState:
+    """The running averages of one batch (log w_slow, log w_fast per trial, starting at log 0)."""
+
+    def __init__(self, settings: AugmentedMCL, trials: int):
+        self.settings = settings
+        self.log_slow = np.full(trials, -np.inf)
+        self.log_fast = np.full(trials, -np.inf)
+
+    def observe(self, log_average: np.ndarray, observed=None) -> None:
+        """w <- (1 - alpha) w + alpha w_avg for both averages, in logs; ``observed`` (bool per
+        trial, or None: all) masks the trials that had a measurement."""
+        with np.errstate(divide="ignore"):
+            slow = _blend(self.log_slow, log_average, self.settings.alpha_slow)
+            fast = _blend(self.log_fast, log_average, self.settings.alpha_fast)
+        if observed is None:
+            self.log_slow, self.log_fast = slow, fast
+        else:
+            self.log_slow = np.where(observed, slow, self.log_slow)
+            self.log_fast = np.where(observed, fast, self.log_fast)
+
+    def probability(self, rows) -> np.ndarray:
+        """p = max(0, 1 - w_fast / w_slow) for the given rows (0 while w_slow = 0)."""
+        slow, fast = self.log_slow[rows], self.log_fast[rows]
+        with np.errstate(invalid="ignore", over="ignore"):
+            ratio = np.exp(fast - slow)
+        return np.where(np.isneginf(slow), 0.0, np.maximum(0.0, 1.0 - ratio))
+
+    def inject(self, state: np.ndarray, active: np.ndarray, rows: np.ndarray, random: TrialStreams,
+               prior) -> np.ndarray:
+        """Replace each active particle of the resampled ``rows`` (state: their clouds, (R, N, d))
+        with probability p by a prior draw, in place; returns the number replaced per row.
+
+        Only the trials with p > 0 draw (from their own streams), so a trial's draws never
+        depend on the other trials of its batch.
+        """
+        probability = self.probability(rows)
+        injected = np.zeros(len(rows), dtype=np.int64)
+        drawing = np.flatnonzero(probability > 0.0)
+        if not drawing.size:
+            return injected
+        streams = random.subset(drawing)
+        count = state.shape[1]
+        replaced = streams.uniform((count,)) < probability[drawing, None]
+        replaced &= np.arange(count) < active[drawing, None]
+        fresh = prior.sample(streams, (count,))
+        target = state[drawing]
+        target[replaced] = fresh[replaced]
+        state[drawing] = target
+        injected[drawing] = replaced.sum(axis=1)
+        return injected
+
+
+def _blend(log_average: np.ndarray, log_value: np.ndarray, alpha: float) -> np.ndarray:
+    """log((1 - alpha) e^a + alpha e^v), exactly -inf where both terms vanish."""
+    keep = np.log1p(-alpha) + log_average if alpha < 1.0 else np.full_like(log_average, -np.inf)
+    add = np.log(alpha) + log_value if alpha > 0.0 else np.full_like(log_value, -np.inf)
+    return np.logaddexp(keep, add)
