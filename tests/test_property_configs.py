@@ -36,6 +36,8 @@ def _shrink(data: dict) -> dict:
     data = copy.deepcopy(data)
     data["trials"] = 2
     data["model"]["steps"] = 3
+    if "kidnap" in data["model"]:                 # a kidnapping within the shrunk steps
+        data["model"]["kidnap"]["step"] = min(data["model"]["kidnap"]["step"], 3)
     data.setdefault("filter", {})["particles"] = 5
     if "filter.particles" in data.get("sweep", {}):
         data["sweep"]["filter.particles"] = [4, 6]

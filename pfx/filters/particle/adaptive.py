@@ -83,7 +83,7 @@ def occupied_bins_by_prefix(states: np.ndarray, bin_size) -> np.ndarray:
 
 def kld_count(occupied: np.ndarray, epsilon: float, delta: float, min_particles: int) -> np.ndarray:
     """The active count per row: the smallest n (1-based) with n >= n(k(n)) and n >= min_particles,
-    else the maximum N. ``occupied`` is k(n), (R, N)."""
+    else the maximum N (which wins over min_particles too). ``occupied`` is k(n), (R, N)."""
     count = occupied.shape[1]
     drawn = np.arange(1, count + 1)
     enough = (drawn >= kld_bound(occupied, epsilon, delta)) & (drawn >= min_particles)
@@ -105,16 +105,14 @@ class KLDSampling(BaseModel):
     bin_size: Union[Annotated[StrictFloat, Field(gt=0)], list[Annotated[StrictFloat, Field(gt=0)]]] = Field(
         description="histogram bin side per state component (one value, or one per component; no default)")
     min_particles: StrictInt = Field(
-        10, ge=1, description="never fewer particles than this (at most filter.particles)")
+        10, ge=1, description="never fewer particles than this (but never more than filter.particles, "
+                              "the maximum, which wins)")
 
     def check(self, dimension: int, maximum: int) -> None:
-        """Raise ValueError('@key: reason') if the settings do not fit the state or the maximum."""
+        """Raise ValueError('@key: reason') if the settings do not fit the state."""
         if isinstance(self.bin_size, list) and len(self.bin_size) != dimension:
             raise ValueError(f"@adaptive.bin_size: give one value or one per state component ({dimension}), "
                              f"got {len(self.bin_size)}")
-        if self.min_particles > maximum:
-            raise ValueError(f"@adaptive.min_particles: {self.min_particles} is more than filter.particles "
-                             f"({maximum}), the maximum")
 
     def select(self, resampled: np.ndarray, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
         """(order, counts): a random order of the N resampled particles of each row, and the
