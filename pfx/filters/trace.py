@@ -36,6 +36,7 @@ class FilterTrace:
     # apart from ``covariances`` (the particle filter: weighted, before resampling, for the
     # traced trials only; NaN in the rows not recorded)
     standard_deviations: Optional[np.ndarray] = None
+    move_acceptance: Optional[np.ndarray] = None  # (trials,) filter.move mcmc: mean acceptance rate (NaN: never moved)
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the
