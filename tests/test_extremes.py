@@ -41,7 +41,8 @@ from pfx.numerics.seeding import TrialStreams
 
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
 # empty = never converged; NEES/NIS not recorded (particle filters without metrics.consistency)
-EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nis_mean", "grid_lost_mass"}
+EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nis_mean", "grid_lost_mass",
+                   "move_acceptance"}
 SPREAD_STATISTICS = {"std", "sem", "ci95_low", "ci95_high"}      # empty when n < 2
 CENTRAL_STATISTICS = {"mean", "median"}                          # empty when n == 0
 

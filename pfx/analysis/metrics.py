@@ -296,6 +296,14 @@ def log_likelihood_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"log_likelihood": inputs.trace.log_likelihood}
 
 
+@METRICS.register("move_acceptance")
+def move_acceptance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """filter.move mcmc: the mean Metropolis acceptance rate over the moved steps and proposals
+    (empty for other moves and filters, and for a trial that never resampled)."""
+    acceptance = inputs.trace.move_acceptance
+    return {"move_acceptance": acceptance if acceptance is not None else inputs.empty()}
+
+
 def compute_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Every registered metric, as column name -> (trials,) array."""
     columns: dict[str, np.ndarray] = {}

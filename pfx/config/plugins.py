@@ -295,13 +295,14 @@ def _registries() -> list:
     from pfx.figures import FIGURES
     from pfx.filters import FILTERS
     from pfx.filters.particle.diffusion import DIFFUSIONS
+    from pfx.filters.particle.moves import MOVES
     from pfx.filters.particle.resampling import RESAMPLERS
     from pfx.filters.particle.weighting import WEIGHTINGS
     from pfx.laws.noise import NOISE_FAMILIES
     from pfx.models import MODELS
     from pfx.studies import STUDIES
 
-    return [MODELS, FILTERS, RESAMPLERS, WEIGHTINGS, DIFFUSIONS, NOISE_FAMILIES, METRICS, FIGURES, STUDIES]
+    return [MODELS, FILTERS, RESAMPLERS, WEIGHTINGS, DIFFUSIONS, MOVES, NOISE_FAMILIES, METRICS, FIGURES, STUDIES]
 
 
 def _prepare_registries() -> None:

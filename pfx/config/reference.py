@@ -14,6 +14,7 @@ from pfx.analysis.metrics import ConvergenceCriterion
 from pfx.config.schema import ParticleSnapshots, config_schema
 from pfx.config.validation import _union_members, _unwrap
 from pfx.filters.particle.diffusion import DIFFUSIONS
+from pfx.filters.particle.moves import MOVES
 from pfx.filters.particle.weighting import WEIGHTINGS
 from pfx.laws.initial import GaussianLaw, PointLaw, UniformLaw
 from pfx.laws.noise import Noise
@@ -90,6 +91,10 @@ def markdown_reference(plugins: Collection[str] = ()) -> str:
         parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### Diffusion (`filter.diffusion`)", ""]
     for name, model in DIFFUSIONS.visible(plugins).items():
+        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
+        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
+    parts += ["", "### Moves after resampling (`filter.move`)", ""]
+    for name, model in MOVES.visible(plugins).items():
         keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
         parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]

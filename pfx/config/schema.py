@@ -28,6 +28,7 @@ from pfx.filters import FILTERS
 from pfx.filters.particle.adaptive import KLDSampling
 from pfx.filters.particle.diffusion import DIFFUSIONS, NoDiffusion
 from pfx.filters.particle.injection import AugmentedMCL
+from pfx.filters.particle.moves import MOVES, NoMove
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
 from pfx.laws.initial import InitialLaw
@@ -111,6 +112,7 @@ def _build(plugins: frozenset) -> ConfigSchema:
     StudyConfig = Annotated[Union[tuple(STUDIES.visible(plugins).values())], Field(discriminator="kind")]
     Weighting = WEIGHTINGS.kind_union(plugins)
     Diffusion = DIFFUSIONS.kind_union(plugins)
+    Move = MOVES.kind_union(plugins)
 
     class SharedFilterSettings(BaseModel):
         """The filter run on every cell (arms override any of these keys)."""
@@ -132,6 +134,10 @@ def _build(plugins: frozenset) -> ConfigSchema:
         diffusion: Diffusion = Field(  # type: ignore[valid-type]
             default_factory=NoDiffusion,
             description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
+        move: Move = Field(  # type: ignore[valid-type]
+            default_factory=NoMove,
+            description="move after resampling, given the step's context (`pfx list moves`): none, "
+                        "{kind: regularise, kernel, bandwidth}, {kind: mcmc, steps, scale}")
         initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
         adaptive: Optional[KLDSampling] = Field(
             None, description="adaptive particle count: {kind: kld, epsilon, delta, bin_size, min_particles} "

@@ -36,6 +36,7 @@ class FilterTrace:
     # apart from ``covariances`` (the particle filter: weighted, before resampling, for the
     # traced trials only; NaN in the rows not recorded)
     standard_deviations: Optional[np.ndarray] = None
+    move_acceptance: Optional[np.ndarray] = None  # (trials,) filter.move mcmc: mean acceptance rate (NaN: never moved)
     # particle filters: (trials, T) the particles the step's cloud was weighted with (N, or the
     # adaptive count, pfx.filters.particle.adaptive), and the particles injected at its
     # resampling (pfx.filters.particle.injection; None: no injection)

@@ -12,6 +12,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from pfx.errors import ConfigError
+from pfx.filters.transition import noise_enters_additively
 from pfx.laws.initial import GaussianLaw, UniformLaw
 from pfx.laws.noise import Noise
 from pfx.numerics.seeding import TrialStreams
@@ -106,14 +107,8 @@ def axis_noises(model) -> list[Noise]:
 
 def _check_additive(model, points: np.ndarray, noises: list[Noise]) -> None:
     """propagate(x, u, w) - propagate(x, u, 0) must be w (checked on a few grid points)."""
-    sample = points[np.linspace(0, len(points) - 1, min(7, len(points))).astype(int)]
     std = np.array([math.sqrt(n.covariance()[0, 0]) for n in noises])
-    pattern = np.array([0.7, -1.3, 2.1, -0.4, 1.1, -2.2, 0.3])[:len(sample), None]
-    noise = pattern * std * np.where(np.arange(len(std)) % 2 == 0, 1.0, -0.8)
-    control = model.control(1)
-    with np.errstate(all="ignore"):
-        moved = model.propagate(sample, control, noise) - model.propagate(sample, control, np.zeros_like(sample))
-    if not np.allclose(moved, noise, rtol=1e-6, atol=1e-9 * float(std.max())):
+    if not noise_enters_additively(model, points, std):
         raise ConfigError(f"the histogram filter needs additive process noise (x' = f(x, u) + w); "
                           f"model {model.kind}'s noise does not enter additively", key="filter.kind")
 

@@ -18,9 +18,10 @@ Particles are an array of shape (trials, N, d); log-weights (trials, N). Each st
 
 In the code, :class:`ParticleFilter` runs these as named stages, ``predict`` (the proposal:
 the transition, i.e. the bootstrap filter), ``update_weights``, ``estimate`` and
-``resample_and_move`` (the resampler, then the move: a diffusion or roughening), with the
-particle count held by the filter (fixed today): the places a guided proposal, an MCMC move or
-an adaptive particle count plug in. Diagnostics (particle snapshots, NEES/NIS, the spread and
+``resample_and_move`` (the resampler, then the move: a diffusion or roughening, or a move given
+the step's context, ``filter.move``: :mod:`pfx.filters.particle.moves`), with the particle count
+held by the filter (fixed today): the places a guided proposal or an adaptive particle count
+plug in. Diagnostics (particle snapshots, NEES/NIS, the spread and
 the share within a radius) are :class:`Recorder` s called after each stage; they only read.
 
 A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
@@ -44,6 +45,7 @@ from typing import Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError
+from pfx.filters.particle.moves import MoveContext
 from pfx.filters.trace import FilterTrace
 from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.compiled import compiled
@@ -164,7 +166,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
                         consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
-                        trace_rows: Optional[np.ndarray] = None, adaptive=None, injection=None) -> FilterTrace:
+                        trace_rows: Optional[np.ndarray] = None, move=None, adaptive=None,
+                        injection=None) -> FilterTrace:
     """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
@@ -173,6 +176,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     posterior standard deviations are recorded for the rows ``trace_rows`` (the traced trials),
     and only for them: a second moment per step costs about what the estimate does, and only
     steps.csv shows it (None: for no row, as in ``pfx bench``, whose timings are the filter's).
+    ``move`` is ``filter.move`` (:mod:`pfx.filters.particle.moves`; None or ``none``: no move).
     """
     recorders: list[Recorder] = [SpreadRecorder(model, spread_criterion)]
     if trace_rows is not None and len(trace_rows):
@@ -183,7 +187,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
         recorders.append(SnapshotRecorder(snapshot))
     return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
                           ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
-                          recorders=recorders, adaptive=adaptive, injection=injection).run()
+                          recorders=recorders, adaptive=adaptive, injection=injection,
+                          rejuvenation=move if move is not None and move.kind != "none" else None).run()
 
 
 class ParticleFilter:
@@ -197,10 +202,15 @@ class ParticleFilter:
     """
 
     def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
-                 resampler, ess_threshold: float, weighting, move, recorders=(), adaptive=None, injection=None):
+                 resampler, ess_threshold: float, weighting, move, recorders=(), adaptive=None, injection=None,
+                 rejuvenation=None):
         self.model, self.measurements, self.random = model, measurements, random
         self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
         self.recorders = list(recorders)
+        # filter.move (pfx.filters.particle.moves): None when off, so that it costs nothing
+        self.rejuvenation = rejuvenation
+        self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
+        self.keep_previous = rejuvenation is not None and rejuvenation.needs_parents
         self.trials, self.steps, _ = measurements.shape
         self.particles = particles                       # the particle count (with ``adaptive``: the maximum)
         # the adaptive count (pfx.filters.particle.adaptive): active particles per trial, None: all N
@@ -224,6 +234,9 @@ class ParticleFilter:
             log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64),
             particle_counts=np.full((self.trials, self.steps), particles),
             injected=None if injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
+        # per trial: the sum of the move's acceptance rates over the steps it moved, and their count
+        self.acceptance_tally = np.zeros((2, self.trials)) \
+            if rejuvenation is not None and rejuvenation.reports_acceptance else None
 
     def run(self) -> FilterTrace:
         self.record("prior", 0)
@@ -235,6 +248,9 @@ class ParticleFilter:
             self.record("weighted", k)
             self.resample_and_move(k)
             self.record("resampled", k)
+        if self.acceptance_tally is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):     # never moved: NaN, an empty field
+                self.trace.move_acceptance = self.acceptance_tally[0] / self.acceptance_tally[1]
         return self.trace
 
     def record(self, stage: str, step: int) -> None:
@@ -244,6 +260,8 @@ class ParticleFilter:
     def predict(self, k: int) -> None:
         """Propose x_k from the transition (the bootstrap proposal); park particles that left the
         model's domain at weight zero."""
+        if self.keep_previous:
+            self.previous_state = self.state
         with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
             self.state = self.model.transition(self.state, k, self.random)
             # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
@@ -315,7 +333,8 @@ class ParticleFilter:
                                       "of the filter (check the prior and the noise)")
 
     def resample_and_move(self, k: int) -> None:
-        """Resample the trials whose ESS fell below the threshold, then move their particles."""
+        """Resample the trials whose ESS fell below the threshold, then move their particles (the
+        diffusion, or ``filter.move`` with the step's context: :meth:`rejuvenate`)."""
         t = k - 1
         if self.active is not None:                  # the count this step's cloud was weighted with
             self.trace.particle_counts[:, t] = self.active
@@ -333,6 +352,8 @@ class ParticleFilter:
         streams = self.random if every else self.random.subset(rows)
         indices = self.resampler(self.weights[selected], streams)
         resampled = resample_rows(self.state, rows, indices)
+        if self.rejuvenation is not None:            # filter.move, on the parents' resampled order
+            resampled = self.rejuvenate(k, rows, selected, indices, resampled, streams)
         if self.adaptive is not None:                # KLD: keep the first n of a random order
             resampled, counts = self._adapt_count(resampled, streams)
         moved = self.move.apply(resampled, streams)
@@ -359,6 +380,21 @@ class ParticleFilter:
         inactive = np.arange(self.particles) >= counts[:, None]
         ordered = np.where(inactive[..., None], ordered[:, :1], ordered)
         return ordered, counts
+
+    def rejuvenate(self, k: int, rows: np.ndarray, selected, indices: np.ndarray, resampled: np.ndarray,
+                   streams: TrialStreams) -> np.ndarray:
+        """Apply ``filter.move`` to the resampled trials, giving it the cloud and weights before
+        resampling, the measurement and (if it needs them) the parents' previous states; tally
+        its acceptance rate."""
+        parents = resample_rows(self.previous_state, rows, indices) if self.keep_previous else None
+        context = MoveContext(model=self.model, step=k, resampled=resampled, cloud=self.state[selected],
+                              weights=self.weights[selected], measurement=self.measurements[selected, k - 1],
+                              parents=parents)
+        moved, acceptance = self.rejuvenation.apply(context, streams)
+        if self.acceptance_tally is not None:
+            self.acceptance_tally[0, selected] += acceptance
+            self.acceptance_tally[1, selected] += 1
+        return moved
 
 
 class Recorder:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.particle.engine import run_particle_filter
+from pfx.filters.particle.moves import check_move
 from pfx.filters.particle.resampling import RESAMPLERS
 
 
@@ -15,12 +16,14 @@ class SampleImportanceResampling(FilterKind):
     """Particle filter: resample when ESS < ess_threshold * N."""
 
     kind = "particle"
-    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "adaptive", "injection"})
+    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "move", "adaptive",
+                       "injection"})
     carries_particles = True
     takes_trace_rows = True
 
     @classmethod
     def plan(cls, model, settings, prior):
+        check_move(cls.kind, settings.move, model, settings)     # filter.move (pfx.filters.particle.moves)
         if settings.adaptive is not None:
             settings.adaptive.check(model.state_dimension, settings.particles)
         return super().plan(model, settings, prior)
@@ -36,7 +39,7 @@ class SampleImportanceResampling(FilterKind):
             model, measurements, random, prior=prior, particles=settings.particles,
             resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
             weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
+            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows, move=settings.move,
             adaptive=getattr(settings, "adaptive", None), injection=getattr(settings, "injection", None))
 
 
