@@ -54,6 +54,7 @@ REGISTRY_SOURCES = {
     "weightings": ("pfx.filters.particle.weighting", "WEIGHTINGS"),
     "noises": ("pfx.laws.noise", "NOISE_FAMILIES"),
     "diffusions": ("pfx.filters.particle.diffusion", "DIFFUSIONS"),
+    "proposals": ("pfx.filters.particle.proposals", "PROPOSALS"),
     "metrics": ("pfx.analysis.metrics", "METRICS"),
     "figures": ("pfx.figures", "FIGURES"),
 }

@@ -19,13 +19,14 @@ of the built-in components alone.
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Collection, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, create_model
 
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS
 from pfx.filters.particle.diffusion import DIFFUSIONS, NoDiffusion
+from pfx.filters.particle.proposals import PROPOSALS, BootstrapProposal
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
 from pfx.laws.initial import InitialLaw
@@ -109,6 +110,7 @@ def _build(plugins: frozenset) -> ConfigSchema:
     StudyConfig = Annotated[Union[tuple(STUDIES.visible(plugins).values())], Field(discriminator="kind")]
     Weighting = WEIGHTINGS.kind_union(plugins)
     Diffusion = DIFFUSIONS.kind_union(plugins)
+    Proposal = PROPOSALS.kind_union(plugins)
 
     class SharedFilterSettings(BaseModel):
         """The filter run on every cell (arms override any of these keys)."""
@@ -131,6 +133,14 @@ def _build(plugins: frozenset) -> ConfigSchema:
             default_factory=NoDiffusion,
             description="post-resampling noise: none, {kind: gaussian, std}, {kind: roughening, factor}")
         initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
+        # guided proposals and the auxiliary particle filter (pfx/filters/particle/proposals.py, auxiliary.py)
+        proposal: Proposal = Field(  # type: ignore[valid-type]
+            default_factory=BootstrapProposal,
+            description="how particles are drawn (`pfx list proposals`): bootstrap (the transition), "
+                        "locally_optimal, ekf, {kind: ukf, alpha, beta, kappa}")
+        auxiliary: StrictBool = Field(
+            False, description="the auxiliary particle filter (Pitt & Shephard 1999): resample by the "
+                               "look-ahead weights w p(z | f(x)) before proposing")
 
         # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
         # kind's own settings blocks (every other setting applies to every kind)

@@ -17,7 +17,9 @@ Particles are an array of shape (trials, N, d); log-weights (trials, N). Each st
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
 
 In the code, :class:`ParticleFilter` runs these as named stages, ``predict`` (the proposal:
-the transition, i.e. the bootstrap filter), ``update_weights``, ``estimate`` and
+the transition, i.e. the bootstrap filter, or a guided proposal, :mod:`pfx.filters.particle.proposals`,
+after the auxiliary filter's first stage, :mod:`pfx.filters.particle.auxiliary`; their importance
+terms reach the weight update as a per-particle weight adjustment), ``update_weights``, ``estimate`` and
 ``resample_and_move`` (the resampler, then the move: a diffusion or roughening), with the
 particle count held by the filter (fixed today): the places a guided proposal, an MCMC move or
 an adaptive particle count plug in. Diagnostics (particle snapshots, NEES/NIS, the spread and
@@ -44,6 +46,7 @@ from typing import Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError
+from pfx.filters.particle.auxiliary import first_stage
 from pfx.filters.trace import FilterTrace
 from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.compiled import compiled
@@ -77,6 +80,22 @@ class SpreadCriterion:
 
     radius: float
     weighted: bool
+
+
+def guided_predict(run: "ParticleFilter", k: int) -> np.ndarray:
+    """The predict stage with a guided proposal and/or the auxiliary filter's first stage:
+    sets ``run.state`` to x_k and returns the weight adjustment (R, N) that the weight update
+    adds to log p(z_k | x_k): log p(x_k | x_k-1) - log q(x_k | x_k-1, z_k) - g_a."""
+    adjustment = first_stage(run, k) if run.auxiliary else None
+    t = k - 1
+    if run.proposal is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            run.state = run.model.transition(run.state, k, run.random)
+        return -adjustment
+    observed = None if run.missing is None else ~run.missing[:, t]
+    run.state, correction = run.proposal.propose(run.model, run.state, k, run.measurements[:, t], observed,
+                                                 run.random)
+    return correction if adjustment is None else correction - adjustment
 
 
 def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +183,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                         particles: int, resampler, ess_threshold: float, weighting, diffusion,
                         spread_criterion: Optional[SpreadCriterion] = None,
                         consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
-                        trace_rows: Optional[np.ndarray] = None) -> FilterTrace:
+                        trace_rows: Optional[np.ndarray] = None, proposal=None,
+                        auxiliary: bool = False) -> FilterTrace:
     """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
@@ -183,7 +203,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
         recorders.append(SnapshotRecorder(snapshot))
     return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
                           ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
-                          recorders=recorders).run()
+                          recorders=recorders, proposal=proposal, auxiliary=auxiliary).run()
 
 
 class ParticleFilter:
@@ -196,11 +216,17 @@ class ParticleFilter:
     so the loop holds the algorithm and nothing else.
     """
 
+    normalise = staticmethod(normalise_weights)
+
     def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
-                 resampler, ess_threshold: float, weighting, move, recorders=()):
+                 resampler, ess_threshold: float, weighting, move, recorders=(), proposal=None,
+                 auxiliary: bool = False):
         self.model, self.measurements, self.random = model, measurements, random
         self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
         self.recorders = list(recorders)
+        # a guided proposal (None: the transition) and the auxiliary filter (proposals.py, auxiliary.py)
+        self.proposal, self.auxiliary = proposal, auxiliary
+        self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
         self.trials, self.steps, _ = measurements.shape
         self.particles = particles                       # the particle count: fixed for now
         self.uniform_log_weight = -np.log(particles)
@@ -235,10 +261,16 @@ class ParticleFilter:
             recorder.record(stage, step, self)
 
     def predict(self, k: int) -> None:
-        """Propose x_k from the transition (the bootstrap proposal); park particles that left the
-        model's domain at weight zero."""
-        with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
-            self.state = self.model.transition(self.state, k, self.random)
+        """Propose x_k: from the transition (the bootstrap proposal), or from a guided proposal
+        (:mod:`pfx.filters.particle.proposals`), after the auxiliary filter's first stage if
+        asked (:mod:`pfx.filters.particle.auxiliary`); park particles that left the model's
+        domain at weight zero."""
+        if self.auxiliary or self.proposal is not None:
+            self.weight_adjustment = guided_predict(self, k)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
+                self.state = self.model.transition(self.state, k, self.random)
+        with np.errstate(over="ignore", invalid="ignore"):
             # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
             suspect = not np.isfinite(self.state.sum())
         self.lost = None
@@ -267,6 +299,8 @@ class ParticleFilter:
                                                        self.weights)
             if skipped is not None:
                 increment[skipped] = 0.0
+        if self.weight_adjustment is not None:     # a guided proposal's or the auxiliary filter's terms
+            increment += self.weight_adjustment
         if self.lost is not None:
             increment[self.lost] = -np.inf
         updated = self.log_weights + increment
@@ -305,15 +339,23 @@ class ParticleFilter:
 
     def resample_and_move(self, k: int) -> None:
         """Resample the trials whose ESS fell below the threshold, then move their particles."""
-        t = k - 1
+        if self.auxiliary:
+            return          # the auxiliary filter resamples in the next step's first stage
+        rows = self.rows_to_resample(self.trace.ess[:, k - 1])
+        if rows.size:
+            self.resample(rows, k)
+
+    def rows_to_resample(self, ess: np.ndarray) -> np.ndarray:
+        """The trials the ESS rule resamples: ESS < threshold * N (threshold 1: all; 0: none)."""
         if self.ess_threshold >= 1.0:
-            rows = np.arange(self.trials)
-        elif self.ess_threshold > 0.0:
-            rows = np.flatnonzero(self.trace.ess[:, t] < self.ess_threshold * self.particles)
-        else:
-            rows = np.empty(0, dtype=np.intp)
-        if not rows.size:
-            return
+            return np.arange(self.trials)
+        if self.ess_threshold > 0.0:
+            return np.flatnonzero(ess < self.ess_threshold * self.particles)
+        return np.empty(0, dtype=np.intp)
+
+    def resample(self, rows: np.ndarray, k: int):
+        """Resample and move the trials ``rows`` (not empty) at step k; their weights become
+        uniform. Returns the ancestor indices (len(rows), N) and the rows' selector."""
         every = rows.size == self.trials
         selected = slice(None) if every else rows      # a slice spares fancy-index copies
         streams = self.random if every else self.random.subset(rows)
@@ -325,7 +367,8 @@ class ParticleFilter:
             self.state[rows] = moved
         self.log_weights[selected] = self.uniform_log_weight
         self.weights[selected] = 1.0 / self.particles
-        self.trace.resampled[selected, t] = True
+        self.trace.resampled[selected, k - 1] = True
+        return indices, selected
 
 
 class Recorder:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.particle.engine import run_particle_filter
+from pfx.filters.particle.proposals import check_particle_settings
 from pfx.filters.particle.resampling import RESAMPLERS
 
 
@@ -15,9 +16,14 @@ class SampleImportanceResampling(FilterKind):
     """Particle filter: resample when ESS < ess_threshold * N."""
 
     kind = "particle"
-    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion"})
+    reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "proposal", "auxiliary"})
     carries_particles = True
     takes_trace_rows = True
+
+    @classmethod
+    def plan(cls, model, settings, prior):
+        check_particle_settings(cls.kind, model, settings)       # proposal and auxiliary (proposals.py)
+        return super().plan(model, settings, prior)
 
     @classmethod
     def ess_threshold(cls, settings) -> float:
@@ -30,7 +36,8 @@ class SampleImportanceResampling(FilterKind):
             model, measurements, random, prior=prior, particles=settings.particles,
             resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
             weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows)
+            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
+            proposal=settings.proposal if settings.proposal.guided else None, auxiliary=settings.auxiliary)
 
 
 @FILTERS.register_kind
@@ -38,7 +45,7 @@ class SequentialImportanceSampling(SampleImportanceResampling):
     """Sequential importance sampling: a particle filter that never resamples."""
 
     kind = "sis"
-    reads = frozenset({"particles", "weighting"})
+    reads = frozenset({"particles", "weighting", "proposal", "auxiliary"})
 
     @classmethod
     def ess_threshold(cls, settings) -> float:
