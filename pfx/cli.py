@@ -55,6 +55,7 @@ REGISTRY_SOURCES = {
     "noises": ("pfx.laws.noise", "NOISE_FAMILIES"),
     "diffusions": ("pfx.filters.particle.diffusion", "DIFFUSIONS"),
     "moves": ("pfx.filters.particle.moves", "MOVES"),
+    "proposals": ("pfx.filters.particle.proposals", "PROPOSALS"),
     "metrics": ("pfx.analysis.metrics", "METRICS"),
     "figures": ("pfx.figures", "FIGURES"),
 }

@@ -40,7 +40,8 @@ DEFAULT_ARM = "default"
 # sweep keys that already have a column of their own in the tables
 _KNOWN_COLUMNS = {"filter.particles": "n_particles", "filter.resampler": "resampler",
                   "filter.ess_threshold": "ess_threshold", "filter.weighting": "weighting",
-                  "filter.kind": "filter", "filter.diffusion": "diffusion", "model.kind": "model"}
+                  "filter.kind": "filter", "filter.diffusion": "diffusion", "model.kind": "model",
+                  "filter.proposal": "proposal", "filter.auxiliary": "auxiliary"}
 
 
 @dataclass

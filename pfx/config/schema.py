@@ -19,7 +19,7 @@ of the built-in components alone.
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Collection, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, create_model, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, create_model, model_validator
 
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
@@ -29,6 +29,7 @@ from pfx.filters.particle.adaptive import KLDSampling
 from pfx.filters.particle.diffusion import DIFFUSIONS, NoDiffusion
 from pfx.filters.particle.injection import AugmentedMCL
 from pfx.filters.particle.moves import MOVES, NoMove
+from pfx.filters.particle.proposals import PROPOSALS, BootstrapProposal
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
 from pfx.laws.initial import InitialLaw
@@ -113,6 +114,7 @@ def _build(plugins: frozenset) -> ConfigSchema:
     Weighting = WEIGHTINGS.kind_union(plugins)
     Diffusion = DIFFUSIONS.kind_union(plugins)
     Move = MOVES.kind_union(plugins)
+    Proposal = PROPOSALS.kind_union(plugins)
 
     class SharedFilterSettings(BaseModel):
         """The filter run on every cell (arms override any of these keys)."""
@@ -145,6 +147,14 @@ def _build(plugins: frozenset) -> ConfigSchema:
         injection: Optional[AugmentedMCL] = Field(
             None, description="particle injection at resampling: {kind: augmented, alpha_slow, alpha_fast} "
                               "(augmented MCL: prior draws when the likelihood drops); default none")
+        # guided proposals and the auxiliary particle filter (pfx/filters/particle/proposals.py, auxiliary.py)
+        proposal: Proposal = Field(  # type: ignore[valid-type]
+            default_factory=BootstrapProposal,
+            description="how particles are drawn (`pfx list proposals`): bootstrap (the transition), "
+                        "locally_optimal, ekf, {kind: ukf, alpha, beta, kappa}")
+        auxiliary: StrictBool = Field(
+            False, description="the auxiliary particle filter (Pitt & Shephard 1999): resample by the "
+                               "look-ahead weights w p(z | f(x)) before proposing")
 
         # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
         # kind's own settings blocks (every other setting applies to every kind)

@@ -132,18 +132,10 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     factor = {}
 
     def moments(points, values):
-        """Mean of ``values`` and cross-covariance of points and values, in the stable form."""
-        d_points = points[:, 1:] - points[:, :1]
-        d_values = values[:, 1:] - values[:, :1]
-        shift_points = weight * d_points.sum(axis=1)
-        shift_values = weight * d_values.sum(axis=1)
-        cross = weight * np.einsum("rip,riq->rpq", d_points, d_values) \
-            + curvature * np.einsum("rp,rq->rpq", shift_points, shift_values)
-        return values[:, 0] + shift_values, cross
+        return unscented_moments(points, values, weight, curvature)
 
     def sigma_points(mean, square_root):
-        offsets = c * transpose(square_root)                     # row j: c S[:, j]
-        return np.concatenate([mean[:, None], mean[:, None] + offsets, mean[:, None] - offsets], axis=1)
+        return unscented_sigma_points(mean, square_root, c)
 
     def predict(mean, covariance, k):
         if "S" not in factor:          # the first step, or one whose update some trials skipped
@@ -177,6 +169,26 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     if diagnostics is not None:
         diagnostics.update(repairs)
     return trace
+
+
+def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, curvature: float):
+    """Mean of ``values`` and cross-covariance of ``points`` and ``values`` (rows: batch; axis 1:
+    the 2d + 1 sigma points), in the stable form of the module docstring: W = ``weight``,
+    ``curvature`` = beta - alpha^2."""
+    d_points = points[:, 1:] - points[:, :1]
+    d_values = values[:, 1:] - values[:, :1]
+    shift_points = weight * d_points.sum(axis=1)
+    shift_values = weight * d_values.sum(axis=1)
+    cross = weight * np.einsum("rip,riq->rpq", d_points, d_values) \
+        + curvature * np.einsum("rp,rq->rpq", shift_points, shift_values)
+    return values[:, 0] + shift_values, cross
+
+
+def unscented_sigma_points(mean: np.ndarray, square_root: np.ndarray, spread: float) -> np.ndarray:
+    """The 2d + 1 sigma points of N(mean, S S') per row: mean, mean + c S[:, j], mean - c S[:, j]
+    (c = ``spread``); mean (R, d), S (R, d, d) or one (d, d) for every row; returns (R, 2d + 1, d)."""
+    offsets = spread * transpose(square_root)                     # row j: c S[:, j]
+    return np.concatenate([mean[:, None], mean[:, None] + offsets, mean[:, None] - offsets], axis=1)
 
 
 def robust_square_root(covariance: np.ndarray, repairs: dict) -> tuple[np.ndarray, np.ndarray]:

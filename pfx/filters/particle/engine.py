@@ -17,11 +17,13 @@ Particles are an array of shape (trials, N, d); log-weights (trials, N). Each st
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
 
 In the code, :class:`ParticleFilter` runs these as named stages, ``predict`` (the proposal:
-the transition, i.e. the bootstrap filter), ``update_weights``, ``estimate`` and
-``resample_and_move`` (the resampler, then the move: a diffusion or roughening, or a move given
-the step's context, ``filter.move``: :mod:`pfx.filters.particle.moves`), with the particle count
-held by the filter (fixed today): the places a guided proposal or an adaptive particle count
-plug in. Diagnostics (particle snapshots, NEES/NIS, the spread and
+the transition, i.e. the bootstrap filter, or a guided proposal, :mod:`pfx.filters.particle.proposals`,
+after the auxiliary filter's first stage, :mod:`pfx.filters.particle.auxiliary`; their importance
+terms reach the weight update as a per-particle weight adjustment), ``update_weights``, ``estimate`` and
+``resample_and_move`` (the resampler; a move given the step's context, ``filter.move``:
+:mod:`pfx.filters.particle.moves`; the particle count, fixed or adaptive,
+:mod:`pfx.filters.particle.adaptive`; the diffusion or roughening; particle injection,
+:mod:`pfx.filters.particle.injection`). Diagnostics (particle snapshots, NEES/NIS, the spread and
 the share within a radius) are :class:`Recorder` s called after each stage; they only read.
 
 A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
@@ -45,6 +47,7 @@ from typing import Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError
+from pfx.filters.particle.auxiliary import first_stage
 from pfx.filters.particle.moves import MoveContext
 from pfx.filters.trace import FilterTrace
 from pfx.numerics.angles import circular_mean, wrap_difference
@@ -79,6 +82,22 @@ class SpreadCriterion:
 
     radius: float
     weighted: bool
+
+
+def guided_predict(run: "ParticleFilter", k: int) -> np.ndarray:
+    """The predict stage with a guided proposal and/or the auxiliary filter's first stage:
+    sets ``run.state`` to x_k and returns the weight adjustment (R, N) that the weight update
+    adds to log p(z_k | x_k): log p(x_k | x_k-1) - log q(x_k | x_k-1, z_k) - g_a."""
+    adjustment = first_stage(run, k) if run.auxiliary else None
+    t = k - 1
+    if run.proposal is None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            run.state = run.model.transition(run.state, k, run.random)
+        return -adjustment
+    observed = None if run.missing is None else ~run.missing[:, t]
+    run.state, correction = run.proposal.propose(run.model, run.state, k, run.measurements[:, t], observed,
+                                                 run.random)
+    return correction if adjustment is None else correction - adjustment
 
 
 def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +186,7 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
                         spread_criterion: Optional[SpreadCriterion] = None,
                         consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
                         trace_rows: Optional[np.ndarray] = None, move=None, adaptive=None,
-                        injection=None) -> FilterTrace:
+                        injection=None, proposal=None, auxiliary: bool = False) -> FilterTrace:
     """Run the filter on measurements of shape (trials, T, m); see the module docstring.
 
     With ``consistency``, also record the weighted posterior covariance (before resampling) and
@@ -188,7 +207,8 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
                           ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
                           recorders=recorders, adaptive=adaptive, injection=injection,
-                          rejuvenation=move if move is not None and move.kind != "none" else None).run()
+                          rejuvenation=move if move is not None and move.kind != "none" else None,
+                          proposal=proposal, auxiliary=auxiliary).run()
 
 
 class ParticleFilter:
@@ -201,12 +221,17 @@ class ParticleFilter:
     so the loop holds the algorithm and nothing else.
     """
 
+    normalise = staticmethod(normalise_weights)
+
     def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
                  resampler, ess_threshold: float, weighting, move, recorders=(), adaptive=None, injection=None,
-                 rejuvenation=None):
+                 rejuvenation=None, proposal=None, auxiliary: bool = False):
         self.model, self.measurements, self.random = model, measurements, random
         self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
         self.recorders = list(recorders)
+        # a guided proposal (None: the transition) and the auxiliary filter (proposals.py, auxiliary.py)
+        self.proposal, self.auxiliary = proposal, auxiliary
+        self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
         # filter.move (pfx.filters.particle.moves): None when off, so that it costs nothing
         self.rejuvenation = rejuvenation
         self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
@@ -258,12 +283,18 @@ class ParticleFilter:
             recorder.record(stage, step, self)
 
     def predict(self, k: int) -> None:
-        """Propose x_k from the transition (the bootstrap proposal); park particles that left the
-        model's domain at weight zero."""
+        """Propose x_k: from the transition (the bootstrap proposal), or from a guided proposal
+        (:mod:`pfx.filters.particle.proposals`), after the auxiliary filter's first stage if
+        asked (:mod:`pfx.filters.particle.auxiliary`); park particles that left the model's
+        domain at weight zero."""
         if self.keep_previous:
             self.previous_state = self.state
-        with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
-            self.state = self.model.transition(self.state, k, self.random)
+        if self.auxiliary or self.proposal is not None:
+            self.weight_adjustment = guided_predict(self, k)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
+                self.state = self.model.transition(self.state, k, self.random)
+        with np.errstate(over="ignore", invalid="ignore"):
             # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
             suspect = not np.isfinite(self.state.sum())
         self.lost = None
@@ -292,6 +323,8 @@ class ParticleFilter:
                                                        self.weights)
             if skipped is not None:
                 increment[skipped] = 0.0
+        if self.weight_adjustment is not None:     # a guided proposal's or the auxiliary filter's terms
+            increment += self.weight_adjustment
         if self.lost is not None:
             increment[self.lost] = -np.inf
         updated = self.log_weights + increment
@@ -335,18 +368,28 @@ class ParticleFilter:
     def resample_and_move(self, k: int) -> None:
         """Resample the trials whose ESS fell below the threshold, then move their particles (the
         diffusion, or ``filter.move`` with the step's context: :meth:`rejuvenate`)."""
-        t = k - 1
         if self.active is not None:                  # the count this step's cloud was weighted with
-            self.trace.particle_counts[:, t] = self.active
+            self.trace.particle_counts[:, k - 1] = self.active
+        if self.auxiliary:
+            return          # the auxiliary filter resamples in the next step's first stage
+        rows = self.rows_to_resample(self.trace.ess[:, k - 1])
+        if rows.size:
+            self.resample(rows, k)
+
+    def rows_to_resample(self, ess: np.ndarray) -> np.ndarray:
+        """The trials the ESS rule resamples: ESS < threshold * N (threshold 1: all; 0: none),
+        N the active count with an adaptive count."""
         if self.ess_threshold >= 1.0:
-            rows = np.arange(self.trials)
-        elif self.ess_threshold > 0.0:
-            count = self.particles if self.active is None else self.active     # relative to the active count
-            rows = np.flatnonzero(self.trace.ess[:, t] < self.ess_threshold * count)
-        else:
-            rows = np.empty(0, dtype=np.intp)
-        if not rows.size:
-            return
+            return np.arange(self.trials)
+        if self.ess_threshold > 0.0:
+            count = self.particles if self.active is None else self.active
+            return np.flatnonzero(ess < self.ess_threshold * count)
+        return np.empty(0, dtype=np.intp)
+
+    def resample(self, rows: np.ndarray, k: int):
+        """Resample and move the trials ``rows`` (not empty) at step k; their weights become
+        uniform. Returns the ancestor indices (len(rows), N) and the rows' selector."""
+        t = k - 1
         every = rows.size == self.trials
         selected = slice(None) if every else rows      # a slice spares fancy-index copies
         streams = self.random if every else self.random.subset(rows)
@@ -371,6 +414,7 @@ class ParticleFilter:
             self.log_weights[selected] = self.uniform_log_weight
             self.weights[selected] = 1.0 / self.particles
         self.trace.resampled[selected, t] = True
+        return indices, selected
 
     def _adapt_count(self, resampled: np.ndarray, streams: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
         """The resampled clouds in a random order with the KLD count of each

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.particle.engine import run_particle_filter
 from pfx.filters.particle.moves import check_move
+from pfx.filters.particle.proposals import check_particle_settings
 from pfx.filters.particle.resampling import RESAMPLERS
 
 
@@ -17,7 +18,7 @@ class SampleImportanceResampling(FilterKind):
 
     kind = "particle"
     reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "move", "adaptive",
-                       "injection"})
+                       "injection", "proposal", "auxiliary"})
     carries_particles = True
     takes_trace_rows = True
 
@@ -26,6 +27,7 @@ class SampleImportanceResampling(FilterKind):
         check_move(cls.kind, settings.move, model, settings)     # filter.move (pfx.filters.particle.moves)
         if settings.adaptive is not None:
             settings.adaptive.check(model.state_dimension, settings.particles)
+        check_particle_settings(cls.kind, model, settings)       # proposal and auxiliary (proposals.py)
         return super().plan(model, settings, prior)
 
     @classmethod
@@ -40,7 +42,8 @@ class SampleImportanceResampling(FilterKind):
             resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
             weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
             consistency=consistency, snapshot=snapshot, trace_rows=trace_rows, move=settings.move,
-            adaptive=getattr(settings, "adaptive", None), injection=getattr(settings, "injection", None))
+            adaptive=getattr(settings, "adaptive", None), injection=getattr(settings, "injection", None),
+            proposal=settings.proposal if settings.proposal.guided else None, auxiliary=settings.auxiliary)
 
 
 @FILTERS.register_kind
@@ -48,7 +51,7 @@ class SequentialImportanceSampling(SampleImportanceResampling):
     """Sequential importance sampling: a particle filter that never resamples."""
 
     kind = "sis"
-    reads = frozenset({"particles", "weighting"})
+    reads = frozenset({"particles", "weighting", "proposal", "auxiliary"})
 
     @classmethod
     def ess_threshold(cls, settings) -> float:

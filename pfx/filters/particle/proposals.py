@@ -1,0 +1,297 @@
+r"""Proposals: how the particle filter's ``predict`` stage draws :math:`x_k` (``filter.proposal``).
+
+The bootstrap filter draws from the transition, :math:`q = p(x_k \mid x_{k-1}, u_k)`, and the
+weight update multiplies by the likelihood alone. A *guided* proposal
+:math:`q(x_k \mid x_{k-1}, z_k)` looks at the measurement first; the weight then carries the
+importance correction, in the log domain,
+
+.. math::
+
+    \log \tilde w_{k,i} = \log w_{k-1,i} + \log p(z_k \mid x_{k,i})
+        + \log p(x_{k,i} \mid x_{k-1,i}) - \log q(x_{k,i} \mid x_{k-1,i}, z_k).
+
+``predict`` returns the last two terms as a per-particle *weight adjustment* that
+``update_weights`` adds to the likelihood.
+
+Every guided proposal here is a Gaussian :math:`q = N(m_i, P_i)` built around the particle's
+prediction :math:`f_i = f(x_{k-1,i}, u_k, 0)` with the process noise covariance in state
+coordinates :math:`Q = L Q_w L^\top` as prior covariance, and needs
+:math:`p(x_k \mid x_{k-1}) = N(x_k; f(x_{k-1}, u_k, 0), Q)`: gaussian process noise, additive
+(:math:`f(x, u, w) = f(x, u, 0) + L w` with a constant :math:`L`; a model declares it by giving
+``process_noise_jacobian``, the same at every state), and :math:`Q` positive definite (a density).
+
+=================  ==============================================================================
+name               proposal
+=================  ==============================================================================
+bootstrap          the transition (the default; the weight adjustment is 0 and is not computed)
+locally_optimal    :math:`p(x_k \mid x_{k-1}, z_k)` in closed form, for :math:`z = H x + v`,
+                   :math:`v \sim N(0, R)` (a model with ``matrices`` (A, H), e.g. linear_gaussian,
+                   and gaussian measurement noise): :math:`P = (Q^{-1} + H^\top R^{-1} H)^{-1}`,
+                   :math:`m_i = P (Q^{-1} f_i + H^\top R^{-1} z_k)`; its weight adjustment plus the
+                   likelihood is :math:`\log N(z_k; H f_i, H Q H^\top + R)`, a function of
+                   :math:`x_{k-1,i}` alone (Doucet, Godsill & Andrieu 2000)
+ekf                one extended Kalman update per particle from :math:`N(f_i, Q)`, with
+                   :math:`H_i = \partial h / \partial x` at :math:`f_i` (the model's Jacobian or
+                   central differences, :mod:`pfx.filters.kalman.linearisation`): the PF-EKF
+ukf                one unscented Kalman update per particle from :math:`N(f_i, Q)`
+                   (:mod:`pfx.filters.kalman.unscented`): the unscented particle filter of van der
+                   Merwe, Doucet, de Freitas & Wan (2000)
+=================  ==============================================================================
+
+The Kalman updates are :math:`S_i = H_i Q H_i^\top + R`, :math:`K_i = Q H_i^\top S_i^{-1}`,
+:math:`m_i = f_i + K_i (z_k - h(f_i))` and, in Joseph's form (positive definite by construction),
+:math:`P_i = (I - K_i H_i) Q (I - K_i H_i)^\top + K_i R K_i^\top`; the locally optimal proposal is
+the same update with the exact H (the two forms of m and P are equal by the matrix inversion
+lemma). The unscented one takes :math:`h(f_i)`, :math:`S_i` and the cross-covariance from the
+2d + 1 sigma points of :math:`N(f_i, Q)` and :math:`P_i = Q - K_i S_i K_i^\top` (repaired like the
+UKF's covariances where Cholesky fails). The draw is :math:`x = m_i + C_i \epsilon`,
+:math:`C_i C_i^\top = P_i`, :math:`\epsilon \sim N(0, I)` from the trial's stream, so that
+:math:`\log q = -\tfrac12 \epsilon^\top \epsilon - \log |C_i| - \tfrac d2 \log 2\pi` exactly.
+
+A trial whose measurement is missing at step k draws from the transition
+(:math:`m_i = f_i`, :math:`P = Q`) and gets no adjustment: its step is predict-only as in the
+bootstrap filter. The weighting must be ``gaussian`` (the model's likelihood): any other
+weighting is not :math:`p(z \mid x)`, and the ratio above would not be an importance weight.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Literal, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
+
+from pfx.filters.kalman.linearisation import measurement_jacobian
+from pfx.filters.kalman.recursion import transpose
+from pfx.filters.kalman.unscented import (
+    UnscentedParameters,
+    robust_square_root,
+    unscented_moments,
+    unscented_sigma_points,
+)
+from pfx.registry import Registry
+
+LOG_TWO_PI = math.log(2.0 * math.pi)
+
+
+class _Proposal(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    #: False for the bootstrap proposal only: the engine then runs the transition itself
+    guided: ClassVar[bool] = False
+
+    def check(self, model) -> None:
+        """Raise ValueError('@proposal: reason') if this proposal cannot run on ``model``."""
+
+    def propose(self, model, previous: np.ndarray, step: int, measurement: np.ndarray,
+                observed: Optional[np.ndarray], random) -> tuple[np.ndarray, np.ndarray]:
+        """Draw x_k for particles ``previous`` (R, N, d) given z_k (``measurement``, (R, m)).
+
+        ``observed`` is None when every trial has its measurement, else a boolean (R,) mask.
+        Returns the new particles and the weight adjustment
+        log p(x_k | x_{k-1}) - log q(x_k | x_{k-1}, z_k), shape (R, N).
+        """
+        raise NotImplementedError
+
+
+PROPOSALS: Registry[type["_Proposal"]] = Registry("proposal")
+
+
+@PROPOSALS.register_kind
+class BootstrapProposal(_Proposal):
+    """The transition p(x_k | x_{k-1}, u_k) (the bootstrap filter)."""
+
+    kind: Literal["bootstrap"] = "bootstrap"
+
+
+def additive_process_noise(model) -> np.ndarray:
+    """Q = L Q_w L' (d, d), the covariance of x_k given x_{k-1}, for additive gaussian process
+    noise; ValueError('@proposal: ...') when the model's transition density is not that."""
+    reason = None
+    d = model.state_dimension
+    probes = np.stack([np.zeros(d), np.ones(d)])[:, None, :]       # two states: is L constant?
+    jacobians = model.process_noise_jacobian(probes, model.control(1))
+    noise = model.process_noise
+    if noise.family != "gaussian":
+        reason = f"has {noise.family} process noise"
+    elif jacobians is None:
+        reason = "gives no process_noise_jacobian (it does not declare its process noise additive)"
+    elif not np.array_equal(jacobians[0], jacobians[1]):
+        reason = "has a process-noise Jacobian L that depends on the state (noise not additive)"
+    else:
+        L = np.asarray(jacobians[0, 0], dtype=float)
+        covariance = L @ noise.covariance() @ L.T
+        try:
+            np.linalg.cholesky(covariance)
+        except np.linalg.LinAlgError:
+            reason = "has no transition density: its process noise covariance L Q L' is singular"
+    if reason is not None:
+        raise ValueError(f"@proposal: a guided proposal needs the transition density "
+                         f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}")
+    return covariance
+
+
+def gaussian_log_density(value: np.ndarray, mean: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """log N(value; mean, C C') for one lower-triangular factor C (d, d): shape (...)."""
+    standard = (value - mean) @ np.linalg.inv(factor).T
+    d = value.shape[-1]
+    return -0.5 * np.sum(standard * standard, axis=-1) - np.sum(np.log(np.diag(factor))) - 0.5 * d * LOG_TWO_PI
+
+
+class _GaussianProposal(_Proposal):
+    """q = N(m_i, P_i) around each particle's prediction (module docstring)."""
+
+    guided: ClassVar[bool] = True
+
+    def check(self, model):
+        additive_process_noise(model)
+
+    def moments(self, model, predicted: np.ndarray, noise: np.ndarray, measurement: np.ndarray):
+        """(m, C): the proposal's mean (R, N, d) and a factor C of its covariance, C C' = P
+        ((R, N, d, d), or (d, d) shared by every particle)."""
+        raise NotImplementedError
+
+    def propose(self, model, previous, step, measurement, observed, random):
+        noise = additive_process_noise(model)
+        noise_factor = np.linalg.cholesky(noise)
+        control = model.control(step)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            predicted = model.propagate(previous, control, np.zeros(previous.shape[:-1] + (model.process_noise_dimension,)))
+            # A particle whose prediction left the model's domain keeps a NaN state (the engine
+            # parks it at weight zero); the others must not see its NaN in the batched algebra.
+            finite = np.isfinite(predicted).all(axis=-1)
+            safe = np.where(finite[..., None], predicted, 0.0)
+            if observed is not None:          # a missing measurement: any finite stand-in; see below
+                measurement = np.where(observed[:, None], measurement, 0.0)
+            mean, factor = self.moments(model, safe, noise, measurement[:, None, :])
+            if observed is not None:          # missing measurement: the transition, no adjustment
+                mean = np.where(observed[:, None, None], mean, safe)
+                factor = np.where(observed[:, None, None, None], factor, noise_factor)
+            standard = random.standard_normal(previous.shape[1:])       # (R, N, d)
+            state = mean + np.einsum("...ij,...j->...i", factor, standard)
+            d = state.shape[-1]
+            log_proposal = -0.5 * np.sum(standard * standard, axis=-1) \
+                - np.sum(np.log(np.diagonal(factor, axis1=-2, axis2=-1)), axis=-1) - 0.5 * d * LOG_TWO_PI
+            log_transition = gaussian_log_density(state, safe, noise_factor)
+            adjustment = log_transition - log_proposal
+            if observed is not None:
+                adjustment = np.where(observed[:, None], adjustment, 0.0)
+            state = np.where(finite[..., None], state, np.nan)
+        return state, adjustment
+
+
+def kalman_update(predicted, noise, jacobian, predicted_measurement, measurement, measurement_noise):
+    """The Kalman update from N(f, Q): (m, C) with P = (I - K H) Q (I - K H)' + K R K' = C C'."""
+    cross = noise @ transpose(jacobian)                                        # Q H'
+    innovation_covariance = jacobian @ cross + measurement_noise               # H Q H' + R
+    gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))  # Q H' S^-1 (S symmetric)
+    mean = predicted + np.einsum("...dm,...m->...d", gain, measurement - predicted_measurement)
+    reduction = np.eye(predicted.shape[-1]) - gain @ jacobian
+    covariance = reduction @ noise @ transpose(reduction) + gain @ measurement_noise @ transpose(gain)
+    return mean, np.linalg.cholesky(0.5 * (covariance + transpose(covariance)))
+
+
+@PROPOSALS.register_kind
+class LocallyOptimalProposal(_GaussianProposal):
+    """p(x_k | x_k-1, z_k) in closed form: linear-gaussian measurement, additive gaussian process noise."""
+
+    kind: Literal["locally_optimal"] = "locally_optimal"
+
+    def check(self, model):
+        additive_process_noise(model)
+        if getattr(model, "matrices", None) is None:
+            raise ValueError(f"@proposal: the locally_optimal proposal needs a measurement linear in the state, "
+                             f"z = H x + v (a model with `matrices`, e.g. linear_gaussian); model {model.kind} "
+                             "has none (use ekf or ukf)")
+        if model.measurement_noise.family != "gaussian":
+            raise ValueError(f"@proposal: the locally_optimal proposal needs gaussian measurement noise; model "
+                             f"{model.kind} has {model.measurement_noise.family} (use ekf or ukf)")
+
+    def moments(self, model, predicted, noise, measurement):
+        H = model.matrices[1]
+        R = model.measurement_noise.covariance()
+        # K and P are the same for every particle: one (d, d) factor, no per-particle algebra.
+        gain = np.linalg.solve(H @ noise @ H.T + R, H @ noise).T               # Q H' (H Q H' + R)^-1
+        reduction = np.eye(H.shape[1]) - gain @ H
+        covariance = reduction @ noise @ reduction.T + gain @ R @ gain.T         # Joseph's form of P
+        factor = np.linalg.cholesky(0.5 * (covariance + covariance.T))
+        return predicted + (measurement - predicted @ H.T) @ gain.T, factor
+
+
+@PROPOSALS.register_kind
+class ExtendedKalmanProposal(_GaussianProposal):
+    """One EKF update per particle from N(f(x_k-1), Q): the PF-EKF."""
+
+    kind: Literal["ekf"] = "ekf"
+
+    def moments(self, model, predicted, noise, measurement):
+        jacobian = measurement_jacobian(model, predicted, noise)
+        return kalman_update(predicted, noise, jacobian, model.measurement_mean(predicted), measurement,
+                             model.measurement_noise.covariance())
+
+
+@PROPOSALS.register_kind
+class UnscentedProposal(_GaussianProposal):
+    """One UKF update per particle from N(f(x_k-1), Q): the unscented particle filter."""
+
+    kind: Literal["ukf"] = "ukf"
+    alpha: StrictFloat = Field(1.0, gt=0.0, le=1.0, description="spread of the sigma points (0 < alpha <= 1)")
+    beta: StrictFloat = Field(2.0, ge=0.0, description="prior knowledge of the distribution (2: gaussian)")
+    kappa: StrictFloat = Field(0.0, ge=-1e6, le=1e6, description="secondary scaling; needs d + kappa > 0")
+
+    def check(self, model):
+        additive_process_noise(model)
+        try:
+            self.parameters().check(model.state_dimension)
+        except ValueError as error:
+            raise ValueError(f"@proposal.{str(error)[1:]}") from None
+
+    def parameters(self) -> UnscentedParameters:
+        return UnscentedParameters(alpha=self.alpha, beta=self.beta, kappa=self.kappa)
+
+    def moments(self, model, predicted, noise, measurement):
+        leading, d = predicted.shape[:-1], predicted.shape[-1]
+        spread, _, _, weight = self.parameters().weights(d)
+        curvature = self.beta - self.alpha ** 2
+        flat = predicted.reshape(-1, d)                                     # (R N, d): one row per particle
+        points = unscented_sigma_points(flat, np.linalg.cholesky(noise), spread)
+        images = model.measurement_mean(points)
+        predicted_measurement, measurement_spread = unscented_moments(images, images, weight, curvature)
+        _, cross = unscented_moments(points, images, weight, curvature)
+        innovation_covariance = measurement_spread + model.measurement_noise.covariance()
+        gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))
+        innovation = np.broadcast_to(measurement, leading + measurement.shape[-1:]).reshape(len(flat), -1) \
+            - predicted_measurement
+        mean = flat + np.einsum("rdm,rm->rd", gain, innovation)
+        covariance = noise - gain @ innovation_covariance @ transpose(gain)
+        factor, _ = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
+        return mean.reshape(predicted.shape), factor.reshape(leading + (d, d))
+
+
+Proposal = PROPOSALS.kind_union()
+
+
+def check_particle_settings(kind: str, model, settings) -> None:
+    """The refusals of ``proposal`` and ``auxiliary`` (one line each; see docs/filters-and-models.md)."""
+    proposal = settings.proposal
+    weighting = settings.weighting
+    if proposal.guided:
+        if weighting.kind != "gaussian":
+            raise ValueError(f"@proposal: a guided proposal's importance weight needs the model's likelihood "
+                             f"p(z | x); weighting {weighting.label()} is not one (use weighting: gaussian)")
+        proposal.check(model)
+    if settings.auxiliary:
+        if kind == "sis":
+            raise ValueError("@auxiliary: the auxiliary particle filter resamples in its first stage and sis never "
+                             "resamples; use kind: particle")
+        if weighting.kind != "gaussian":
+            raise ValueError(f"@auxiliary: the auxiliary particle filter weighs by the model's likelihood "
+                             f"p(z | x); weighting {weighting.label()} is not one (use weighting: gaussian)")
+        # its first stage resamples before the proposal, where a move, an adaptive count or an
+        # injection (stages after the end-of-step resampling) have no defined place yet
+        for key in ("move", "adaptive", "injection"):
+            value = getattr(settings, key, None)
+            if value is not None and getattr(value, "kind", "none") != "none":
+                raise ValueError(f"@auxiliary: the auxiliary particle filter does not combine with filter.{key} "
+                                 f"({value.kind}): its resampling is its first stage; use one or the other")
