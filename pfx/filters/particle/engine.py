@@ -215,8 +215,9 @@ class ParticleFilter:
     """One batch of trials of the particle filter, advanced step by step in named stages.
 
     :meth:`run` is the algorithm; each stage is a method, and the points where a variant plugs
-    in are objects: the weighting (the weight update), the resampler, the move after resampling
-    (today's diffusions and roughening), and the particle count (fixed today). Diagnostics are
+    in are objects: the proposal, the weighting (the weight update), the resampler, the move after
+    resampling (``filter.move``), the particle count (fixed, or ``filter.adaptive``), the
+    diffusion and the injection. Diagnostics are
     :class:`Recorder` s: they look at the cloud after a stage and fill their part of the trace,
     so the loop holds the algorithm and nothing else.
     """
@@ -475,15 +476,14 @@ class SpreadRecorder(Recorder):
 
 class StandardDeviationRecorder(Recorder):
     """The posterior standard deviation of each state component, weighted, before resampling
-    (at the estimate's stage), for some rows of the batch (None: all); the other rows stay NaN.
+    (at the estimate's stage), for some rows of the batch (the traced trials; None: all); the others stay NaN.
 
     An angular component's deviations are taken from the circular mean, wrapped into half a
     turn either side, as its errors are.
     """
 
     def __init__(self, model, rows: Optional[np.ndarray]):
-        every = rows is None
-        self.rows = slice(None) if every else np.asarray(rows, dtype=np.intp)   # a slice: no copies
+        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)   # None: every row
         self.angular = list(model.angular_components)
         self.full_turn = model.full_turn
 
