@@ -86,11 +86,13 @@ class Plan:
         figures or the trial count: changing those keeps a result folder's results (more trials
         extend them, each trial having its own random streams)."""
         outputs = self.experiment.outputs
-        return canonical_hash(with_plugin_code({"seed": self.experiment.seed,
-                                                "cells": [[cell.key, cell.labels] for cell in self.cells],
-                                                "trace_trials": outputs.trace_trials,
-                                                "particles": outputs.particles.model_dump(mode="json")},
-                                               self.plugins))
+        numbers_depend_on = {"seed": self.experiment.seed,
+                             "cells": [[cell.key, cell.labels] for cell in self.cells],
+                             "trace_trials": outputs.trace_trials,
+                             "particles": outputs.particles.model_dump(mode="json")}
+        if self.experiment.datasets is not None:     # absent, the hash of earlier results is unchanged
+            numbers_depend_on["datasets"] = self.experiment.datasets
+        return canonical_hash(with_plugin_code(numbers_depend_on, self.plugins))
 
     @property
     def size_text(self) -> str:
@@ -354,6 +356,11 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
     resolved = resolved_config(experiment, raw, arms, cells, file, schema)
     if data is None:
         resolved.pop("data", None)     # the record of a config without data is unchanged
+    elif experiment.datasets is not None:
+        raise ConfigError("recorded data is one dataset: every trial filters it already; drop datasets",
+                          file=file, key="datasets")
+    if experiment.datasets is None:
+        resolved.pop("datasets", None)     # nor is that of a config without datasets
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
 
 

@@ -229,6 +229,13 @@ def _build(plugins: frozenset) -> ConfigSchema:
         """One experiment: a model, a filter, its arms and sweep, trials and seed."""
 
         trials: StrictInt = Field(1, ge=1, le=10_000_000, description="independent trials per cell")
+        datasets: Optional[StrictInt] = Field(
+            None, ge=1, le=10_000_000,
+            description="how many simulated datasets (true trajectories with their measurements) the "
+                        "trials share: trial t filters dataset t mod datasets, so the trials of one "
+                        "dataset are repeated runs of the filter on the same measurements (the spread "
+                        "of an estimator, e.g. of the log-likelihood, for fixed data); default: one "
+                        "dataset per trial")
         model: ModelConfig = Field(description="the true system (`pfx list models`)")  # type: ignore[valid-type]
         filter: FilterConfig = Field(default_factory=FilterConfig, description="filter defaults")  # type: ignore[valid-type]
         arms: dict[Annotated[str, Field(pattern=NAME_PATTERN)], FilterConfig] = Field(  # type: ignore[valid-type]

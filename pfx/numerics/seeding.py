@@ -37,9 +37,14 @@ def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int
     return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def truth_seed(root_seed: int, trial: int) -> int:
-    """Seed of trial ``trial``'s truth stream (shared by every cell of an experiment)."""
-    return stream_seed(root_seed, TRUTH_ROLE, trial)
+def truth_seed(root_seed: int, trial: int, datasets: int | None = None) -> int:
+    """Seed of trial ``trial``'s truth stream (shared by every cell of an experiment).
+
+    With ``datasets`` (the config's key of that name) the trials share that many truths: trial
+    ``t`` sees dataset ``t mod datasets``, whose stream is the one trial ``t mod datasets`` would
+    have without the key, so ``datasets: 5`` repeats the first five trials' truths.
+    """
+    return stream_seed(root_seed, TRUTH_ROLE, trial if datasets is None else trial % datasets)
 
 
 def filter_seed(root_seed: int, cell_key: int, trial: int) -> int:

@@ -39,9 +39,9 @@ class BatchResult:
 
 
 def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
-              snapshots: Optional[ParticleSnapshots] = None) -> BatchResult:
+              snapshots: Optional[ParticleSnapshots] = None, datasets: Optional[int] = None) -> BatchResult:
     """Simulate the truth and run the filter for some trials of one cell; return table rows."""
-    truth_seeds = [truth_seed(seed, t) for t in trials]
+    truth_seeds = [truth_seed(seed, t, datasets) for t in trials]
     filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
     truth, measurements, observed = _truth_and_measurements(cell, truth_seeds)
     criterion = cell.metrics.convergence

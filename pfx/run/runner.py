@@ -250,7 +250,7 @@ def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
     The one place they are put together; with Dask, this tuple is what travels to a worker.
     """
     outputs = plan.experiment.outputs
-    return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles)
+    return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles, plan.experiment.datasets)
 
 
 def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
