@@ -880,13 +880,13 @@ def add_paper(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
     copy.new_file("configs/papers/tiny-paper/paper.yaml", "rmse_position: 1.0\n")
     # step 2: the report, imported in pfx/papers/__init__.py ...
     copy.new_file("pfx/papers/tiny_paper.py", REPORT)
-    copy.replace("pfx/papers/__init__.py", "prob_robotics  # noqa: F401", "prob_robotics, tiny_paper  # noqa: F401")
+    copy.replace("pfx/papers/__init__.py", "    prob_robotics,\n)", "    prob_robotics,\n    tiny_paper,\n)")
     refused = drive(copy, {"gallery": {"code": GALLERY_REFUSES}}, label="before-order")
     assert refused["gallery"]["code"] == "exception"
     assert "ValueError: reports missing from pfx.papers.GALLERY_ORDER: tiny-paper" in refused["gallery"]["stderr"], \
         refused["gallery"]
     # ... and its short name in GALLERY_ORDER
-    copy.replace("pfx/papers/__init__.py", '"prob-robotics")', '"prob-robotics", "tiny-paper")')
+    copy.replace("pfx/papers/__init__.py", '"beyond-the-papers")', '"beyond-the-papers", "tiny-paper")')
     # step 4: `pfx reproduce <short-name>` (default folders: configs/papers, results)
     steps = drive(copy, {"reproduce": cli("reproduce", "tiny-paper")})
     steps.ok("reproduce")
@@ -955,6 +955,11 @@ PAGE_SAYS = {
                     "`@WEIGHTINGS.register_kind`", "above the line `Weighting = WEIGHTINGS.kind_union()`"],
     "A diffusion": ["`apply(particles, random)`", "`check(dimension)`", "`@DIFFUSIONS.register_kind`",
                     "above `Diffusion = DIFFUSIONS.kind_union()`"],
+    "A proposal": ["`propose(model, previous, step, measurement, observed, random)`", "`guided: ClassVar[bool] = True`",
+                   "log p(x_k | x_{k-1}) - log q(x_k | x_{k-1}, z_k)", "`@PROPOSALS.register_kind`",
+                   "`Proposal = PROPOSALS.kind_union()`"],
+    "A move": ["`apply(context, random)`", "`needs_parents = True`", "`reports_acceptance = True`",
+               "`@MOVES.register_kind`", "`Move = MOVES.kind_union()`"],
     "A noise family": ["added to the dict the module registers into `NOISE_FAMILIES`",
                        "`sample_standard(random, shape, df)`", "`log_density_standard(z, df)`",
                        "`log_tail_standard(c, df)`", "`family: <name>`"],

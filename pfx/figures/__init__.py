@@ -12,9 +12,11 @@ from pfx.figures import (
     closeups,  # noqa: F401
     concept,  # noqa: F401
     degeneracy,  # noqa: F401
+    estimator_spread,  # noqa: F401
     mahalanobis,  # noqa: F401
     maps,  # noqa: F401
     motion,  # noqa: F401
+    particle_count,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
     state_errors,  # noqa: F401

@@ -8,10 +8,18 @@ with its report function decorated ``@REPORTS.register("<short-name>")``; import
 its short name in :data:`GALLERY_ORDER`; describe the document in ``docs/papers/<short-name>.md``.
 """
 
-from pfx.papers import bayes_blog, han_lee, kim_mcl, park_mpf, prob_robotics  # noqa: F401  (register the reports)
+from pfx.papers import (  # noqa: F401  (register the reports)
+    bayes_blog,
+    beyond_the_papers,
+    han_lee,
+    kim_mcl,
+    park_mpf,
+    prob_robotics,
+)
 from pfx.papers.base import REPORTS
 
-# The gallery's order: the order of the source documents' list, not of the imports above.
-GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics")
+# The gallery's order: the order of the source documents' list, not of the imports above; then
+# the section beyond them (filter algorithms none of the documents compares).
+GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics", "beyond-the-papers")
 
 __all__ = ["GALLERY_ORDER", "REPORTS"]

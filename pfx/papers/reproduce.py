@@ -26,12 +26,33 @@ PAPER_FILE = "paper.yaml"      # the document's own numbers, not an experiment
 
 
 def paper_configs(configs_dir: Path) -> dict[str, list[Path]]:
-    """Paper short name -> its experiment config files, sorted."""
+    """Paper short name -> its experiment config files: the folder's, sorted, then the ones
+    its ``paper.yaml`` names under ``also_run`` (configs kept elsewhere, e.g. an example whose
+    results the section shows, or one that needs a plugin), in that order."""
     if not configs_dir.is_dir():
         return {}
-    found = {folder.name: sorted(p for p in folder.glob("*.yaml") if p.name != PAPER_FILE)
+    found = {folder.name: sorted(p for p in folder.glob("*.yaml") if p.name != PAPER_FILE) + _also_run(folder)
              for folder in sorted(configs_dir.iterdir()) if folder.is_dir()}
     return {paper: files for paper, files in found.items() if files}
+
+
+def _also_run(folder: Path) -> list[Path]:
+    """The configs ``folder/paper.yaml`` lists under ``also_run`` (paths relative to the folder)."""
+    numbers = folder / PAPER_FILE
+    if not numbers.exists():
+        return []
+    listed = (load_config_file(numbers) or {}).get("also_run") or []
+    if not isinstance(listed, list):
+        raise ConfigError("also_run must be a list of config files (relative to this folder)",
+                          file=str(numbers), key="also_run")
+    paths = []
+    for index, name in enumerate(listed):
+        path = folder / str(name)
+        if not (isinstance(name, str) and path.suffix == ".yaml" and path.is_file()):
+            raise ConfigError(f"no config file {name!r} (paths are relative to {folder})",
+                              file=str(numbers), key=f"also_run[{index}]")
+        paths.append(path)
+    return paths
 
 
 def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: bool,
