@@ -344,14 +344,11 @@ def recovery(steps: pd.DataFrame, kidnap_step: int, radius: float) -> pd.DataFra
 
 
 def wilson_interval(successes: int, trials: int) -> tuple[float, float]:
-    """The 95% Wilson score interval of a proportion."""
+    """The 95% Wilson score interval of a proportion (scipy's)."""
     if trials == 0:
         return math.nan, math.nan
-    z = float(stats.norm.ppf(0.975))
-    share = successes / trials
-    centre = (share + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = z * math.sqrt(share * (1 - share) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    return centre - half, centre + half
+    found = stats.binomtest(successes, trials).proportion_ci(confidence_level=0.95, method="wilson")
+    return float(found.low), float(found.high)
 
 
 def kidnapped_part(results: PaperResults) -> Part:
@@ -378,18 +375,16 @@ def kidnapped_part(results: PaperResults) -> Part:
                      "final error [cm], median": trials.loc[trials["arm"] == arm, "error_distance_final"].median(),
                      "injected per step": trials.loc[trials["arm"] == arm, "injected_mean"].mean()})
     plain, augmented = arms[0], arms[-1]
-    indicator = outcome.pivot_table(index="trial", columns="arm", values="recovered").astype(float)
-    difference = indicator[augmented] - indicator[plain]
-    mean = float(difference.mean())
-    half = float(stats.t.ppf(0.975, len(difference) - 1)) * float(difference.std(ddof=1)) / math.sqrt(len(difference))
+    paired = paired_comparison(outcome.assign(recovered=outcome["recovered"].astype(float)), "recovered", by="arm",
+                               baseline=plain, higher_is_better=True).set_index("arm").loc[augmented]
     claims = results.numbers.get("claims", {})
-    plain_rate = float(indicator[plain].mean())
-    checks = [mean - half > 0, plain_rate < 0.5]
+    checks = [paired["ci95_low"] > 0, paired["baseline_mean"] < 0.5]
     verdict = Verdict(
         f"{claims['augmented']['claim']} ({claims['augmented']['source']})", verdict_from_checks(checks),
-        f"recovered (final error within {radius:g} cm): {augmented} {indicator[augmented].mean():.0%}, "
-        f"{plain} {plain_rate:.0%} of {len(difference)} trials; paired difference "
-        f"{percent(mean, decimals=0)} {interval(mean - half, mean + half, number=lambda v: percent(v, decimals=0))} "
+        f"recovered (final error within {radius:g} cm): {augmented} {paired['mean']:.0%}, "
+        f"{plain} {paired['baseline_mean']:.0%} of {int(paired['n_pairs'])} trials; paired difference "
+        f"{percent(paired['mean_difference'], decimals=0)} "
+        f"{interval(paired['ci95_low'], paired['ci95_high'], number=lambda v: percent(v, decimals=0))} "
         "(it must lie above 0, and plain MCL recover in fewer than half the trials).")
     items = [Text("### The kidnapped robot: augmented MCL\n\n"
                   f"The kim-mcl arena; after the filter has localised, at step {kidnap_step}, the true robot is "
