@@ -1,8 +1,9 @@
 """The compiled loops (numba) give exactly what their NumPy definitions give.
 
 * pfx.numerics.ziggurat: TrialStreams.standard_normal is, draw for draw, each trial's
-  ``Generator.standard_normal``, and leaves every generator where NumPy would have left it
-  (including the fallbacks: a margin of words that runs out, generators other than PCG64).
+  ``Generator.standard_normal`` (and ``uniform`` its ``Generator.random``), and leaves every
+  generator where NumPy would have left it, subsets of a batch included; other bit generators and
+  an unknown PCG64 layout fall back to NumPy's own methods.
 * pfx.filters.particle.resampling.inverse_cdf (one merged pass) equals the binary search it replaced,
   ``searchsorted(guarded cumsum, u, 'right')`` clipped to N - 1, index for index.
 * pfx.filters.particle.engine.resample_rows equals ``take_along_axis``, whatever the memory layout.
@@ -16,7 +17,6 @@ import pytest
 
 from pfx.filters.particle.engine import log_normalise, normalise_weights, resample_rows
 from pfx.filters.particle.resampling import inverse_cdf
-from pfx.numerics import ziggurat
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -52,14 +52,43 @@ def test_the_tails_and_wedges_are_numpys_too():
     np.testing.assert_array_equal(draws, np.random.default_rng(77).standard_normal(4_000_000))
 
 
-def test_a_margin_that_runs_out_falls_back_to_numpy(monkeypatch):
-    monkeypatch.setattr(ziggurat, "_words_for", lambda count: count)      # no margin at all
-    streams = TrialStreams.from_seeds(range(20))
-    draws = streams.standard_normal((400,))
-    for row in range(20):
+def test_subsets_step_the_same_generators():
+    """A subset's draws (the rows a resampling step picks) advance the batch's own generators."""
+    streams = TrialStreams.from_seeds([1, 2, 3])
+    first = streams.standard_normal((5,))
+    subset = streams.subset(np.array([2, 0]))
+    picked = subset.uniform((3,))
+    then = streams.standard_normal((2,))
+    for row, seed in enumerate([1, 2, 3]):
+        generator = np.random.default_rng(seed)
+        np.testing.assert_array_equal(first[row], generator.standard_normal(5))
+        if row != 1:
+            np.testing.assert_array_equal(picked[[2, 0].index(row)], generator.random(3))
+        np.testing.assert_array_equal(then[row], generator.standard_normal(2))
+        assert streams.generators[row].bit_generator.state == generator.bit_generator.state
+
+
+def test_pcg64_words_are_numpys():
+    from pfx.numerics import pcg64
+
+    generators = [np.random.PCG64(seed) for seed in (0, 9, 2**63 - 1)]
+    words = np.empty((3, 5000), dtype=np.uint64)
+    pcg64.raw_words(pcg64.state_addresses(generators), words)
+    for row, seed in enumerate((0, 9, 2**63 - 1)):
+        np.testing.assert_array_equal(words[row], np.random.PCG64(seed).random_raw(5000))
+
+
+def test_an_unknown_state_layout_falls_back_to_numpy(monkeypatch):
+    from pfx.numerics import pcg64
+
+    monkeypatch.setattr(pcg64, "layout_matches", lambda: False)
+    streams = TrialStreams.from_seeds(range(4))
+    assert streams.compiled_addresses() is None
+    normal, uniform = streams.standard_normal((40,)), streams.uniform((3,))
+    for row in range(4):
         generator = np.random.default_rng(row)
-        np.testing.assert_array_equal(draws[row], generator.standard_normal(400))
-        assert streams.generators[row].random() == generator.random()
+        np.testing.assert_array_equal(normal[row], generator.standard_normal(40))
+        np.testing.assert_array_equal(uniform[row], generator.random(3))
 
 
 def test_other_bit_generators_use_numpys_loop():

@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from pfx.filters.particle import engine, resampling
-from pfx.numerics import ziggurat
+from pfx.numerics import pcg64, ziggurat
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -30,8 +30,9 @@ def warm_up() -> dict:
         engine.resample_rows(state, np.arange(2), indices)
     seconds = time.perf_counter() - started
     counts = {"compiled": 0, "loaded": 0}
-    for function in (resampling.inverse_cdf_walk, engine.gather_particles, ziggurat.normals_from_words):
-        stats = function.dispatcher().stats
+    lazy = [function.dispatcher() for function in (resampling.inverse_cdf_walk, engine.gather_particles)]
+    for dispatcher in lazy + [ziggurat.normals, pcg64.uniforms]:
+        stats = dispatcher.stats
         counts["loaded"] += sum(stats.cache_hits.values())
         counts["compiled"] += sum(stats.cache_misses.values())
     return {"seconds": seconds, **counts}

@@ -3,9 +3,10 @@
 A few steps of the engine are loops that NumPy cannot express without extra passes over the
 particles or a Python loop per trial: the merged walk of the inverse CDF
 (:func:`pfx.filters.particle.resampling.inverse_cdf`), the gather of resampled particles
-(:func:`pfx.filters.particle.engine.resample_rows`) and the ziggurat that turns random 64-bit words into
-normal draws (:mod:`pfx.numerics.ziggurat`). Each is an ordinary Python function decorated with
-:func:`compiled`; it stays next to the mathematics it implements.
+(:func:`pfx.filters.particle.engine.resample_rows`), each trial's PCG64 generator stepped in place
+(:mod:`pfx.numerics.pcg64`) and the ziggurat that turns its 64-bit words into normal draws
+(:mod:`pfx.numerics.ziggurat`). Each is an ordinary Python function decorated with
+:func:`compiled` (or :func:`compiled_now`); it stays next to the mathematics it implements.
 
 Why numba, and what it costs (measured by ``pfx bench``, see docs/performance.md):
 at N = 1e5 those three steps took about half of a particle-step before (binary search
@@ -17,8 +18,10 @@ process loads it in a fraction of a second.
 
 ``import numba`` alone takes about half a second, so it happens on the first call of a
 compiled function, not when pfx is imported: ``pfx validate`` and ``pfx list`` never pay it.
-A compiled function may not call another one (numba sees only the lazy wrapper); each is
-self-contained.
+A function compiled lazily may not call another one (numba sees only the lazy wrapper); each is
+self-contained. Compiled functions that call one another (the ziggurat calls the PCG64 step)
+live in modules that import numba themselves and are imported on first use
+(:func:`compiled_now`).
 """
 
 from __future__ import annotations
@@ -40,6 +43,13 @@ def compiled(function: Callable) -> Callable:
 
     call.dispatcher = lambda: _jit(function) if dispatcher is None else dispatcher
     return call
+
+
+def compiled_now(function: Callable) -> Callable:
+    """``numba.njit(cache=True)`` of ``function`` at once: for a module that imports numba itself
+    and is imported only when first needed (:mod:`pfx.numerics.pcg64`), whose compiled functions
+    call one another (which the lazy wrappers of :func:`compiled` cannot)."""
+    return _jit(function)
 
 
 @functools.lru_cache(maxsize=None)

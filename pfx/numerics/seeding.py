@@ -15,8 +15,9 @@ Each stream is reduced to one 63-bit integer (written to ``trials.csv`` as ``tru
 
 Because each trial owns its generator, a batch of trials draws exactly the numbers those trials
 would draw one by one: :class:`TrialStreams` hands each trial's slice of a batched array to that
-trial's own generator. Normal draws are exactly ``Generator.standard_normal``'s, made by a
-compiled loop from each generator's 64-bit words (:mod:`pfx.numerics.ziggurat`), several times faster.
+trial's own generator. Normal and uniform draws are exactly ``Generator.standard_normal``'s and
+``Generator.random``'s, made by compiled loops that step each generator in place
+(:mod:`pfx.numerics.pcg64`, :mod:`pfx.numerics.ziggurat`), for a whole batch in one call.
 """
 
 from __future__ import annotations
@@ -61,14 +62,19 @@ class TrialStreams:
     """One generator per trial; batched draws of shape ``(trials, *shape)``.
 
     Slice ``r`` of every array returned comes from generator ``r`` alone, in the order the
-    calls are made, so results do not depend on how trials are grouped into batches.
+    calls are made, so results do not depend on how trials are grouped into batches. Normal
+    and uniform draws of PCG64 generators (all of pfx's own) are made by compiled loops that
+    step every trial's generator in place, in one call for the batch
+    (:mod:`pfx.numerics.pcg64`, :mod:`pfx.numerics.ziggurat`); other draws, and other
+    generators, by NumPy trial by trial. Either way the numbers are NumPy's.
     """
 
-    def __init__(self, generators: Sequence[np.random.Generator]):
+    def __init__(self, generators: Sequence[np.random.Generator], *, addresses=None):
         self.generators = list(generators)
-        bit_generators = [generator.bit_generator for generator in self.generators]
-        # PCG64 generators (all of pfx's own) get the compiled normal loop of pfx.numerics.ziggurat.
-        self._pcg64 = bit_generators if all(type(b) is np.random.PCG64 for b in bit_generators) else None
+        # The generators' PCG64 state addresses for the compiled loops: found on the first
+        # draw (that imports numba), None if some generator is not a PCG64.
+        self._addresses = addresses
+        self._addresses_known = addresses is not None
 
     @classmethod
     def from_seeds(cls, seeds: Sequence[int]) -> "TrialStreams":
@@ -78,14 +84,26 @@ class TrialStreams:
         return len(self.generators)
 
     def subset(self, trial_indices) -> "TrialStreams":
-        """The streams of the given trials (positions in this batch)."""
-        return TrialStreams([self.generators[int(i)] for i in trial_indices])
+        """The streams of the given trials (positions in this batch): the same generators."""
+        trial_indices = np.asarray(trial_indices, dtype=np.intp)
+        addresses = self._addresses[trial_indices] if self._addresses_known and self._addresses is not None \
+            else None
+        return TrialStreams([self.generators[i] for i in trial_indices.tolist()], addresses=addresses)
+
+    def compiled_addresses(self):
+        """The PCG64 state addresses the compiled loops step (None: NumPy's methods, trial by trial)."""
+        if not self._addresses_known:
+            from pfx.numerics.pcg64 import state_addresses
+
+            self._addresses = state_addresses([generator.bit_generator for generator in self.generators])
+            self._addresses_known = True
+        return self._addresses
 
     def _fill(self, shape, method: str) -> np.ndarray:
         shape = tuple(shape)
         if math.prod(shape) == 1:
-            # One draw per trial (systematic resampling's offset): a scalar call per generator
-            # costs about a third of filling a one-element row.
+            # One draw per trial: a scalar call per generator costs about a third of filling a
+            # one-element row.
             draws = [getattr(generator, method)() for generator in self.generators]
             return np.array(draws, dtype=float).reshape((len(self.generators),) + shape)
         out = np.empty((len(self.generators),) + shape)
@@ -98,12 +116,21 @@ class TrialStreams:
         from pfx.numerics.ziggurat import standard_normal_rows
 
         shape = tuple(shape)
-        draws = standard_normal_rows(self.generators, self._pcg64, math.prod(shape))
+        draws = standard_normal_rows(self.generators, self.compiled_addresses(), math.prod(shape))
         return draws.reshape((len(self.generators),) + shape)
 
     def uniform(self, shape) -> np.ndarray:
-        """Uniform draws on [0, 1)."""
-        return self._fill(shape, "random")
+        """Uniform draws on [0, 1): each trial's ``generator.random``, compiled (pfx.numerics.pcg64)."""
+        addresses = self.compiled_addresses()
+        if addresses is None:
+            return self._fill(shape, "random")
+        from pfx.numerics.pcg64 import uniforms
+
+        shape = tuple(shape)
+        out = np.empty((len(self.generators), math.prod(shape)))
+        if out.size:
+            uniforms(addresses, out)
+        return out.reshape((len(self.generators),) + shape)
 
     def standard_exponential(self, shape) -> np.ndarray:
         return self._fill(shape, "standard_exponential")

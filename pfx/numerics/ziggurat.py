@@ -4,8 +4,9 @@ Every trial owns a NumPy generator (:mod:`pfx.numerics.seeding`). Filling trial 
 ``generator.standard_normal`` costs, on the machines pfx is benchmarked on, about 10 ns a
 draw, four times the cost of the 64-bit word underneath it (about 2.2 ns for PCG64), and a
 Python call per trial; the falling-body filter needs three draws per particle and step.
-Here each trial's words are drawn in one call (``bit_generator.random_raw``) and turned into
-normal draws by a compiled loop: about 2 ns a draw on top of the word.
+Here one compiled loop steps every trial's own PCG64 generator in place
+(:mod:`pfx.numerics.pcg64`) and turns its words into normal draws as it goes: about 2 ns a
+draw on top of the word, and no Python per trial.
 
 The loop is NumPy's own algorithm (``random_standard_normal`` in NumPy's
 ``distributions.c``): the ziggurat method of Marsaglia & Tsang (2000) with 256 strips, on
@@ -15,12 +16,12 @@ strip's rectangle (99 % of the draws), else the tail beyond :math:`r = 3.6541528
 method or the wedge is tested against :math:`e^{-x^2/2}`, with further words as uniforms
 :math:`(w \gg 11) \cdot 2^{-53}`, which is how PCG64 makes a double.
 
-So the draws are exactly NumPy's, word for word: a call consumes from each trial's generator
-the words NumPy would, no more. Each trial's words are drawn with a margin (the rejections
-need a few more words than draws); the words not used are given back by stepping the
-generator back (``PCG64.advance`` with a negative count), so the generator ends where
-``standard_normal`` would have left it. Generators other than PCG64, and the astronomically
-rare trial whose margin runs out, are served by ``generator.standard_normal`` itself.
+So the draws are exactly NumPy's, word for word, and each generator is left where
+``standard_normal`` would have left it. Generators other than PCG64 (or a NumPy whose PCG64
+is laid out otherwise, :func:`pfx.numerics.pcg64.layout_matches`) are served by
+``generator.standard_normal`` itself.
+
+This module imports numba; :mod:`pfx.numerics.seeding` imports it on the first draw only.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from pfx.numerics.compiled import compiled
+from pfx.numerics.compiled import compiled_now
+from pfx.numerics.pcg64 import state_of, step
 from pfx.numerics.ziggurat_tables import DENSITIES as _FI
 from pfx.numerics.ziggurat_tables import STRIP_BOUNDS as _KI
 from pfx.numerics.ziggurat_tables import STRIP_WIDTHS as _WI
@@ -44,98 +46,64 @@ _DOUBLE_SHIFT = np.uint64(11)
 _DOUBLE_SCALE = 1.0 / 9007199254740992.0          # 2^-53: PCG64's next_double
 
 
-@compiled
-def normals_from_words(words, out, used):
-    """out[row, :] = NumPy's standard normal draws from words[row]; used[row] = words taken.
+@compiled_now
+def normals(addresses, out):
+    """out[row, :] = NumPy's standard normal draws from the PCG64 generator at ``addresses[row]``.
 
-    ``used[row]`` is -1 if the row's words ran out before ``out[row]`` was full. (The tables
-    are module constants, frozen into the compiled code.)
+    (The tables are module constants, frozen into the compiled code.)
     """
     ki, wi, fi, r, inverse_r = _KI, _WI, _FI, _R, _INVERSE_R
-    rows, available = words.shape
-    count = out.shape[1]
-    for row in range(rows):
-        p = 0
-        short = False
-        for j in range(count):
+    for row in range(out.shape[0]):
+        state = state_of(addresses[row])
+        low, high, increment_low, increment_high = state[0], state[1], state[2], state[3]
+        for j in range(out.shape[1]):
             value = 0.0
             while True:
-                if p >= available:
-                    short = True
-                    break
-                bits = words[row, p]
-                p += 1
+                low, high, bits = step(low, high, increment_low, increment_high)
                 strip = np.intp(bits & _STRIP)
                 bits = bits >> _EIGHT
                 negative = (bits & _ONE) != 0
                 magnitude = (bits >> _ONE) & _MANTISSA
-                x = np.float64(magnitude) * wi[strip]
+                x = np.float64(np.int64(magnitude)) * wi[strip]     # < 2^52: the signed conversion is exact
                 if negative:
                     x = -x
                 if magnitude < ki[strip]:
                     value = x
                     break
                 if strip == 0:                   # the tail beyond r
-                    accepted = False
-                    while p + 1 < available:
-                        u1 = np.float64(words[row, p] >> _DOUBLE_SHIFT) * _DOUBLE_SCALE
-                        u2 = np.float64(words[row, p + 1] >> _DOUBLE_SHIFT) * _DOUBLE_SCALE
-                        p += 2
+                    while True:
+                        low, high, word = step(low, high, increment_low, increment_high)
+                        u1 = np.float64(np.int64(word >> _DOUBLE_SHIFT)) * _DOUBLE_SCALE
+                        low, high, word = step(low, high, increment_low, increment_high)
+                        u2 = np.float64(np.int64(word >> _DOUBLE_SHIFT)) * _DOUBLE_SCALE
                         xx = -inverse_r * np.log1p(-u1)
                         yy = -np.log1p(-u2)
                         if yy + yy > xx * xx:
                             value = -(r + xx) if ((magnitude >> _EIGHT) & _ONE) != 0 else r + xx
-                            accepted = True
                             break
-                    if not accepted:
-                        short = True
                     break
-                if p >= available:
-                    short = True
-                    break
-                u = np.float64(words[row, p] >> _DOUBLE_SHIFT) * _DOUBLE_SCALE
-                p += 1
+                low, high, word = step(low, high, increment_low, increment_high)
+                u = np.float64(np.int64(word >> _DOUBLE_SHIFT)) * _DOUBLE_SCALE
                 if (fi[strip - 1] - fi[strip]) * u + fi[strip] < np.exp(-0.5 * x * x):   # the wedge
                     value = x
                     break
-            if short:
-                break
             out[row, j] = value
-        used[row] = -1 if short else p
+        state[0], state[1] = low, high
 
 
-def _words_for(count: int) -> int:
-    return count + count // 16 + 16
-
-
-def standard_normal_rows(generators: Sequence[np.random.Generator],
-                         pcg64: Optional[Sequence[np.random.PCG64]], count: int) -> np.ndarray:
+def standard_normal_rows(generators: Sequence[np.random.Generator], addresses: Optional[np.ndarray],
+                         count: int) -> np.ndarray:
     """``generator.standard_normal(count)`` for every generator: shape (len(generators), count).
 
-    ``pcg64``: the generators' bit generators if all are PCG64, else None (NumPy's own loop).
+    ``addresses``: the generators' PCG64 states (:func:`pfx.numerics.pcg64.state_addresses`),
+    or None (NumPy's own loop, trial by trial).
     """
-    rows = len(generators)
-    out = np.empty((rows, count))
-    if rows == 0 or count == 0:
+    out = np.empty((len(generators), count))
+    if len(generators) == 0 or count == 0:
         return out
-    if pcg64 is None:
+    if addresses is None:
         for row, generator in zip(out, generators):
             generator.standard_normal(out=row)
         return out
-    available = _words_for(count)
-    if rows == 1:
-        words = pcg64[0].random_raw(available)[None, :]
-    else:
-        words = np.empty((rows, available), dtype=np.uint64)
-        for row, bit_generator in enumerate(pcg64):
-            words[row] = bit_generator.random_raw(available)
-    used = np.empty(rows, dtype=np.intp)
-    normals_from_words(words, out, used)
-    for row, bit_generator in enumerate(pcg64):
-        if used[row] < 0:                # the margin ran out: NumPy's own loop, from the same state
-            bit_generator.advance(-available)
-            generators[row].standard_normal(out=out[row])
-        else:                            # give back the words not used
-            bit_generator.advance(int(used[row]) - available)
+    normals(addresses, out)
     return out
-
