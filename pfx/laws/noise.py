@@ -248,14 +248,23 @@ class Noise(BaseModel):
         # each component is then contiguous, which NumPy's element-wise operations on one state
         # component (what a model's propagate does) run several times faster over.
         standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape[-1:] + full_shape[:-1], self.df)
-        standard = np.moveaxis(standard, 1, -1)
         if scale is not None:
-            # x_j = s_j z_j in place, one component at a time: broadcasting the short last
-            # axis would make NumPy's inner loop run over k = 1..3 elements, several times slower.
-            for component, component_scale in enumerate(scale):
-                standard[..., component] *= component_scale
-            return standard
-        return standard @ factor.T
+            # x_j = s_j z_j in place, while the component axis is still the second one: NumPy's
+            # inner loop then runs along a component's contiguous draws (over the short last axis
+            # it would run over k = 1..3 elements, several times slower), and one call does it all.
+            standard *= scale.reshape((-1,) + (1,) * (standard.ndim - 2))
+            return np.moveaxis(standard, 1, -1)
+        return np.moveaxis(standard, 1, -1) @ factor.T
+
+    def independent_gaussian(self) -> Optional[tuple[np.ndarray, float]]:
+        """(standard deviation of each component, sum of their logs) when the noise is Gaussian
+        with independent components of positive variance; else None. What a compiled
+        log-density (:meth:`pfx.models.base.Model.compiled_step`) needs:
+        log p(v) = sum_j (-v_j^2 / (2 s_j^2)) - k log(2 pi) / 2 - sum_j log s_j."""
+        private = self.__pydantic_private__
+        if self.family != "gaussian" or private["_scale"] is None or not private["_definite"]:
+            return None
+        return private["_scale"].copy(), private["_log_det_factor"]
 
     def log_density(self, value: np.ndarray) -> np.ndarray:
         """log p(value) for ``value`` of shape (..., k); returns shape (...)."""

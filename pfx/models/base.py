@@ -48,7 +48,7 @@ the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Optional
+from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, StrictInt, model_validator
@@ -191,6 +191,23 @@ class Model(BaseModel):
         """H = d h / d x at ``state``, shape state.shape[:-1] + (m, d).
 
         None (the default): not given analytically; the EKF then uses central finite differences.
+        """
+        return None
+
+    # -- an optional compiled step (speed only) ------------------------------------------------
+
+    def compiled_step(self) -> Optional[Callable]:
+        """The transition and the log-likelihood fused in one compiled pass over the particles.
+
+        None (the default): the engine calls :meth:`propagate` and :meth:`log_likelihood`, as it
+        always may. A model that offers one returns a function
+        ``step(state (R, N, d), control, noise (R, N, q), measurement (R, m)) -> (new state
+        (R, N, d), log-likelihood (R, N))`` that gives what ``propagate(state, control, noise)``
+        and ``log_likelihood(measurement[:, None, :], new state)`` give, to rounding (the
+        compiled ``exp`` and NumPy's may differ in the last bit). It is a speed-up only: the engine
+        uses it for the bootstrap filter with the ``gaussian`` weighting and draws the noise exactly
+        as :meth:`transition` does, so the random streams are consumed identically. It may return
+        None for settings it does not cover (another noise family, say).
         """
         return None
 

@@ -118,18 +118,23 @@ def normalise_weights(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     :math:`L = m + \log S`. A row whose entries are all -inf has L = -inf, log-weights
     unchanged and weights 0.
     """
+    with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
+        return normalise_rows(log_weights)
+
+
+def normalise_rows(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`normalise_weights` without its ``np.errstate`` (the engine's loop sets it once)."""
     peak = np.max(log_weights, axis=-1, keepdims=True)
     finite_peak = np.where(np.isfinite(peak), peak, 0.0)
-    with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
-        shifted = log_weights - finite_peak
-        weights = np.exp(shifted)
-        total = np.sum(weights, axis=-1, keepdims=True)
-        log_total = np.log(total)
-        usable = np.isfinite(log_total)
-        # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
-        # rounding when |peak| > ~1e16.
-        shifted -= np.where(usable, log_total, 0.0)
-        weights /= np.where(usable, total, 1.0)
+    shifted = log_weights - finite_peak
+    weights = np.exp(shifted)
+    total = np.sum(weights, axis=-1, keepdims=True)
+    log_total = np.log(total)
+    usable = np.isfinite(log_total)
+    # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
+    # rounding when |peak| > ~1e16.
+    shifted -= np.where(usable, log_total, 0.0)
+    weights /= np.where(usable, total, 1.0)
     return shifted, weights, (log_total + finite_peak)[..., 0]
 
 
@@ -197,8 +202,11 @@ def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *
     steps.csv shows it (None: for no row, as in ``pfx bench``, whose timings are the filter's).
     ``move`` is ``filter.move`` (:mod:`pfx.filters.particle.moves`; None or ``none``: no move).
     """
-    recorders: list[Recorder] = [SpreadRecorder(model, spread_criterion)]
-    if trace_rows is not None and len(trace_rows):
+    recorders: list[Recorder] = []
+    traced = trace_rows is not None and len(trace_rows) > 0
+    if traced or spread_criterion is not None:      # steps.csv's spread; the spread convergence criterion
+        recorders.append(SpreadRecorder(model, spread_criterion, None if spread_criterion is not None else trace_rows))
+    if traced:
         recorders.append(StandardDeviationRecorder(model, trace_rows))
     if consistency:
         recorders.append(ConsistencyRecorder(model))
@@ -256,24 +264,33 @@ class ParticleFilter:
         self.trace = FilterTrace(
             estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
             ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
-            degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.empty((self.trials, self.steps)),
+            degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.full((self.trials, self.steps), np.nan),
             log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64),
             particle_counts=np.full((self.trials, self.steps), particles),
             injected=None if injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
         # per trial: the sum of the move's acceptance rates over the steps it moved, and their count
         self.acceptance_tally = np.zeros((2, self.trials)) \
             if rejuvenation is not None and rejuvenation.reports_acceptance else None
+        # The model's compiled transition-and-likelihood (Model.compiled_step), where it computes
+        # exactly this filter's proposal and weights: the bootstrap filter with the likelihood.
+        plain = proposal is None and not auxiliary and getattr(weighting, "kind", None) == "gaussian"
+        self.compiled_step = model.compiled_step() if plain else None
+        self.log_likelihood: Optional[np.ndarray] = None     # this step's log p(z_k | x_k), from compiled_step
 
     def run(self) -> FilterTrace:
-        self.record("prior", 0)
-        for k in range(1, self.steps + 1):
-            self.predict(k)
-            self.record("predicted", k)
-            self.update_weights(k)
-            self.estimate(k)
-            self.record("weighted", k)
-            self.resample_and_move(k)
-            self.record("resampled", k)
+        # Overflow, NaN and log(0) are the engine's to handle (lost particles, degenerate steps,
+        # ModelNumericalError), not NumPy's to warn about: one setting for the whole run, not one
+        # per stage and step (each costs microseconds).
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            self.record("prior", 0)
+            for k in range(1, self.steps + 1):
+                self.predict(k)
+                self.record("predicted", k)
+                self.update_weights(k)
+                self.estimate(k)
+                self.record("weighted", k)
+                self.resample_and_move(k)
+                self.record("resampled", k)
         if self.acceptance_tally is not None:
             with np.errstate(invalid="ignore", divide="ignore"):     # never moved: NaN, an empty field
                 self.trace.move_acceptance = self.acceptance_tally[0] / self.acceptance_tally[1]
@@ -292,12 +309,14 @@ class ParticleFilter:
             self.previous_state = self.state
         if self.auxiliary or self.proposal is not None:
             self.weight_adjustment = guided_predict(self, k)
+        elif self.compiled_step is not None:         # the model's fused transition and likelihood
+            noise = self.model.process_noise.sample(self.random, self.state.shape[1:-1])
+            self.state, self.log_likelihood = self.compiled_step(self.state, self.model.control(k), noise,
+                                                                 self.measurements[:, k - 1])
         else:
-            with np.errstate(over="ignore", invalid="ignore"):   # non-finite values are reported below
-                self.state = self.model.transition(self.state, k, self.random)
-        with np.errstate(over="ignore", invalid="ignore"):
-            # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
-            suspect = not np.isfinite(self.state.sum())
+            self.state = self.model.transition(self.state, k, self.random)    # non-finite values: below
+        # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
+        suspect = not np.isfinite(self.state.sum())
         self.lost = None
         if suspect:
             finite = np.isfinite(self.state).all(axis=-1)
@@ -319,9 +338,11 @@ class ParticleFilter:
         if skipped is not None and skipped.all():
             increment = np.zeros_like(self.log_weights)       # no measurement anywhere: nothing to weigh
         else:
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :], self.state,
-                                                       self.weights)
+            if self.log_likelihood is not None:      # computed with the transition (compiled_step)
+                increment = self.log_likelihood
+            else:
+                increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :],
+                                                       self.state, self.weights)
             if skipped is not None:
                 increment[skipped] = 0.0
         if self.weight_adjustment is not None:     # a guided proposal's or the auxiliary filter's terms
@@ -329,13 +350,13 @@ class ParticleFilter:
         if self.lost is not None:
             increment[self.lost] = -np.inf
         updated = self.log_weights + increment
-        normalised, new_weights, normaliser = normalise_weights(updated)
+        normalised, new_weights, normaliser = normalise_rows(updated)
         if not np.isfinite(normaliser).all():          # rare: one check in the common case
             if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
                 # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
                 # (-inf + NaN would be NaN); only if that does not help is it the model's error.
                 updated = np.where(np.isneginf(self.log_weights), -np.inf, updated)
-                normalised, new_weights, normaliser = normalise_weights(updated)
+                normalised, new_weights, normaliser = normalise_rows(updated)
             if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
                 bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
                 raise ModelNumericalError(
@@ -452,26 +473,27 @@ class Recorder:
 
 
 class SpreadRecorder(Recorder):
-    """After each step: the weighted RMS distance of the positions from their mean (``spread``)
-    and, for the spread convergence criterion, the share within its radius."""
+    """After each step: the weighted RMS distance of the positions from their mean (``spread``,
+    a column of steps.csv: for the traced ``rows`` only, None: every row) and, for the spread
+    convergence criterion, the share within its radius (every row)."""
 
-    def __init__(self, model, criterion: Optional[SpreadCriterion]):
+    def __init__(self, model, criterion: Optional[SpreadCriterion], rows: Optional[np.ndarray] = None):
         position = list(model.position_components)
         if position == list(range(position[0], position[-1] + 1)):
             position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
         self.position, self.criterion = position, criterion
+        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)
 
     def record(self, stage: str, step: int, run: ParticleFilter) -> None:
         if stage != "resampled":
             return
         if self.criterion is not None and run.trace.within_radius is None:
             run.trace.within_radius = np.empty((run.trials, run.steps))
-        positions = run.state[..., self.position]
-        with np.errstate(over="ignore", invalid="ignore"):   # a diverging cloud has infinite spread
-            run.trace.spread[:, step - 1] = _spread(run.weights, positions)
-            if self.criterion is not None:
-                run.trace.within_radius[:, step - 1] = _share_within(run.weights, positions, self.criterion,
-                                                                     run.active)
+        # (a diverging cloud has infinite spread: the run's np.errstate lets it be)
+        run.trace.spread[self.rows, step - 1] = _spread(run.weights[self.rows], run.state[self.rows][..., self.position])
+        if self.criterion is not None:
+            run.trace.within_radius[:, step - 1] = _share_within(run.weights, run.state[..., self.position],
+                                                                 self.criterion, run.active)
 
 
 class StandardDeviationRecorder(Recorder):
