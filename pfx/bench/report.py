@@ -76,6 +76,8 @@ def format_goals(timings: list[Timing], workers: Optional[dict], memory: Optiona
         return a.seconds / b.seconds if a and b else None
 
     lines = ["goals (ratios of best wall times on this machine):"]
+    lines.append(_goal_line(ratio(1_000, 1, "pfx", "numpy"), 1.0, True,
+                            "N=1e3, 1 trial: pfx time / numpy reference time", "case not run"))
     lines.append(_goal_line(ratio(100_000, 1, "pfx", "numpy"), 0.5, True,
                             "N=1e5, 1 trial: pfx time / numpy reference time", "case not run"))
     lines.append(_goal_line(ratio(100_000, 1, "particles", "pfx"), 2.5, False,
