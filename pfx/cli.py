@@ -354,9 +354,11 @@ def bench(
     peers: bool = typer.Option(True, "--peers/--no-peers", help="time particles, filterpy, pfilter if installed"),
     workers: bool = typer.Option(True, "--workers/--no-workers", help="measure --workers 2 against 1"),
     memory: bool = typer.Option(True, "--memory/--no-memory", help="measure memory per particle"),
+    algorithms: bool = typer.Option(True, "--algorithms/--no-algorithms",
+                                    help="time the proposals, APF, moves, KLD and injection against the bootstrap"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress lines on stderr"),
 ):
-    """Benchmark: ns per particle-step of pfx, a plain NumPy filter and the Python peers."""
+    """Benchmark: ns per particle-step of pfx, a plain NumPy filter, the Python peers, and pfx's algorithms."""
     from pfx.bench import run_bench
 
     # A full benchmark takes minutes: say what is being timed, one plain line per case and
@@ -370,7 +372,7 @@ def bench(
 
     progress = hide if quiet or os.environ.get("CI") else show
     run_bench(quick=quick, repeats=repeats, budget=budget, peers=peers, workers=workers, memory=memory,
-              echo=typer.echo, progress=progress)
+              algorithms=algorithms, echo=typer.echo, progress=progress)
 
 
 def _one_thread_per_process() -> None:

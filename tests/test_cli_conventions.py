@@ -302,8 +302,9 @@ def test_bench_goals_say_met_or_not_met_with_the_numbers():
                _timing(100, 1000, "pfx", 1.0), _timing(100, 1000, "numpy", 4.0)]         # 4.00: >= 3
     lines = format_goals(timings, None, {"particles": 1_000_000, "peak_rss": 0.5 * 1024 ** 3}).splitlines()
     assert lines[0] == "goals (ratios of best wall times on this machine):"
-    assert lines[1] == "  N=1e5, 1 trial: pfx time / numpy reference time: goal not met (0.62 vs <= 0.5)"
-    assert lines[4] == "  1000 x N=100: numpy reference loop time / pfx time: goal met (4.00 vs >= 3)"
-    assert lines[5].endswith("speed-up: not measured (skipped; goal >= 1.8)")
-    assert lines[6].endswith("(GiB): goal met (0.50 vs <= 1)")
+    assert lines[1] == "  N=1e3, 1 trial: pfx time / numpy reference time: not measured (case not run; goal <= 1)"
+    assert lines[2] == "  N=1e5, 1 trial: pfx time / numpy reference time: goal not met (0.62 vs <= 0.5)"
+    assert lines[5] == "  1000 x N=100: numpy reference loop time / pfx time: goal met (4.00 vs >= 3)"
+    assert lines[6].endswith("speed-up: not measured (skipped; goal >= 1.8)")
+    assert lines[7].endswith("(GiB): goal met (0.50 vs <= 1)")
     assert not any("target" in line or "NOT MET" in line for line in lines)

@@ -6,6 +6,8 @@ every implementation. :mod:`pfx.bench.timing` times pfx, the reference filter
 (:mod:`pfx.bench.reference`) and each importable peer (:mod:`pfx.bench.peers`) in this one
 process, interleaved, best of several repeats, and reports nanoseconds per particle-step
 (wall time / (trials x N x T)) with the altitude RMSE that shows equal work;
+:mod:`pfx.bench.algorithms` times pfx's other particle algorithms (guided proposals, the
+auxiliary filter, moves, KLD-sampling, injection) against its bootstrap filter on one case;
 :mod:`pfx.bench.scaling` measures ``--workers 2`` against 1 and the memory per particle;
 :mod:`pfx.bench.report` prints it all with the machine line and the goals as ratios.
 While it runs, one progress line per case and implementation (and per repeat) goes to
@@ -26,7 +28,7 @@ QUICK_CASES = [(100, 1), (1_000, 1), (50, 20)]
 
 
 def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, peers: bool = True,
-              workers: bool = True, memory: bool = True, echo: Callable[[str], None] = print,
+              workers: bool = True, memory: bool = True, algorithms: bool = True, echo: Callable[[str], None] = print,
               progress: Callable[[str], None] = lambda message: None) -> None:
     from pfx.bench import report, scaling
     from pfx.bench.problem import STEPS, make_case
@@ -61,6 +63,13 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
         timings += time_case(case, implementations, repeats, budget, progress)
     echo(report.format_table(timings))
     echo("")
+
+    if algorithms:
+        from pfx.bench.algorithms import run_algorithms
+
+        echo(report.format_algorithms(run_algorithms(quick=quick, repeats=repeats, budget=budget,
+                                                     progress=progress)))
+        echo("")
 
     memory_result = None
     if memory:

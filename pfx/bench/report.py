@@ -1,14 +1,17 @@
-"""What ``pfx bench`` prints: the machine line, the table, the goals."""
+"""What ``pfx bench`` prints: the machine line, the tables, the goals."""
 
 from __future__ import annotations
 
 import os
 import platform
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
 from pfx.bench.timing import Timing
+
+if TYPE_CHECKING:
+    from pfx.bench.algorithms import AlgorithmResult
 
 GIB = 1024 ** 3
 
@@ -52,6 +55,43 @@ def format_table(timings: list[Timing]) -> str:
     return "\n".join(lines)
 
 
+ALGORITHM_WIDTH = 26
+
+
+def format_algorithms(results: list["AlgorithmResult"]) -> str:
+    """One row per algorithm: ns per particle-step (N the configured count, KLD's maximum),
+    ratio of wall times to the bootstrap's, altitude RMSE, mean particles, runs; a row pfx
+    refuses for this model reads "not applicable: <reason>"."""
+    from pfx.bench.algorithms import BASELINE
+
+    timed = [result.timing for result in results if result.timing is not None]
+    case = timed[0].case if timed else None
+    title = (f"algorithms against the bootstrap, {case.label}, T = {case.truth.shape[1]} (pfx's engine; the same "
+             f"measurements and filter seeds in every row):" if case else "algorithms against the bootstrap:")
+    header = (f"{'algorithm':<{ALGORITHM_WIDTH}} {'ns/particle-step':>16} {'x bootstrap':>11} "
+              f"{'altitude RMSE (ft)':>19} {'mean particles':>14} {'runs':>5}")
+    lines = [title, header, "-" * len(header)]
+    baseline = next((result.timing for result in results if result.name == BASELINE), None)
+    base_seconds = baseline.seconds if baseline is not None and baseline.runs and not baseline.error else None
+    notes = []
+    for result in results:
+        name, timing = result.name, result.timing
+        if timing is None:
+            lines.append(f"{name:<{ALGORITHM_WIDTH}} not applicable: {result.not_applicable}")
+            continue
+        if timing.error or not timing.runs:
+            lines.append(f"{name:<{ALGORITHM_WIDTH}} failed: {timing.error or 'not run'}")
+            continue
+        ratio = timing.seconds / base_seconds if base_seconds else float("nan")
+        lines.append(f"{name:<{ALGORITHM_WIDTH}} {timing.ns_per_particle_step:>16.1f} {ratio:>11.2f} "
+                     f"{timing.rmse:>19.1f} {result.mean_particles:>14.1f} {timing.runs:>5}")
+        if result.injected is not None:
+            notes.append(f"{name}: {result.injected} particles injected over all trials and steps"
+                         + (" (the likelihood's fast average never fell far enough below its slow one: the row "
+                            "times the bookkeeping of the averages)" if result.injected == 0 else ""))
+    return "\n".join(lines + notes)
+
+
 def _find(timings: list[Timing], particles: int, trials: int, name: str) -> Optional[Timing]:
     for timing in timings:
         if (timing.case.particles, timing.case.trials, timing.implementation) == (particles, trials, name) \
@@ -76,6 +116,8 @@ def format_goals(timings: list[Timing], workers: Optional[dict], memory: Optiona
         return a.seconds / b.seconds if a and b else None
 
     lines = ["goals (ratios of best wall times on this machine):"]
+    lines.append(_goal_line(ratio(1_000, 1, "pfx", "numpy"), 1.0, True,
+                            "N=1e3, 1 trial: pfx time / numpy reference time", "case not run"))
     lines.append(_goal_line(ratio(100_000, 1, "pfx", "numpy"), 0.5, True,
                             "N=1e5, 1 trial: pfx time / numpy reference time", "case not run"))
     lines.append(_goal_line(ratio(100_000, 1, "particles", "pfx"), 2.5, False,

@@ -7,6 +7,9 @@ an order that rotates from repeat to repeat, so that a slow phase of a shared ma
 not fall on one implementation only; the best time counts. An implementation whose runs
 have taken ``budget`` seconds in a case is not repeated there (the slow peers at N = 1e6).
 The estimates of the last run give its altitude RMSE, which shows that all did the same work.
+
+:func:`time_case` takes the runners by name (default :data:`RUNNERS`, the implementations
+above); :mod:`pfx.bench.algorithms` passes pfx's engine with one filter setting per name.
 """
 
 from __future__ import annotations
@@ -14,21 +17,27 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable, Mapping, Optional
 
 import numpy as np
 
 from pfx.bench.peers import ADAPTERS
 from pfx.bench.problem import Case, FallingBodyProblem
 from pfx.bench.reference import reference_filter
+from pfx.config.plan import Cell
+from pfx.filters.trace import FilterTrace
 from pfx.numerics.seeding import TrialStreams
 
 
+def run_cell(cell: Cell, case: Case) -> FilterTrace:
+    """pfx's engine with ``cell``'s filter on the case's measurements, one stream per trial
+    from the case's filter seeds, as ``pfx run`` calls it for a batch of trials."""
+    return cell.planned_filter.run(cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
+                                   settings=cell.filter, prior=cell.prior, spread_criterion=None)
+
+
 def run_pfx(problem: FallingBodyProblem, case: Case) -> np.ndarray:
-    cell = case.cell
-    trace = cell.planned_filter.run(cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
-                                    settings=cell.filter, prior=cell.prior, spread_criterion=None)
-    return trace.estimates
+    return run_cell(case.cell, case).estimates
 
 
 def run_numpy(problem: FallingBodyProblem, case: Case) -> np.ndarray:
@@ -36,7 +45,8 @@ def run_numpy(problem: FallingBodyProblem, case: Case) -> np.ndarray:
                                       np.random.default_rng(case.filter_seeds[r])) for r in range(case.trials)])
 
 
-RUNNERS: dict[str, Callable[[FallingBodyProblem, Case], np.ndarray]] = {"pfx": run_pfx, "numpy": run_numpy, **ADAPTERS}
+Runner = Callable[[FallingBodyProblem, Case], np.ndarray]     # the estimates, (R, T, 3)
+RUNNERS: dict[str, Runner] = {"pfx": run_pfx, "numpy": run_numpy, **ADAPTERS}
 
 
 @dataclass
@@ -55,7 +65,8 @@ class Timing:
 
 
 def time_case(case: Case, implementations: list[str], repeats: int, budget: float,
-              progress: Callable[[str], None] = lambda message: None) -> list[Timing]:
+              progress: Callable[[str], None] = lambda message: None,
+              runners: Mapping[str, Runner] = RUNNERS) -> list[Timing]:
     """Best-of-``repeats`` wall time of each implementation on ``case`` (see the module docstring)."""
     problem = FallingBodyProblem.from_cell(case.cell)
     timings = {name: Timing(case, name) for name in implementations}
@@ -71,7 +82,7 @@ def time_case(case: Case, implementations: list[str], repeats: int, budget: floa
                 # A peer's underflowing weights (and NumPy's warnings about them) are its own business.
                 with np.errstate(all="ignore"), warnings.catch_warnings():
                     warnings.simplefilter("ignore", RuntimeWarning)
-                    estimates = RUNNERS[name](problem, case)
+                    estimates = runners[name](problem, case)
             except Exception as error:               # a peer that breaks is reported, not fatal
                 timing.error = f"{type(error).__name__}: {error}".splitlines()[0][:80]
                 continue
