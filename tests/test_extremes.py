@@ -113,7 +113,8 @@ def _filter(model, measurements, *, particles, resampler="systematic", threshold
     return run_particle_filter(
         model, measurements, TrialStreams.from_seeds(range(seed, seed + trials)), prior=prior,
         particles=particles, resampler=RESAMPLERS[resampler], ess_threshold=threshold,
-        weighting=GaussianWeighting(), diffusion=diffusion or NoDiffusion())
+        weighting=GaussianWeighting(), diffusion=diffusion or NoDiffusion(),
+        trace_rows=np.arange(trials))                    # every trial traced: its spread recorded
 
 
 FILTERS = [(name, 1.0) for name in RESAMPLER_NAMES] + [("systematic", 0.0)]     # threshold 0 = SIS
