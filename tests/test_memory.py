@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import subprocess
 import sys
 import tracemalloc
@@ -13,7 +14,7 @@ from conftest import REPO_ROOT, _environment
 
 from pfx.config.plan import build_plan
 from pfx.run.batch import run_batch
-from pfx.run.memory import cell_trial_bytes, format_size, parse_size, trials_per_batch
+from pfx.run.memory import SPEED_PARTICLES, cell_trial_bytes, format_size, parse_size, trials_per_batch
 
 CONFIGS = {
     "falling_body": {"name": "m", "trials": 2, "model": {"kind": "falling_body", "variant": "simon", "substeps": 2,
@@ -61,6 +62,22 @@ def test_batches_fit_the_budget():
     assert trials_per_batch(cell, 100, budget=10 * one, workers=2) == 5
     assert trials_per_batch(cell, 100, budget=one // 2) == 1
     assert trials_per_batch(cell, 8, budget=100 * one) == 8
+
+
+def test_batches_are_large_enough_to_be_fast():
+    """Small clouds: ~10 batches for the progress bar, unless batches would hold fewer than
+    SPEED_PARTICLES particles; never fewer batches than workers; memory still wins."""
+    raw = copy.deepcopy(CONFIGS["linear_gaussian"])
+    raw["filter"]["particles"] = 100
+    cell = build_plan(raw, "m.yaml").cells[0]
+    one = cell_trial_bytes(cell)
+    plenty = 10_000 * one
+    assert trials_per_batch(cell, 2000, budget=plenty) == -(-SPEED_PARTICLES // 100)     # 656 trials
+    assert trials_per_batch(cell, 100, budget=plenty) == 100                              # one batch
+    assert trials_per_batch(cell, 100, budget=plenty, workers=2) == 50                    # one per worker
+    assert trials_per_batch(cell, 100, budget=20 * one) == 20                             # memory wins
+    raw["filter"]["particles"] = 100_000
+    assert trials_per_batch(build_plan(raw, "m.yaml").cells[0], 100, budget=10**12) == 10   # progress
 
 
 def test_parse_and_format_sizes():

@@ -89,11 +89,21 @@ def check_fits(plan, budget: int) -> None:
                 file=plan.file, key="filter.particles")
 
 
+# Particles per batch from which the engine's fixed cost per step (some 70 microseconds of
+# Python and NumPy calls, whatever the batch) is a few per cent of the particles' own work
+# (~30 ns each on the benchmark's model): `pfx bench`, N = 1e3 against 1e5.
+SPEED_PARTICLES = 65_536
+
+
 def trials_per_batch(cell, trials: int, budget: int, workers: int = 1) -> int:
-    """Trials run together: fits the budget (shared by the workers), ~10 batches for progress."""
-    by_memory = max(1, budget // max(1, workers) // cell_trial_bytes(cell))
+    """Trials run together: as many as fit the budget (shared by the workers); ~10 batches for
+    the progress bar, unless that makes batches of fewer than :data:`SPEED_PARTICLES`
+    particles, where the per-step cost would dominate (but at least one batch per worker)."""
+    workers = max(1, workers)
+    by_memory = max(1, budget // workers // cell_trial_bytes(cell))
     for_progress = -(-trials // 10) if trials >= 20 else trials
-    return int(max(1, min(trials, by_memory, for_progress)))
+    for_speed = min(-(-SPEED_PARTICLES // max(1, cell.filter.particles)), -(-trials // workers))
+    return int(max(1, min(trials, by_memory, max(for_progress, for_speed))))
 
 
 # mallopt parameters (glibc malloc.h)

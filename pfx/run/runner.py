@@ -259,7 +259,7 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     once all its batches are back."""
     experiment = plan.experiment
     trials = list(range(first, experiment.trials))
-    tasks, owner, sizes = [], [], []          # per task: its arguments, its cell's number, its trial count
+    tasks, owner, sizes, work = [], [], [], []   # per task: arguments, its cell's number, trial count, particle-steps
     expected = []                             # per cell: its number of batches
     for number, cell in enumerate(cells):
         size = trials_per_batch(cell, len(trials), budget, executor.slots)
@@ -268,7 +268,15 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
             tasks.append(batch_arguments(plan, cell, batch))
             owner.append(number)
             sizes.append(len(batch))
+            work.append(len(batch) * getattr(cell.filter, "particles", 1) * cell.filter_model.steps)
         expected.append(len(batches))
+    if executor.slots > 1:
+        # The largest batches first: the workers then finish together, on small ones, instead of
+        # one of them running the sweep's largest batch alone at the end. (Cells are written
+        # whole, whatever order their batches come back in.)
+        order = sorted(range(len(tasks)), key=lambda index: -work[index])
+    else:
+        order = list(range(len(tasks)))
     function: Callable = run_batch
     if plan.plugins:          # workers load the plugins before the arguments, which need their classes
         function = run_batch_with_plugins
@@ -279,8 +287,9 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     total = len(tasks) if by_tasks else sum(sizes)
     with _progress_bar(progress, total, experiment.name, executor.counts) as live:
         task_id = live.add_task(executor.counts, total=total) if live else None
-        for index, result in executor.run(function, tasks):
+        for position, result in executor.run(function, [tasks[index] for index in order]):
             raise_if_requested()                 # a stop signal whose exception was swallowed
+            index = order[position]
             number = owner[index]
             returned[number][index] = result
             if live:
