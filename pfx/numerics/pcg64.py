@@ -117,16 +117,12 @@ def raw_words(addresses, out):
         state[0], state[1] = low, high
 
 
-@compiled_now
-def uniforms(addresses, out):
-    """out[row, :] = uniform doubles on [0, 1) of generator ``addresses[row]`` (``Generator.random``)."""
-    for row in range(out.shape[0]):
-        state = state_of(addresses[row])
-        low, high, increment_low, increment_high = state[0], state[1], state[2], state[3]
-        for j in range(out.shape[1]):
-            low, high, word = step(low, high, increment_low, increment_high)
-            out[row, j] = np.float64(np.int64(word >> _ELEVEN)) * _DOUBLE_SCALE   # < 2^53: exact
-        state[0], state[1] = low, high
+def uniforms(addresses, out) -> None:
+    """out[row, :] = uniform doubles on [0, 1) of generator ``addresses[row]`` (``Generator.random``:
+    (word >> 11) 2^-53, exact in floating point)."""
+    words = np.empty(out.shape, dtype=np.uint64)
+    raw_words(addresses, words)
+    np.multiply((words >> _ELEVEN).astype(np.float64), _DOUBLE_SCALE, out=out)
 
 
 def _state_address(bit_generator: np.random.PCG64) -> int:
