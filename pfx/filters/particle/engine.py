@@ -25,6 +25,9 @@ terms reach the weight update as a per-particle weight adjustment), ``update_wei
 :mod:`pfx.filters.particle.adaptive`; the diffusion or roughening; particle injection,
 :mod:`pfx.filters.particle.injection`). Diagnostics (particle snapshots, NEES/NIS, the spread and
 the share within a radius) are :class:`Recorder` s called after each stage; they only read.
+For the bootstrap filter with the likelihood as weight, a model's optional compiled step
+(:meth:`pfx.models.base.Model.compiled_step`) does the transition and the likelihood in one
+pass: ``predict`` then hands the likelihood to ``update_weights``.
 
 A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
 drag equation, for instance, blows up in finite time for a negative ballistic coefficient): it
