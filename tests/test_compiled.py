@@ -68,6 +68,23 @@ def test_subsets_step_the_same_generators():
         assert streams.generators[row].bit_generator.state == generator.bit_generator.state
 
 
+def test_copies_step_their_own_generators():
+    """A deep copy or a pickled copy has new generators: it must never step the original's."""
+    import copy
+    import pickle
+
+    streams = TrialStreams.from_seeds([8, 9])
+    streams.standard_normal((3,))                        # the addresses are known from here on
+    before = [generator.bit_generator.state for generator in streams.generators]
+    for duplicate in (copy.deepcopy(streams), pickle.loads(pickle.dumps(streams))):
+        draws = duplicate.standard_normal((4,))
+        for row, seed in enumerate([8, 9]):
+            generator = np.random.default_rng(seed)
+            generator.standard_normal(3)
+            np.testing.assert_array_equal(draws[row], generator.standard_normal(4))
+    assert [generator.bit_generator.state for generator in streams.generators] == before
+
+
 def test_pcg64_words_are_numpys():
     from pfx.numerics import pcg64
 

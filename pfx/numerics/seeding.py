@@ -76,6 +76,11 @@ class TrialStreams:
         self._addresses = addresses
         self._addresses_known = addresses is not None
 
+    def __getstate__(self) -> dict:
+        # The addresses are this process's memory of these very generators: a copy (pickled to
+        # another process, or deep-copied with new generators) finds its own.
+        return {"generators": self.generators, "_addresses": None, "_addresses_known": False}
+
     @classmethod
     def from_seeds(cls, seeds: Sequence[int]) -> "TrialStreams":
         return cls([np.random.default_rng(int(seed)) for seed in seeds])
