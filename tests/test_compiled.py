@@ -85,14 +85,17 @@ def test_copies_step_their_own_generators():
     assert [generator.bit_generator.state for generator in streams.generators] == before
 
 
-def test_pcg64_words_are_numpys():
+def test_pcg64_uniforms_are_numpys():
     from pfx.numerics import pcg64
 
-    generators = [np.random.PCG64(seed) for seed in (0, 9, 2**63 - 1)]
-    words = np.empty((3, 5000), dtype=np.uint64)
-    pcg64.raw_words(pcg64.state_addresses(generators), words)
-    for row, seed in enumerate((0, 9, 2**63 - 1)):
-        np.testing.assert_array_equal(words[row], np.random.PCG64(seed).random_raw(5000))
+    seeds = (0, 9, 2**63 - 1)
+    generators = [np.random.PCG64(seed) for seed in seeds]
+    draws = np.empty((3, 5000))
+    pcg64.uniforms(pcg64.state_addresses(generators), draws)
+    for row, seed in enumerate(seeds):
+        numpys = np.random.PCG64(seed)
+        np.testing.assert_array_equal(draws[row], np.random.Generator(numpys).random(5000))
+        assert generators[row].state == numpys.state
 
 
 def test_an_unknown_state_layout_falls_back_to_numpy(monkeypatch):

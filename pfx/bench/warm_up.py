@@ -31,7 +31,7 @@ def warm_up() -> dict:
     seconds = time.perf_counter() - started
     counts = {"compiled": 0, "loaded": 0}
     lazy = [function.dispatcher() for function in (resampling.inverse_cdf_walk, engine.gather_particles)]
-    for dispatcher in lazy + [ziggurat.normals, pcg64.raw_words]:
+    for dispatcher in lazy + [ziggurat.normals, pcg64.uniforms]:
         stats = dispatcher.stats
         counts["loaded"] += sum(stats.cache_hits.values())
         counts["compiled"] += sum(stats.cache_misses.values())

@@ -248,13 +248,14 @@ class Noise(BaseModel):
         # each component is then contiguous, which NumPy's element-wise operations on one state
         # component (what a model's propagate does) run several times faster over.
         standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape[-1:] + full_shape[:-1], self.df)
+        component_last = (0, *range(2, standard.ndim), 1)      # (trials, k, *shape) -> (trials, *shape, k)
         if scale is not None:
             # x_j = s_j z_j in place, while the component axis is still the second one: NumPy's
             # inner loop then runs along a component's contiguous draws (over the short last axis
             # it would run over k = 1..3 elements, several times slower), and one call does it all.
             standard *= scale.reshape((-1,) + (1,) * (standard.ndim - 2))
-            return np.moveaxis(standard, 1, -1)
-        return np.moveaxis(standard, 1, -1) @ factor.T
+            return standard.transpose(component_last)
+        return standard.transpose(component_last) @ factor.T
 
     def independent_gaussian(self) -> Optional[tuple[np.ndarray, float]]:
         """(standard deviation of each component, sum of their logs) when the noise is Gaussian

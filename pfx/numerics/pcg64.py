@@ -23,8 +23,8 @@ arithmetic is written in LLVM's 128-bit integers (numba's own integers stop at 6
 
 Where the state lives: NumPy's PCG64 object holds a pointer to a struct of two 128-bit
 integers, the state and the increment, little-endian. That layout is NumPy's, not a public
-promise, so it is checked once per process (:func:`layout_matches`: words drawn here against
-``random_raw``); where it does not match, or for other bit generators, :class:`TrialStreams`
+promise, so it is checked once per process (:func:`layout_matches`: uniforms drawn here against
+``Generator.random``'s); where it does not match, or for other bit generators, :class:`TrialStreams`
 uses NumPy's own methods, trial by trial.
 
 This module imports numba; :mod:`pfx.numerics.seeding` imports it on the first draw only.
@@ -106,23 +106,16 @@ def step(low, high, increment_low, increment_high):
 
 
 @compiled_now
-def raw_words(addresses, out):
-    """out[row, :] = the next words of generator ``addresses[row]`` (NumPy's ``random_raw``)."""
+def uniforms(addresses, out):
+    """out[row, :] = uniform doubles on [0, 1) of generator ``addresses[row]`` (``Generator.random``:
+    (word >> 11) 2^-53, exact in floating point)."""
     for row in range(out.shape[0]):
         state = state_of(addresses[row])
         low, high, increment_low, increment_high = state[0], state[1], state[2], state[3]
         for j in range(out.shape[1]):
             low, high, word = step(low, high, increment_low, increment_high)
-            out[row, j] = word
+            out[row, j] = np.float64(np.int64(word >> _ELEVEN)) * _DOUBLE_SCALE   # < 2^53: exact
         state[0], state[1] = low, high
-
-
-def uniforms(addresses, out) -> None:
-    """out[row, :] = uniform doubles on [0, 1) of generator ``addresses[row]`` (``Generator.random``:
-    (word >> 11) 2^-53, exact in floating point)."""
-    words = np.empty(out.shape, dtype=np.uint64)
-    raw_words(addresses, words)
-    np.multiply((words >> _ELEVEN).astype(np.float64), _DOUBLE_SCALE, out=out)
 
 
 def _state_address(bit_generator: np.random.PCG64) -> int:
@@ -132,11 +125,12 @@ def _state_address(bit_generator: np.random.PCG64) -> int:
 
 @functools.lru_cache(maxsize=None)
 def layout_matches() -> bool:
-    """Whether this NumPy keeps PCG64's state as this module reads it (checked once per process)."""
+    """Whether this NumPy keeps PCG64's state as this module reads it (checked once per process:
+    1000 uniforms, i.e. the top 53 bits of 1000 words, and the state after them)."""
     ours, numpys = np.random.PCG64(20240611), np.random.PCG64(20240611)
-    words = np.empty((1, 1000), dtype=np.uint64)
-    raw_words(np.array([_state_address(ours)], dtype=np.uint64), words)
-    return bool(np.array_equal(words[0], numpys.random_raw(1000))) and ours.state == numpys.state
+    draws = np.empty((1, 1000))
+    uniforms(np.array([_state_address(ours)], dtype=np.uint64), draws)
+    return bool(np.array_equal(draws[0], np.random.Generator(numpys).random(1000))) and ours.state == numpys.state
 
 
 def state_addresses(bit_generators: Sequence[np.random.BitGenerator]) -> Optional[np.ndarray]:
