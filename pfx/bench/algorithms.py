@@ -65,8 +65,8 @@ mostly times the bookkeeping of the two averages; with N = 100 (``--quick``) tri
 body and injection fires. A line under the table counts the particles injected.
 
 **How it is timed.** Like the first table (:func:`pfx.bench.timing.time_case`): each variant
-is one cell built as :func:`pfx.bench.problem.bench_cell` builds the bootstrap's (``CONFIG``
-deep-copied, the setting added, ``build_plan(...).cells[0]``) and run as
+is one cell built by :func:`pfx.bench.problem.bench_cell` with the setting added to
+``filter:`` (the bootstrap's cell is the same call without one) and run as
 :func:`pfx.bench.timing.run_pfx` runs it (``cell.planned_filter.run``); within each repeat
 every variant runs once, in an order rotating from repeat to repeat, and the best time of
 ``repeats`` counts. Each variant first runs once on a tiny case, so that nothing it compiles
@@ -75,16 +75,15 @@ or loads on first use is timed.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Optional, Union
 
 import numpy as np
 
-from pfx.bench.problem import CONFIG, Case, FallingBodyProblem, make_case
+from pfx.bench.problem import Case, FallingBodyProblem, bench_cell, make_case
 from pfx.bench.timing import Timing, run_cell, time_case
-from pfx.config.plan import Cell, build_plan
+from pfx.config.plan import Cell
 from pfx.errors import ConfigError
 from pfx.filters.trace import FilterTrace
 
@@ -106,22 +105,12 @@ QUICK_CASE = (100, 4)
 WARM_UP_CASE = (20, 2)
 
 
-def algorithm_cell(settings: dict[str, Any], particles: int, trials: int) -> Cell:
-    """pfx's resolved cell for the bench problem with ``settings`` added to ``filter:`` (as
-    :func:`pfx.bench.problem.bench_cell`); raises ConfigError if pfx's validation refuses it."""
-    raw = copy.deepcopy(CONFIG)
-    raw["trials"] = trials
-    raw["filter"]["particles"] = particles
-    raw["filter"].update(copy.deepcopy(settings))
-    return build_plan(raw, "<pfx bench>").cells[0]
-
-
 def algorithm_cells(particles: int, trials: int) -> dict[str, Union[Cell, str]]:
     """Each algorithm's cell, or the one-line reason why pfx refuses it for this model."""
     cells: dict[str, Union[Cell, str]] = {}
     for name, settings in ALGORITHMS.items():
         try:
-            cells[name] = algorithm_cell(settings, particles, trials)
+            cells[name] = bench_cell(particles, trials, settings)
         except ConfigError as error:
             cells[name] = " ".join(error.reason.split())
     return cells

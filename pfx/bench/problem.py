@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -50,11 +51,14 @@ CONFIG = {
 }
 
 
-def bench_cell(particles: int, trials: int) -> Cell:
-    """pfx's resolved cell for N particles (the trial count only names the experiment size)."""
+def bench_cell(particles: int, trials: int, settings: Optional[dict] = None) -> Cell:
+    """pfx's resolved cell for N particles (the trial count only names the experiment size),
+    with ``settings`` added to ``filter:`` (:mod:`pfx.bench.algorithms`); raises ConfigError if
+    pfx's validation refuses them."""
     raw = copy.deepcopy(CONFIG)
     raw["trials"] = trials
     raw["filter"]["particles"] = particles
+    raw["filter"].update(copy.deepcopy(settings or {}))
     return build_plan(raw, "<pfx bench>").cells[0]
 
 
