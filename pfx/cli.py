@@ -16,7 +16,7 @@ from typing import List, Optional
 import typer
 import yaml
 
-from pfx.errors import ConfigError, ExecutorError, ModelNumericalError
+from pfx.errors import ConfigError, ExecutorError, ModelContractError, ModelNumericalError, PluginFault
 from pfx.run.interrupts import Interrupted, stop_on_signals
 
 app = typer.Typer(add_completion=True, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -36,11 +36,17 @@ def _print_version(requested: bool) -> None:
 def _global_options(
     version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
                                  help="print the version and exit"),
+    show_traceback: bool = typer.Option(False, "--traceback",
+                                        help="errors show the Python traceback above their one line (for "
+                                             "plugin developers; also PFX_TRACEBACK=1; allowed after the "
+                                             "command too)"),
 ):
     """Options before any command: --version, and typer's shell-completion options.
 
     (The app's help text is the ``help`` given to ``typer.Typer`` above, not this docstring.)
     """
+    if show_traceback:
+        os.environ[TRACEBACK_VARIABLE] = "1"
 
 
 # What `pfx list` can show, in the order it shows them: name -> (module, registry in it).
@@ -62,9 +68,26 @@ REGISTRY_SOURCES = {
 LISTABLE = tuple(REGISTRY_SOURCES)
 
 
-def _fail(message: str, status: int = 2) -> None:
+TRACEBACK_VARIABLE = "PFX_TRACEBACK"     # set to 1 (or pass --traceback): errors show their traceback too
+
+
+def _fail(message: str, status: int = 2, error: Optional[BaseException] = None) -> None:
+    if error is not None and os.environ.get(TRACEBACK_VARIABLE, "") not in ("", "0"):
+        _print_traceback(error)
     typer.echo(f"pfx: error: {message}", err=True)
     raise typer.Exit(status)
+
+
+def _print_traceback(error: BaseException) -> None:
+    """For a plugin's developer: where an error came from (a worker's traceback travels as text)."""
+    import traceback
+
+    if isinstance(error, PluginFault) and error.details:
+        typer.echo(error.details.rstrip(), err=True)
+    elif error.__cause__ is not None:
+        typer.echo("".join(traceback.format_exception(error.__cause__)).rstrip(), err=True)
+    else:
+        typer.echo("".join(traceback.format_exception(error)).rstrip(), err=True)
 
 
 def _guarded(command):
@@ -73,15 +96,20 @@ def _guarded(command):
         try:
             return command(*args, **kwargs)
         except ConfigError as error:
-            _fail(str(error))
-        except ModelNumericalError as error:
-            _fail(_with_outcome(str(error), error), status=1)
-        except ExecutorError as error:
-            _fail(_with_outcome(str(error), error), status=1)
+            _fail(str(error), error=error)
+        except (ModelNumericalError, ModelContractError, PluginFault, ExecutorError) as error:
+            _fail(_with_outcome(str(error), error), status=1, error=error)
         except Interrupted as error:
             _fail(_with_outcome(f"interrupted by {error.signal_name}", error), status=128 + error.signal_number)
         except KeyboardInterrupt as error:
             _fail(_with_outcome("interrupted by SIGINT", error), status=130)
+        except Exception as error:       # a plugin's exception that no stage turned into one line
+            from pfx.config.plugin_faults import locate
+
+            fault = locate(error)
+            if fault is None:
+                raise                    # pfx's own bug: its traceback is the report
+            _fail(fault.one_line(), status=2, error=error)
     return wrapper
 
 
@@ -388,6 +416,9 @@ def _one_thread_per_process() -> None:
 def main() -> None:
     """Entry point: command-line usage errors, too, are one line and exit status 2."""
     _one_thread_per_process()
+    if "--traceback" in sys.argv[1:]:     # anywhere on the line: `pfx run x.yaml --traceback` too
+        sys.argv = [sys.argv[0], *(argument for argument in sys.argv[1:] if argument != "--traceback")]
+        os.environ[TRACEBACK_VARIABLE] = "1"
     try:
         result = app(prog_name="pfx", standalone_mode=False)
     except Exception as error:  # typer's (or click's) UsageError family, whichever package provides it

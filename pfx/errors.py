@@ -62,8 +62,46 @@ def located_value_error(error: ValueError, *, prefix: str, file: str | None = No
     return ConfigError(reason, file=file, key=f"{prefix}.{sub}" if sub else prefix)
 
 
+# An exception on its way out of a filter's or the truth's loop gets a note saying where:
+# "at step 3 of the filter" (shown under a traceback, and in a plugin fault's one line).
+STEP_NOTE_PREFIX = "at "
+
+
+def note_step(error: BaseException, step: int, loop: str) -> None:
+    """Add ``at step <step> of the <loop>`` to an exception leaving a filter's or the truth's
+    loop, unless an inner loop said so already."""
+    if not any(note.startswith(STEP_NOTE_PREFIX) for note in getattr(error, "__notes__", [])):
+        error.add_note(f"{STEP_NOTE_PREFIX}step {step} of the {loop}")
+
+
 class ModelNumericalError(RuntimeError):
     """A model produced NaN or infinity; the message names the model and the step."""
+
+
+class ModelContractError(RuntimeError):
+    """A model's method broke the contract while a run was under way (a result of the wrong
+    shape for the run's batch, say, where the check on a tiny batch before the run passed);
+    the message names the model, the method and the step."""
+
+
+class PluginFault(RuntimeError):
+    """An exception that came out of a plugin's code, or a contract a plugin's component broke,
+    while a run was under way: one line naming the plugin file, the line in it, the component,
+    the function and the exception (``walk.py:41: model hidden_walk: propagate raised
+    RuntimeError: ... (step 3 of the filter)``).
+
+    It crosses process boundaries (worker processes, Dask) as plain text: the original
+    traceback, formatted where the exception was raised, travels in ``details`` for
+    ``pfx --traceback``. The command line prints it in one line, exits with status 1 and keeps
+    the finished cells, as for a model's NaN.
+    """
+
+    def __init__(self, line: str, details: str = ""):
+        super().__init__(line)
+        self.details = details
+
+    def __reduce__(self):
+        return (type(self), (str(self), self.details))
 
 
 class UsageError(ConfigError):

@@ -111,17 +111,17 @@ FAILURES = {
                        "damped_walk.py:4: model damped_walk (class DampedWalk) does not define measurement_mean, "
                        "which every model must (docs/plugins.md)"),
     "wrong shape": (MINIMAL.replace("return self.a * state + noise", "return (self.a * state + noise)[..., 0]"),
-                    "damped_walk.py: model damped_walk: propagate returned shape (2, 3) for a batch of 2 trials "
+                    "damped_walk.py:14: model damped_walk: propagate returned shape (2, 3) for a batch of 2 trials "
                     "x 3 particles; expected (2, 3, 1)"),
     "wrong dtype": (MINIMAL.replace("def measurement_mean(self, state): return state",
                                     "def measurement_mean(self, state): return state > 0"),
-                    "damped_walk.py: model damped_walk: measurement_mean returned dtype bool; expected floating "
+                    "damped_walk.py:15: model damped_walk: measurement_mean returned dtype bool; expected floating "
                     "point (float64)"),
     "kind not registered": (MINIMAL, "config.yaml: model.kind: unknown model kind 'damped_wlak' (did you mean "
                                      "'damped_walk'?); plugins loaded: damped_walk.py (model damped_walk)"),
     "components that are not indices": (
         MINIMAL + "    @property\n    def angular_components(self): return ('x',)\n",
-        "damped_walk.py: model damped_walk: angular_components returned ('x',); expected indices of state "
+        "damped_walk.py:16: model damped_walk: angular_components returned ('x',); expected indices of state "
         "components (integers 0..0, e.g. (0,) for x)"),
 }
 

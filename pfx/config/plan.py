@@ -24,6 +24,7 @@ from pydantic_core import PydanticUndefined
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
+from pfx.config.plugin_faults import locate, plan_time_fault
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, unknown_name_hint
 from pfx.config.schema import ConfigSchema, config_schema
 from pfx.config.validation import validate
@@ -281,6 +282,11 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
             raise ConfigError(error.reason + unknown_name_hint(plugins), file=error.file, key=error.key,
                               line=error.line, column=error.column) from None
         raise
+    except Exception as error:          # raised by a plugin's code (presets(), a property, ...)
+        fault = plan_time_fault(error, plugins)
+        if fault is None:
+            raise
+        raise fault from error
     plan.plugins = list(plugins)
     if not plugins:
         plan.resolved.pop("plugins", None)     # the record of a config without plugins is unchanged
@@ -299,8 +305,16 @@ def _check_plugin_model(model: Model, plugins: tuple[LoadedPlugin, ...], file: s
     try:
         model.check_contract(TrialStreams.from_seeds([0, 1]))
     except Exception as error:          # the plugin's own code: any exception is its mistake
-        reason = str(error) if isinstance(error, ValueError) else f"{type(error).__name__}: {error}"
-        raise ConfigError(f"model {model.kind}: {' '.join(reason.split())}", file=plugin.path) from None
+        fault = locate(error, [plugin])
+        if fault is not None:           # raised in the plugin's code: its line
+            raise fault.as_config_error() from error
+        # A result pfx's check refused: the line of the member's definition, where it has one.
+        reason = " ".join(str(error).split())
+        member = getattr(type(model), reason.split(" ", 1)[0], None)
+        function = member.fget if isinstance(member, property) else member
+        code = getattr(function, "__code__", None)
+        line = code.co_firstlineno if code is not None and code.co_filename == plugin.path else None
+        raise ConfigError(f"model {model.kind}: {reason}", file=plugin.path, line=line) from error
 
 
 def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,

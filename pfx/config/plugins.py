@@ -52,7 +52,13 @@ ENTRY_POINT_GROUP = "pfx.plugins"
 
 
 class PluginError(ValueError):
-    """A plugin breaks the contract of a decorator (reported as one line, without a type name)."""
+    """A plugin breaks the contract of a decorator (reported as one line, without a type name);
+    ``line``: the line of the plugin the mistake is on, where the decorator knows it better than
+    the traceback (a method's ``def``, not the decorator above the class)."""
+
+    def __init__(self, message: str, line: Optional[int] = None):
+        super().__init__(message)
+        self.line = line
 
 
 @dataclass(frozen=True)
@@ -86,7 +92,7 @@ def register_model(model_class):
     ``measurement_dimension``, ``propagate`` and ``measurement_mean``. (The shapes and dtypes
     its methods return are checked at plan time, on a tiny batch: :meth:`pfx.models.base.Model.check_contract`.)
     """
-    from pfx.models.base import MODELS, Model, missing_methods
+    from pfx.models.base import MODELS, Model, methods_meant_as_properties, missing_methods
 
     if not (isinstance(model_class, type) and issubclass(model_class, Model)):
         raise PluginError(f"register_model: {getattr(model_class, '__name__', model_class)!r} "
@@ -96,6 +102,9 @@ def register_model(model_class):
     if missing:
         raise PluginError(f"model {kind} (class {model_class.__name__}) does not define "
                           f"{', '.join(missing)}, which every model must (docs/plugins.md)")
+    for name, line in methods_meant_as_properties(model_class):     # the most common slip
+        raise PluginError(f"model {kind} (class {model_class.__name__}): {name} is a method, and pfx reads it "
+                          f"as a property: write @property on the line above `def {name}`", line=line)
     return MODELS.register_kind(model_class)
 
 
@@ -261,7 +270,7 @@ def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
 
 
 def _remember(plugin: LoadedPlugin) -> LoadedPlugin:
-    registered = tuple(f"{registry.what} {name}" for registry in _registries() for name in registry
+    registered = tuple(f"{registry.what} {name}" for registry in registries() for name in registry
                        if registry.origin(name) == plugin.origin)
     plugin = LoadedPlugin(**{**plugin.__dict__, "registered": registered})
     _LOADED[plugin.origin] = plugin
@@ -283,13 +292,20 @@ def import_failure(error: BaseException, plugin: LoadedPlugin) -> ConfigError:
         if traceback.tb_frame.f_code.co_filename == plugin.path:
             line = traceback.tb_lineno
         traceback = traceback.tb_next
+    if isinstance(error, PluginError) and error.line is not None:
+        line = error.line
     message = " ".join(str(error.msg if isinstance(error, SyntaxError) else error).split())
     reason = message if isinstance(error, (PluginError, RegistrationClash)) else \
         f"{type(error).__name__}: {message}" if message else type(error).__name__
     return ConfigError(reason, file=plugin.path, line=line)
 
 
-def _registries() -> list:
+def loaded_plugins() -> list[LoadedPlugin]:
+    """Every plugin loaded in this process (its latest version)."""
+    return list(_LOADED.values())
+
+
+def registries() -> list:
     """Every registry a plugin may add to."""
     from pfx.analysis.metrics import METRICS
     from pfx.figures import FIGURES
@@ -309,11 +325,11 @@ def _prepare_registries() -> None:
     """Import pfx's own components before a plugin runs, so that none is taken for the plugin's
     (importing ``pfx.models.base`` from a plugin would otherwise register the built-in models
     while the plugin's name is the registries' current owner)."""
-    _registries()
+    registries()
 
 
 def _forget(origin: str) -> None:
-    for registry in _registries():
+    for registry in registries():
         registry.forget(origin)
 
 

@@ -47,7 +47,9 @@ the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
 
 from __future__ import annotations
 
+import inspect
 import math
+from types import FunctionType
 from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
@@ -250,6 +252,7 @@ class Model(BaseModel):
         wrong shape or is not a floating-point array: the public contract (module docstring),
         checked before a run rather than deep inside the engine."""
         trials, particles = 2, 3
+        self._check_names()
         d, m = self.state_dimension, self.measurement_dimension
         for name in ("position_components", "angular_components"):
             components = tuple(getattr(self, name))
@@ -266,6 +269,34 @@ class Model(BaseModel):
         _check_result("measurement_mean", self.measurement_mean(cloud), (trials, particles, m))
         measurement = _check_result("simulate_measurement", self.simulate_measurement(truth, random), (trials, m))
         _check_result("log_likelihood", self.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
+
+    def _check_names(self) -> None:
+        """The model agrees with itself: names and sizes (``state_names``, ``state_units``,
+        ``measurement_dimension``, ``measurement_names``, ``process_noise_dimension``)."""
+        names = self.state_names
+        if not (isinstance(names, (tuple, list)) and names and all(isinstance(n, str) and n for n in names)):
+            raise ValueError(f"state_names returned {names!r}; expected a tuple of names, one per state "
+                             "component, e.g. ('x', 'v')")
+        if len(set(names)) != len(names):
+            raise ValueError(f"state_names returned {tuple(names)!r}, which repeats a name; each state "
+                             "component needs its own (they become column names)")
+        for name in ("measurement_dimension", "process_noise_dimension"):
+            size = getattr(self, name)
+            if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
+                raise ValueError(f"{name} returned {size!r}; expected a whole number of at least 1")
+        lists = (("measurement_names", self.measurement_dimension, "measurement_dimension"),
+                 ("state_units", len(names), "state_names"))
+        for name, size, source in lists:
+            value = getattr(self, name)
+            if not (isinstance(value, (tuple, list)) and all(isinstance(item, str) for item in value)):
+                raise ValueError(f"{name} returned {value!r}; expected a tuple of {size} strings")
+            if len(value) != size:
+                raise ValueError(f"{name} returned {len(value)} name(s) {tuple(value)!r}, and {source} says "
+                                 f"{size}: give one per component")
+        measurement_names = tuple(self.measurement_names)
+        if len(set(measurement_names)) != len(measurement_names) or "" in measurement_names:
+            raise ValueError(f"measurement_names returned {measurement_names!r}; expected distinct, non-empty "
+                             "names (they become the column names of a measurements file)")
 
     # -- validation ----------------------------------------------------------------------------
 
@@ -312,6 +343,20 @@ def _bind(component, dimension: int, key: str, **options) -> None:
 
 # What every model must define itself: the rest of the interface has defaults.
 REQUIRED_METHODS = ("state_names", "measurement_dimension", "propagate", "measurement_mean")
+
+
+def methods_meant_as_properties(model_class: type) -> list[tuple[str, Optional[int]]]:
+    """(name, line of its ``def``) of each member that :class:`Model` declares as a property
+    and ``model_class`` defines as a plain method: ``def state_names(self)`` without
+    ``@property``, which pfx would read as a bound method, not a tuple."""
+    slips = []
+    for name, member in vars(Model).items():
+        if not isinstance(member, property):
+            continue
+        defined = inspect.getattr_static(model_class, name)
+        if isinstance(defined, FunctionType):
+            slips.append((name, defined.__code__.co_firstlineno))
+    return slips
 
 
 def missing_methods(model_class: type) -> list[str]:

@@ -39,8 +39,9 @@ import pfx
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
+from pfx.config.plugin_faults import run_time_fault
 from pfx.config.plugins import LoadedPlugin, ensure_loaded
-from pfx.errors import ConfigError
+from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
@@ -304,7 +305,17 @@ def run_batch_with_plugins(plugins: tuple[LoadedPlugin, ...], arguments: bytes) 
     """:func:`run_batch` for a config with plugins, in any process: load the plugins (a file
     plugin from its shipped code, once per process), then unpickle the arguments and run."""
     ensure_loaded(plugins)
-    return run_batch(*pickle.loads(arguments))
+    arguments = pickle.loads(arguments)
+    try:
+        return run_batch(*arguments)
+    except (ModelNumericalError, ConfigError, PluginFault):
+        raise                             # reported in one line already
+    except Exception as error:            # from the plugins' code, or pfx's choking on what it returned
+        cell = arguments[0]
+        fault = run_time_fault(error, plugins, cell.filter_model)
+        if fault is None:
+            raise
+        raise fault from None
 
 
 def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from pfx.errors import ModelNumericalError
+from pfx.errors import ModelNumericalError, note_step
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.histogram.grid import Grid, GridParameters, axis_noises, plan_grid
 from pfx.filters.histogram.kernel import CHUNK, Transition
@@ -76,59 +76,63 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
     kernel, kernel_key = None, None
     chunk = max(1, CHUNK // (size * max(m, d)))
     missing = np.isnan(measurements).any(axis=-1)          # (trials, T): predict-only steps
-    for k in range(1, steps + 1):
-        t = k - 1
-        control = model.control(k)
-        key = (on_grid, None if control is None else np.array(control, dtype=float))
-        if kernel is None or not _same_key(key, kernel_key):      # rebuilt when the control changes
-            kernel = transition.kernel(sources, control, on_grid=on_grid)
-            kernel_key = key
+    k = 0
+    try:
+        for k in range(1, steps + 1):
+            t = k - 1
+            control = model.control(k)
+            key = (on_grid, None if control is None else np.array(control, dtype=float))
+            if kernel is None or not _same_key(key, kernel_key):      # rebuilt when the control changes
+                kernel = transition.kernel(sources, control, on_grid=on_grid)
+                kernel_key = key
 
-        log_q, log_lik = transition.predict(
-            kernel, log_weights, lambda: _observed_log_likelihood(model, measurements[:, t], missing[:, t],
-                                                                  points, chunk, k))
-        q_normalised, q_total = log_normalise(log_q)
-        if np.isneginf(q_total).any():
-            raise ModelNumericalError(f"every bit of probability mass left the histogram filter's grid at step "
-                                      f"{k} (widen filter.grid)")
-        lost[:, t] += np.clip(1.0 - np.exp(q_total), 0.0, None)
+            log_q, log_lik = transition.predict(
+                kernel, log_weights, lambda: _observed_log_likelihood(model, measurements[:, t], missing[:, t],
+                                                                      points, chunk, k))
+            q_normalised, q_total = log_normalise(log_q)
+            if np.isneginf(q_total).any():
+                raise ModelNumericalError(f"every bit of probability mass left the histogram filter's grid at step "
+                                          f"{k} (widen filter.grid)")
+            lost[:, t] += np.clip(1.0 - np.exp(q_total), 0.0, None)
 
-        q = np.exp(q_normalised)
-        for start in range(0, trials, chunk):
-            part = slice(start, start + chunk)
-            mean_h = q[part] @ predicted_h
-            centred = predicted_h[None, :, :] - mean_h[:, None, :]
-            S = np.einsum("rg,rgi,rgj->rij", q[part], centred, centred) + R_cov
-            innovation = measurements[part, t] - mean_h
-            nis[part, t] = np.einsum("ri,ri->r", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
+            q = np.exp(q_normalised)
+            for start in range(0, trials, chunk):
+                part = slice(start, start + chunk)
+                mean_h = q[part] @ predicted_h
+                centred = predicted_h[None, :, :] - mean_h[:, None, :]
+                S = np.einsum("rg,rgi,rgj->rij", q[part], centred, centred) + R_cov
+                innovation = measurements[part, t] - mean_h
+                nis[part, t] = np.einsum("ri,ri->r", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
 
-        with np.errstate(invalid="ignore"):
-            posterior, normaliser = log_normalise(log_q + log_lik)
-        underflow = np.isneginf(normaliser)
-        if underflow.any():
-            degenerate[underflow, t] = True
-            posterior[underflow] = q_normalised[underflow]
-        if missing[:, t].any():
-            # predict-only (a likelihood of 1): the posterior is the prediction and the
-            # increment 0, not the mass left on the grid (that is grid_lost_mass's business)
-            normaliser = np.where(missing[:, t], 0.0, normaliser)
-        log_likelihood += normaliser
+            with np.errstate(invalid="ignore"):
+                posterior, normaliser = log_normalise(log_q + log_lik)
+            underflow = np.isneginf(normaliser)
+            if underflow.any():
+                degenerate[underflow, t] = True
+                posterior[underflow] = q_normalised[underflow]
+            if missing[:, t].any():
+                # predict-only (a likelihood of 1): the posterior is the prediction and the
+                # increment 0, not the mass left on the grid (that is grid_lost_mass's business)
+                normaliser = np.where(missing[:, t], 0.0, normaliser)
+            log_likelihood += normaliser
 
-        weights = np.exp(posterior)
-        mean = weights @ points
-        estimates[:, t] = mean
-        for start in range(0, trials, chunk):
-            part = slice(start, start + chunk)
-            centred = points[None, :, :] - mean[part, None, :]
-            covariances[part, t] = np.einsum("rg,rgi,rgj->rij", weights[part], centred, centred)
-            if within is not None:
-                distance = np.sum(centred[..., position] ** 2, axis=-1)
-                within[part, t] = np.sum(weights[part] * (distance <= spread_criterion.radius ** 2), axis=-1)
+            weights = np.exp(posterior)
+            mean = weights @ points
+            estimates[:, t] = mean
+            for start in range(0, trials, chunk):
+                part = slice(start, start + chunk)
+                centred = points[None, :, :] - mean[part, None, :]
+                covariances[part, t] = np.einsum("rg,rgi,rgj->rij", weights[part], centred, centred)
+                if within is not None:
+                    distance = np.sum(centred[..., position] ** 2, axis=-1)
+                    within[part, t] = np.sum(weights[part] * (distance <= spread_criterion.radius ** 2), axis=-1)
 
-        log_weights = posterior
-        if not on_grid:
-            sources, on_grid = points, True
-
+            log_weights = posterior
+            if not on_grid:
+                sources, on_grid = points, True
+    except Exception as error:        # where it happened, for the one-line report
+        note_step(error, k, "filter")
+        raise
     trace = FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood, position)
     trace.degenerate = degenerate
     trace.within_radius = within

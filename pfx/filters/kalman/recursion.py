@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from pfx.errors import ConfigError, ModelNumericalError
+from pfx.errors import ConfigError, ModelNumericalError, note_step
 from pfx.filters.trace import FilterTrace
 
 
@@ -32,22 +32,27 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
     covariances = np.empty((trials, steps, d, d))
     nis = np.empty((trials, steps))
     log_likelihood = np.zeros(trials)
-    for k in range(1, steps + 1):
-        with np.errstate(over="ignore", invalid="ignore"):   # reported by check_finite
-            mean, covariance = predict(mean, covariance, k)
-        check_finite(kind, model, k, "prediction", mean, covariance)
-        if not missing[:, k - 1].any():
-            with np.errstate(over="ignore", invalid="ignore"):
-                mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
-        else:
-            mean, covariance, nis[:, k - 1], increment = _update_observed(
-                update, mean, covariance, measurements[:, k - 1], k, ~missing[:, k - 1])
-            if update_skipped is not None:
-                update_skipped()
-        check_finite(kind, model, k, "update", mean, covariance)
-        log_likelihood += increment
-        estimates[:, k - 1] = mean
-        covariances[:, k - 1] = covariance
+    k = 0
+    try:
+        for k in range(1, steps + 1):
+            with np.errstate(over="ignore", invalid="ignore"):   # reported by check_finite
+                mean, covariance = predict(mean, covariance, k)
+            check_finite(kind, model, k, "prediction", mean, covariance)
+            if not missing[:, k - 1].any():
+                with np.errstate(over="ignore", invalid="ignore"):
+                    mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
+            else:
+                mean, covariance, nis[:, k - 1], increment = _update_observed(
+                    update, mean, covariance, measurements[:, k - 1], k, ~missing[:, k - 1])
+                if update_skipped is not None:
+                    update_skipped()
+            check_finite(kind, model, k, "update", mean, covariance)
+            log_likelihood += increment
+            estimates[:, k - 1] = mean
+            covariances[:, k - 1] = covariance
+    except Exception as error:        # where it happened, for the one-line report
+        note_step(error, k, "filter")
+        raise
     return FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
                                            position=list(model.position_components))
 

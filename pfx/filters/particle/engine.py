@@ -49,7 +49,7 @@ from typing import Optional
 
 import numpy as np
 
-from pfx.errors import ModelNumericalError
+from pfx.errors import ModelContractError, ModelNumericalError, note_step
 from pfx.filters.particle.auxiliary import first_stage
 from pfx.filters.particle.moves import MoveContext
 from pfx.filters.trace import FilterTrace
@@ -257,6 +257,7 @@ class ParticleFilter:
         self.injection = None if injection is None else injection.start(self.trials)
         self.uniform_log_weight = -np.log(particles)
         self.state = prior.sample(random, (particles,))
+        self.cloud_shape = self.state.shape             # (trials, N, d), at every step
         self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
         self.weights = np.full((self.trials, particles), 1.0 / particles)    # always exp(log_weights)
         self.lost: Optional[np.ndarray] = None            # this step's particles that left the domain
@@ -284,16 +285,21 @@ class ParticleFilter:
         # Overflow, NaN and log(0) are the engine's to handle (lost particles, degenerate steps,
         # ModelNumericalError), not NumPy's to warn about: one setting for the whole run, not one
         # per stage and step (each costs microseconds).
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            self.record("prior", 0)
-            for k in range(1, self.steps + 1):
-                self.predict(k)
-                self.record("predicted", k)
-                self.update_weights(k)
-                self.estimate(k)
-                self.record("weighted", k)
-                self.resample_and_move(k)
-                self.record("resampled", k)
+        k = 0
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+                self.record("prior", 0)
+                for k in range(1, self.steps + 1):
+                    self.predict(k)
+                    self.record("predicted", k)
+                    self.update_weights(k)
+                    self.estimate(k)
+                    self.record("weighted", k)
+                    self.resample_and_move(k)
+                    self.record("resampled", k)
+        except Exception as error:        # where it happened, for the one-line report
+            note_step(error, k, "filter")
+            raise
         if self.acceptance_tally is not None:
             with np.errstate(invalid="ignore", divide="ignore"):     # never moved: NaN, an empty field
                 self.trace.move_acceptance = self.acceptance_tally[0] / self.acceptance_tally[1]
@@ -318,6 +324,12 @@ class ParticleFilter:
                                                                  self.measurements[:, k - 1])
         else:
             self.state = self.model.transition(self.state, k, self.random)    # non-finite values: below
+        if self.state.shape != self.cloud_shape:       # a tuple comparison: the contract, at the run's size
+            source = "the proposal" if self.proposal is not None else \
+                "compiled_step" if self.compiled_step is not None else "the transition (propagate)"
+            raise ModelContractError(f"model {self.model.kind}: {source} returned shape {self.state.shape} at step "
+                                     f"{k} of the filter, for {self.trials} trials x {self.particles} particles; "
+                                     f"expected {self.cloud_shape}")
         # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
         suspect = not np.isfinite(self.state.sum())
         self.lost = None
@@ -346,6 +358,11 @@ class ParticleFilter:
             else:
                 increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :],
                                                        self.state, self.weights)
+            if increment.shape != self.log_weights.shape:      # would broadcast silently
+                raise ModelContractError(
+                    f"model {self.model.kind}: the weighting {getattr(self.weighting, 'kind', '')} (log_likelihood) "
+                    f"returned shape {np.shape(increment)} at step {k} of the filter, for {self.trials} trials x "
+                    f"{self.particles} particles; expected {self.log_weights.shape}")
             if skipped is not None:
                 increment[skipped] = 0.0
         if self.weight_adjustment is not None:     # a guided proposal's or the auxiliary filter's terms
@@ -602,12 +619,28 @@ def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]
     states = np.empty((trials, model.steps + 1, state.shape[-1]))
     measurements = np.empty((trials, model.steps, model.measurement_dimension))
     states[:, 0] = state
-    for k in range(1, model.steps + 1):
-        with np.errstate(over="ignore", invalid="ignore"):   # reported just below
-            state = model.transition(state, k, random)
-            state = model.truth_event(state, k)
-            states[:, k] = state
-            measurements[:, k - 1] = model.simulate_measurement(state, random)
-        if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):
-            raise ModelNumericalError(f"model {model.kind} produced NaN or infinite values at step {k} of the truth")
+    k = 0
+    try:
+        for k in range(1, model.steps + 1):
+            with np.errstate(over="ignore", invalid="ignore"):   # reported just below
+                state = model.transition(state, k, random)
+                _check_shape(model, "the transition (propagate)", state, states.shape[::2], k)
+                state = model.truth_event(state, k)
+                states[:, k] = state
+                measurement = model.simulate_measurement(state, random)
+                _check_shape(model, "simulate_measurement", measurement, measurements.shape[::2], k)
+                measurements[:, k - 1] = measurement
+            if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):
+                raise ModelNumericalError(f"model {model.kind} produced NaN or infinite values at step {k} "
+                                          "of the truth")
+    except Exception as error:            # where it happened, for the one-line report
+        note_step(error, k, "truth")
+        raise
     return states, measurements
+
+
+def _check_shape(model, source: str, value, expected: tuple, k: int) -> None:
+    """The truth's arrays keep their shape (R, d) / (R, m): a wrong one would broadcast silently."""
+    if np.shape(value) != expected:
+        raise ModelContractError(f"model {model.kind}: {source} returned shape {np.shape(value)} at step {k} of "
+                                 f"the truth, for {expected[0]} trials; expected {expected}")
