@@ -210,3 +210,17 @@ def test_a_built_in_run_is_unchanged_by_the_checks(run_pfx, tmp_path, tiny_confi
     result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     assert len(pd.read_csv(tmp_path / "out" / "trials.csv")) == 4
+
+
+def test_a_plugin_figure_that_raises_after_the_run_keeps_the_tables(run_pfx, tmp_path, tiny_config_dict):
+    source = ('from pfx.figures import FIGURES\n\n@FIGURES.register("broken_figure")\n'
+              'def broken_figure(result):\n    """A figure that fails."""\n    return 1 / 0\n')
+    (tmp_path / "figure_plugin.py").write_text(source)
+    write_config_file(tmp_path, tiny_config_dict(plugins=["figure_plugin.py"], outputs={"figures": ["broken_figure"]}),
+                      "tiny.yaml")
+    result = run_pfx("run", "tiny.yaml", "--out", "out", cwd=tmp_path)
+    assert the_error_line(result, 1) == (
+        f"figure_plugin.py:{line_number(source, '1 / 0')}: figure broken_figure: broken_figure raised "
+        "ZeroDivisionError: division by zero; every trial finished and the tables are written in out, but not "
+        "every figure")
+    assert len(pd.read_csv(tmp_path / "out" / "trials.csv")) == 4

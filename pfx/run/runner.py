@@ -26,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import time
+import traceback
 from contextlib import nullcontext
 from datetime import datetime, timezone
 from pathlib import Path
@@ -39,7 +40,7 @@ import pfx
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
-from pfx.config.plugin_faults import run_time_fault
+from pfx.config.plugin_faults import locate, run_time_fault
 from pfx.config.plugins import LoadedPlugin, ensure_loaded
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
@@ -171,7 +172,14 @@ def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Execu
     except BaseException as error:
         error.add_note(_keep_what_finished(plan, out, earlier_record))
         raise
-    _assemble(plan, out, manifest, cell_times, time.perf_counter() - started, state)
+    try:
+        _assemble(plan, out, manifest, cell_times, time.perf_counter() - started, state)
+    except Exception as error:       # a plugin's figure or metric, after every trial finished
+        fault = locate(error, plan.plugins) if plan.plugins else None
+        if fault is None:
+            raise
+        raise PluginFault(f"{fault.one_line()}; every trial finished and the tables are written in {out}, "
+                          "but not every figure", "".join(traceback.format_exception(error))) from error
 
 
 def _keep_what_finished(plan: Plan, out: Path, earlier_record: dict[str, str]) -> str:
