@@ -65,11 +65,16 @@ FILE_MODE = 0o666 & ~_current_umask()
 
 def write_text(text: str, path: str | Path) -> None:
     """Write a text file atomically."""
+    write_bytes(text.encode("utf-8"), path)
+
+
+def write_bytes(content: bytes, path: str | Path) -> None:
+    """Write a file atomically: to a temporary file in the same folder, then renamed over it."""
     path = Path(path)
     descriptor, temporary = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=path.suffix)
     try:
-        with os.fdopen(descriptor, "w", encoding="utf-8", newline="") as handle:
-            handle.write(text)
+        with os.fdopen(descriptor, "wb") as handle:
+            handle.write(content)
         os.chmod(temporary, FILE_MODE)
         os.replace(temporary, path)
     finally:
@@ -323,11 +328,12 @@ def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
 
 
 def clear_outputs(out: Path, names) -> None:
-    """Remove pfx's own outputs from a folder (--fresh): the named files, cells/ and figures/."""
+    """Remove pfx's own outputs from a folder (--fresh): the named files, cells/, figures/ and
+    plugins/ (the copies of a plugin run's code)."""
     for name in names:
         (out / name).unlink(missing_ok=True)
-    shutil.rmtree(out / CELLS, ignore_errors=True)
-    shutil.rmtree(out / "figures", ignore_errors=True)
+    for folder in (CELLS, "figures", "plugins"):
+        shutil.rmtree(out / folder, ignore_errors=True)
 
 
 @contextmanager

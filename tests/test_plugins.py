@@ -82,9 +82,10 @@ def test_minimal_plugin_runs_with_every_filter_kind(run_pfx, tmp_path):
     assert (trials.groupby("filter")["rmse_position"].mean() < np.sqrt(0.5)).all()
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
     assert manifest["plugins"] == [{"name": "damped_walk.py", "file": str(plugin),
-                                    "sha256": hashlib.sha256(plugin.read_bytes()).hexdigest()}]
+                                    "sha256": hashlib.sha256(plugin.read_bytes()).hexdigest(),
+                                    "copy": "plugins/damped_walk.py"}]
     resolved = yaml.safe_load((tmp_path / "out" / "config.yaml").read_text())
-    assert resolved["plugins"] == ["damped_walk.py"] and resolved["model"]["a"] == 0.8
+    assert resolved["plugins"] == ["plugins/damped_walk.py"] and resolved["model"]["a"] == 0.8
 
 
 def test_a_config_without_plugins_runs_no_plugin_code(run_pfx, tmp_path):
@@ -173,6 +174,43 @@ def test_resume_refused_after_plugin_change(run_pfx, tmp_path):
     assert line.endswith("); use --fresh to recompute them or --out for another folder")
     assert (tmp_path / "out" / "manifest.json").read_text() == manifest_before
     assert run_pfx("run", config, "--out", "out", "--fresh", cwd=tmp_path).returncode == 0
+
+
+def test_a_plugin_runs_result_folder_reruns_from_anywhere(run_pfx, tmp_path):
+    """The folder keeps a copy of the plugin's code (plugins/, checked against the manifest's
+    sha256) that its config.yaml names: rerun from another working folder, with the original
+    plugin gone, it gives the same trials.csv and the same hashes; into itself, it is up to date."""
+    project, elsewhere = tmp_path / "project", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    write_plugin(project.mkdir() or project)
+    write_config_file(project, minimal_config(plugins=["damped_walk.py"]))
+    assert run_pfx("run", "project/config.yaml", "--out", "runs/walk", cwd=tmp_path).returncode == 0
+    folder = tmp_path / "runs" / "walk"
+    manifest = json.loads((folder / "manifest.json").read_text())
+    copy = folder / "plugins" / "damped_walk.py"
+    assert copy.read_text() == MINIMAL
+    assert manifest["plugins"] == [{"name": "damped_walk.py", "file": "project/damped_walk.py",
+                                    "sha256": hashlib.sha256(MINIMAL.encode()).hexdigest(),
+                                    "copy": "plugins/damped_walk.py"}]
+    assert yaml.safe_load((folder / "config.yaml").read_text())["plugins"] == ["plugins/damped_walk.py"]
+    (project / "damped_walk.py").unlink()                  # the record stands on its own
+
+    rerun = run_pfx("run", folder / "config.yaml", "--out", "other", cwd=elsewhere)
+    assert rerun.returncode == 0, rerun.output
+    original, again = (pd.read_csv(path / "trials.csv").drop(columns="run_time_s")
+                       for path in (folder, elsewhere / "other"))
+    pd.testing.assert_frame_equal(original, again)
+    rerun_manifest = json.loads((elsewhere / "other" / "manifest.json").read_text())
+    assert (rerun_manifest["results_hash"], rerun_manifest["config_hash"]) == \
+        (manifest["results_hash"], manifest["config_hash"])
+    itself = run_pfx("run", "config.yaml", "--out", ".", cwd=folder)
+    assert itself.returncode == 0 and "up to date" in itself.output, itself.output
+
+    copy.write_text(MINIMAL.replace("a: float = 0.8", "a: float = 0.7"))     # an edited copy is refused
+    line = one_error_line(run_pfx("run", folder / "config.yaml", "--out", "third", cwd=elsewhere))
+    assert line.startswith(f"{folder / 'plugins' / 'damped_walk.py'}: this copy differs from the code the folder's "
+                           "results were computed with (sha256 ")
+    assert not (elsewhere / "third").exists()
 
 
 def test_dask_runs_plugin_models(run_pfx, tmp_path):

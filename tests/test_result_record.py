@@ -1,8 +1,9 @@
 """A result folder is a record of what ran: its config.yaml reruns to the same numbers, and
 what a later run does with the folder (resume, extend, re-render, refuse) keeps that true.
 
-* Every shipped config (examples, papers, studies), run with 2 trials, then rerun from the
-  folder's own config.yaml: every table identical apart from run times. ``pfx validate``'s
+* Every shipped config (examples, papers, studies, the plugin examples), run with 2 trials, then
+  rerun from the folder's own config.yaml (for a plugin run: with the folder's copy of the
+  plugin's code): every table identical apart from run times. ``pfx validate``'s
   output is itself a config that resolves to the same plan.
 * ``--set`` wins over arms and the sweep, and says so; ``--set sweep.KEY=[...]`` adds an axis.
 * A run that fails keeps only what a rerun can resume from, and says what it kept.
@@ -28,11 +29,13 @@ from pfx.errors import ConfigError
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 
-SHIPPED = sorted(path for path in (REPO_ROOT / "configs").rglob("*.yaml") if path.name != "paper.yaml")
+# the configs/ tree and the plugin examples (whose folders rerun from their own copy of the plugin)
+SHIPPED = sorted(path for folder in ("configs", "examples") for path in (REPO_ROOT / folder).rglob("*.yaml")
+                 if path.name != "paper.yaml")
 
 
 def _id(path: Path) -> str:
-    return str(path.relative_to(REPO_ROOT / "configs"))
+    return str(path.relative_to(REPO_ROOT))
 
 
 def _tables(folder: Path) -> dict[str, pd.DataFrame]:
@@ -49,7 +52,8 @@ def _cells(plan) -> list:
 
 
 def test_every_shipped_config_is_found():
-    assert len(SHIPPED) >= 33
+    assert len(SHIPPED) >= 38
+    assert any(path.parent.name == "plugins" for path in SHIPPED)
     assert any("study" in load_config_file(path) for path in SHIPPED)
 
 
@@ -79,7 +83,7 @@ def test_validate_prints_a_config_that_resolves_to_the_same_plan(config, validat
     assert result.returncode == 0, result.output
     printed = yaml.safe_load(result.stdout)            # the header line is a YAML comment
     original = build_plan(load_config_file(config), str(config))
-    again = build_plan(printed, "printed")
+    again = build_plan(printed, str(config.parent / "printed.yaml"))     # saved beside it: plugins are found
     assert again.resolved == original.resolved == printed
     assert _cells(again) == _cells(original)
     assert again.results_hash == original.results_hash

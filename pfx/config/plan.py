@@ -25,7 +25,7 @@ from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.plugin_faults import locate, plan_time_fault
-from pfx.config.plugins import LoadedPlugin, load_config_plugins, unknown_name_hint
+from pfx.config.plugins import LoadedPlugin, load_config_plugins, recorded_names, unknown_name_hint
 from pfx.config.schema import ConfigSchema, config_schema
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, located_value_error
@@ -137,11 +137,15 @@ class StudyPlan:
 
 def with_plugin_code(record: dict, plugins: list[LoadedPlugin]) -> dict:
     """``record`` with the sha256 of each plugin's code, for hashing: changed plugin code changes
-    the hashes, so a result folder is not resumed or kept with it. Without plugins, ``record``
-    itself: the hashes of configs without plugins are what they always were."""
+    the hashes, so a result folder is not resumed or kept with it. A plugin counts by its code
+    and its recorded name (:func:`~pfx.config.plugins.recorded_names`), not by the path a config
+    reaches it by: the result folder's ``config.yaml``, which names the folder's copy of the
+    plugin, has the hashes of the config it was made from. Without plugins, ``record`` itself:
+    the hashes of configs without plugins are what they always were."""
     if not plugins:
         return record
-    return {**record, "plugin_code": {plugin.name: plugin.sha256 for plugin in plugins}}
+    record = {key: value for key, value in record.items() if key != "plugins"}
+    return {**record, "plugin_code": dict(zip(recorded_names(plugins), (plugin.sha256 for plugin in plugins)))}
 
 
 def identity_dump(value: Any) -> Any:

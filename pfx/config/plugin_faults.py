@@ -55,7 +55,7 @@ def locate(error: BaseException, plugins: Optional[Iterable[LoadedPlugin]] = Non
     """The :class:`Fault` of an exception whose traceback runs through a plugin's code
     (``plugins``: those to look for; default every plugin loaded in this process); None if it
     never entered plugin code."""
-    files = {plugin.path: plugin for plugin in (loaded_plugins() if plugins is None else plugins)}
+    files = {plugin.code_file: plugin for plugin in (loaded_plugins() if plugins is None else plugins)}
     frames = [(frame, line) for frame, line in _frames(error.__traceback__)
               if frame.f_code.co_filename in files]
     if not frames:

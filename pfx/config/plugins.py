@@ -49,6 +49,7 @@ from pfx.errors import ConfigError, ExecutorError, UsageError
 from pfx.registry import RegistrationClash, registering_for
 
 ENTRY_POINT_GROUP = "pfx.plugins"
+PLUGIN_COPIES = "plugins"      # the folder of a result folder that holds its plugin files' code
 
 
 class PluginError(ValueError):
@@ -72,10 +73,23 @@ class LoadedPlugin:
     module: str                      # its module name in sys.modules
     source: Optional[bytes] = field(default=None, repr=False)   # a file plugin's code, for the workers
     registered: tuple[str, ...] = ()  # "model damped_walk", ...
+    code_file: str = ""               # the file name its code was compiled with: what tracebacks show
 
-    def record(self) -> dict:
-        """What manifest.json says of it."""
-        return {"name": self.name, "file": self.path, "sha256": self.sha256}
+    def __post_init__(self):
+        if not self.code_file:
+            object.__setattr__(self, "code_file", self.path)
+
+    @property
+    def is_file(self) -> bool:
+        """A plugin file (its code travels with it and is copied into result folders), not a module."""
+        return self.source is not None
+
+    def record(self, recorded_as: str) -> dict:
+        """What manifest.json says of it (``recorded_as``: :func:`recorded_names`)."""
+        entry = {"name": self.name, "file": self.path, "sha256": self.sha256}
+        if self.is_file:
+            entry["copy"] = f"{PLUGIN_COPIES}/{recorded_as}"
+        return entry
 
     def summary(self) -> str:
         return f"{self.name} ({', '.join(self.registered) or 'registered nothing'})"
@@ -154,6 +168,55 @@ def _declared_kind(component_class, decorator: str) -> str:
     return kind
 
 
+# -- recording ------------------------------------------------------------------------------------
+
+
+def recorded_names(plugins: Iterable[LoadedPlugin]) -> list[str]:
+    """The name each plugin is recorded under: a file's name (``coordinated_turn.py``; a second
+    file of the same name gets ``coordinated_turn-2.py``), a module's name. It is what the config
+    and results hashes know a plugin by, with its code's sha256, and a file plugin's copy in a
+    result folder is ``plugins/<name>``: so a config that names the plugin by another path (the
+    result folder's own ``config.yaml`` names the copy) has the same hashes."""
+    names: list[str] = []
+    for plugin in plugins:
+        name = Path(plugin.path).name if plugin.is_file else plugin.name
+        if name in names:
+            stem, suffix = Path(name).stem, Path(name).suffix
+            name = next(f"{stem}-{number}{suffix}" for number in range(2, len(names) + 2)
+                        if f"{stem}-{number}{suffix}" not in names)
+        names.append(name)
+    return names
+
+
+def copied_entries(plugins: list[LoadedPlugin]) -> list[str]:
+    """A result folder's ``plugins:`` list: each file plugin as its copy in the folder
+    (``plugins/<name>``), each module plugin as it was named."""
+    return [f"{PLUGIN_COPIES}/{name}" if plugin.is_file else plugin.name
+            for plugin, name in zip(plugins, recorded_names(plugins))]
+
+
+def _check_copies(plugins: list[LoadedPlugin], config_file: str) -> None:
+    """A result folder's ``config.yaml`` runs the copies of its plugins in ``plugins/``: each must
+    still be the code its results were computed with (the manifest's sha256)."""
+    from pfx.result_folder import read_manifest
+
+    folder = Path(config_file).parent
+    manifest = read_manifest(folder) if (folder / PLUGIN_COPIES).is_dir() else None
+    if not manifest:
+        return
+    recorded = {entry.get("copy"): entry.get("sha256") for entry in manifest.get("plugins", [])
+                if isinstance(entry, dict)}
+    for plugin in plugins:
+        path = Path(plugin.path)
+        if not plugin.is_file or path.parent.resolve() != (folder / PLUGIN_COPIES).resolve():
+            continue
+        expected = recorded.get(f"{PLUGIN_COPIES}/{path.name}")
+        if expected is not None and expected != plugin.sha256:
+            raise ConfigError(f"this copy differs from the code the folder's results were computed with "
+                              f"(sha256 {plugin.sha256[:12]} != {str(expected)[:12]} in manifest.json); restore "
+                              "it, or run an edited plugin from a config of your own", file=plugin.path)
+
+
 # -- loading ---------------------------------------------------------------------------------------
 
 _LOADED: dict[str, LoadedPlugin] = {}        # origin -> the plugin as last loaded in this process
@@ -172,8 +235,10 @@ def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
         raise ConfigError("must be a list of plugin file names (.py) or module names", file=config_file,
                           key="plugins")
     folder = Path(config_file).parent
-    return [load_plugin(entry, folder, config_file=config_file, key=f"plugins[{index}]")
-            for index, entry in enumerate(entries)]
+    plugins = [load_plugin(entry, folder, config_file=config_file, key=f"plugins[{index}]")
+               for index, entry in enumerate(entries)]
+    _check_copies(plugins, config_file)
+    return plugins
 
 
 def load_plugin(entry: str, folder: Path = Path("."), *, config_file: Optional[str] = None,
@@ -227,6 +292,10 @@ def _load_file(name: str, path: Path) -> LoadedPlugin:
     digest = hashlib.sha256(source).hexdigest()
     origin = str(path.resolve())
     earlier = _LOADED.get(origin)
+    if earlier is None or earlier.sha256 != digest:
+        # The same code from another file (a result folder's copy of a plugin loaded already):
+        # the same plugin, whose components are registered already.
+        earlier = next((plugin for plugin in _LOADED.values() if plugin.is_file and plugin.sha256 == digest), None)
     if earlier is not None and earlier.sha256 == digest:
         return _renamed(earlier, name, str(path))
     module = f"pfx_plugin_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest[:12]}"
@@ -257,11 +326,11 @@ def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
     _prepare_registries()
     _forget(plugin.origin)                   # an earlier version of the same file, in this process
     module = types.ModuleType(plugin.module)
-    module.__file__ = plugin.path
+    module.__file__ = plugin.code_file
     sys.modules[plugin.module] = module      # classes pickle by module name: workers find it too
     with registering_for(plugin.origin):
         try:
-            exec(compile(plugin.source, plugin.path, "exec"), module.__dict__)
+            exec(compile(plugin.source, plugin.code_file, "exec"), module.__dict__)
         except (Exception, SystemExit) as error:
             del sys.modules[plugin.module]
             _forget(plugin.origin)
@@ -285,11 +354,11 @@ def import_failure(error: BaseException, plugin: LoadedPlugin) -> ConfigError:
     """The one line for an exception raised while importing a plugin: the plugin's file and its
     last line in the traceback, the exception's type and message."""
     line = None
-    if isinstance(error, SyntaxError) and error.filename == plugin.path:
+    if isinstance(error, SyntaxError) and error.filename == plugin.code_file:
         line = error.lineno
     traceback = error.__traceback__
     while traceback is not None:
-        if traceback.tb_frame.f_code.co_filename == plugin.path:
+        if traceback.tb_frame.f_code.co_filename == plugin.code_file:
             line = traceback.tb_lineno
         traceback = traceback.tb_next
     if isinstance(error, PluginError) and error.line is not None:

@@ -41,7 +41,7 @@ from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
 from pfx.config.plugin_faults import locate, run_time_fault
-from pfx.config.plugins import LoadedPlugin, ensure_loaded
+from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, copied_entries, ensure_loaded, recorded_names
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.numerics.seeding import study_generator
@@ -55,6 +55,7 @@ from pfx.result_folder import (
     folder_lock,
     inspect_folder,
     read_table,
+    write_bytes,
     write_csv,
     write_text,
 )
@@ -96,11 +97,13 @@ def _check_plugin_code(plan: Plan | StudyPlan, out: Path) -> None:
 
     if not (out / MANIFEST).is_file():
         return
-    recorded = {entry.get("name"): entry.get("sha256") for entry in (read_manifest(out) or {}).get("plugins", [])}
-    for plugin in plan.plugins:
-        if plugin.name in recorded and recorded[plugin.name] != plugin.sha256:
+    # A plugin is known by its recorded name (its copy's name; in older folders, its name as written).
+    recorded = {Path(entry["copy"]).name if entry.get("copy") else entry.get("name"): entry.get("sha256")
+                for entry in (read_manifest(out) or {}).get("plugins", [])}
+    for plugin, name in zip(plan.plugins, recorded_names(plan.plugins)):
+        if name in recorded and recorded[name] != plugin.sha256:
             raise ConfigError(f"plugin {plugin.name} has changed since these results were computed (sha256 "
-                              f"{str(recorded[plugin.name])[:12]} != {plugin.sha256[:12]}); use --fresh to "
+                              f"{str(recorded[name])[:12]} != {plugin.sha256[:12]}); use --fresh to "
                               "recompute them or --out for another folder", file=str(out))
 
 
@@ -162,7 +165,7 @@ def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Execu
     manifest = _manifest(plan, started=_now())
     if first:
         manifest["extending_from"] = first
-    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+    write_record_config(plan, out)
     write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     started = time.perf_counter()
     cell_times: dict[str, float] = {}
@@ -191,6 +194,8 @@ def _keep_what_finished(plan: Plan, out: Path, earlier_record: dict[str, str]) -
         return (f"{finished} of {len(plan.cells)} cells finished and are kept in {out}; "
                 "run the same command again to resume")
     shutil.rmtree(out / CELLS, ignore_errors=True)
+    if not earlier_record:
+        shutil.rmtree(out / PLUGIN_COPIES, ignore_errors=True)
     for name in ("config.yaml", MANIFEST):
         if name in earlier_record:
             write_text(earlier_record[name], out / name)
@@ -217,7 +222,7 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
             path.unlink()
     manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
                     config_hash=plan.config_hash, figures=figures, formats=formats)
-    write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+    write_record_config(plan, out)
     write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     wanted = figures if formats != old_formats else [name for name in figures if name not in old_figures]
     render_figures(out, wanted, tuple(formats))
@@ -240,7 +245,7 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
         shutil.rmtree(out / "figures", ignore_errors=True)
         study = plan.experiment.study
         manifest = {**_provenance(plan, started=_now()), "study": study.kind, "units": dict(study.units)}
-        write_text(yaml.safe_dump(plan.resolved, sort_keys=False), out / "config.yaml")
+        write_record_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         started = time.perf_counter()
         tables = study.tables(study_generator(plan.experiment.seed))
@@ -251,6 +256,20 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
     return out
+
+
+def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
+    """The folder's ``config.yaml``, the config as it ran, and beside it in ``plugins/`` a copy of
+    each plugin file's code (the very bytes that ran, whose sha256 the manifest records), which
+    its ``plugins:`` list names: the folder reruns from anywhere, on its own."""
+    resolved = plan.resolved
+    if plan.plugins:
+        for plugin, entry in zip(plan.plugins, copied_entries(plan.plugins)):
+            if plugin.is_file:
+                (out / PLUGIN_COPIES).mkdir(exist_ok=True)
+                write_bytes(plugin.source, out / entry)
+        resolved = {**resolved, "plugins": copied_entries(plan.plugins)}
+    write_text(yaml.safe_dump(resolved, sort_keys=False), out / "config.yaml")
 
 
 def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
@@ -380,7 +399,8 @@ def _provenance(plan: Plan | StudyPlan, started: str) -> dict:
         "complete": False,
         "figures": list(plan.experiment.outputs.figures),
         "formats": list(plan.experiment.outputs.formats),
-        **({"plugins": [plugin.record() for plugin in plan.plugins]} if plan.plugins else {}),
+        **({"plugins": [plugin.record(name) for plugin, name in zip(plan.plugins, recorded_names(plan.plugins))]}
+           if plan.plugins else {}),
     }
 
 
