@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Optional
 
 from pfx.errors import ConfigError
 from pfx.numerics.hashing import canonical_hash
+from pfx.user_files import UnreadableFile, read_user_file
 
 if TYPE_CHECKING:          # pandas and numpy are imported where a table is read, not before
     import numpy as np
@@ -49,6 +50,7 @@ if TYPE_CHECKING:          # pandas and numpy are imported where a table is read
 LOCK_FILE = ".pfx.lock"
 MANIFEST = "manifest.json"
 CELLS = "cells"
+MAX_MANIFEST_BYTES = 100 * 1024 * 1024
 
 
 # -- writing ------------------------------------------------------------------------------------
@@ -251,9 +253,9 @@ class FolderState:
 
 def read_manifest(out: Path) -> Optional[dict]:
     """The folder's manifest, or None if it has none or it is unreadable."""
-    try:
-        manifest = json.loads((Path(out) / MANIFEST).read_text())
-    except (OSError, ValueError):
+    try:        # a user names the folder: its manifest.json could be a pipe that never ends
+        manifest = json.loads(read_user_file(Path(out) / MANIFEST, MAX_MANIFEST_BYTES))
+    except (UnreadableFile, ValueError):
         return None
     return manifest if isinstance(manifest, dict) else None
 
