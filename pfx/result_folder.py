@@ -24,7 +24,9 @@ finished, more trials than asked       refused (the extra trials would be droppe
 interrupted (``cells/`` kept)          resumes the same run; another trial count is refused
 =====================================  ==========================================================
 
-A folder with another results hash, or not made by pfx, is refused unless ``--fresh``.
+A folder with another results hash, or not made by pfx, is refused unless ``--fresh``. A
+folder this process could not create or write into (under a regular file, read-only) is
+refused before anything is written (:func:`check_writable`; every command that writes runs it).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import stat
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -290,12 +293,48 @@ def record_figures(out: Path, names: list[str]) -> None:
     write_text(json.dumps(manifest, indent=2), Path(out) / MANIFEST)
 
 
+def _may(path: Path, mode: int) -> bool:
+    """Whether this process may access ``path`` so (by its effective user, where the system tells)."""
+    return os.access(path, mode, effective_ids=os.access in os.supports_effective_ids)
+
+
+def check_writable(out: Path, what: str = "result folder") -> None:
+    """Refuse, before anything is written, a folder this process could not create or write into.
+
+    An existing ``out`` must be a folder it may write, enter and read (a run lists it); a missing one is created
+    with its missing parents, so its nearest existing ancestor must be a folder it may write
+    and enter. (Root passes the permission checks whatever the modes, except on a read-only
+    file system; the run's first mkdir and lock file catch what slips through.)
+    """
+    out = Path(out)
+    for folder in (out, *out.parents):
+        try:
+            mode = os.stat(folder).st_mode
+        except (FileNotFoundError, NotADirectoryError, PermissionError):
+            continue       # not there, or behind an ancestor the loop reaches next
+        except OSError as error:      # a loop of symbolic links, a path too long
+            raise ConfigError(f"cannot reach the {what}: {error.strerror or error}", file=str(out)) from None
+        if folder == out:
+            if not stat.S_ISDIR(mode):
+                raise ConfigError(f"exists and is not a folder (the {what} must be one); choose another folder",
+                                  file=str(out))
+            for access, adjective in ((os.W_OK | os.X_OK, "writable"), (os.R_OK, "readable")):
+                if not _may(out, access):
+                    raise ConfigError(f"{what} is not {adjective} (permission denied); choose another folder",
+                                      file=str(out))
+        elif not stat.S_ISDIR(mode):
+            raise ConfigError(f"cannot create the {what}: {folder} is a file, not a folder", file=str(out))
+        elif not _may(folder, os.W_OK | os.X_OK):
+            raise ConfigError(f"cannot create the {what}: {folder} is not writable (permission denied); "
+                              "choose another folder", file=str(out))
+        return
+
+
 def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
     """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
-    write to (see the module docstring)."""
+    write to (see the module docstring) or could not write to (:func:`check_writable`)."""
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError("result path exists and is not a folder", file=str(out))
+    check_writable(out)
     if fresh or not out.exists() or not [p for p in out.iterdir() if p.name != LOCK_FILE]:
         return FolderState()
     if not (out / MANIFEST).exists():
@@ -324,6 +363,23 @@ def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
     return FolderState(manifest=manifest, kept_trials=int(manifest.get("extending_from", 0)), done=done)
 
 
+def make_folder(out: Path) -> bool:
+    """Create the result folder (and its missing parents); True if this call created it.
+
+    The fallback of :func:`check_writable`: a folder that cannot be made is one line naming it.
+    """
+    try:
+        out.mkdir(parents=True)
+        return True
+    except FileExistsError:
+        if out.is_dir():
+            return False
+        raise ConfigError("exists and is not a folder (the result folder must be one); choose another folder",
+                          file=str(out)) from None
+    except OSError as error:
+        raise ConfigError(f"cannot create the result folder: {error.strerror or error}", file=str(out)) from None
+
+
 def clear_outputs(out: Path, names) -> None:
     """Remove pfx's own outputs from a folder (--fresh): the named files, cells/ and figures/."""
     for name in names:
@@ -343,7 +399,10 @@ def folder_lock(out: Path):
     except ImportError:          # no flock on this platform: run unlocked
         yield
         return
-    handle = open(out / LOCK_FILE, "a+")
+    try:
+        handle = open(out / LOCK_FILE, "a+")
+    except OSError as error:       # what check_writable cannot see (root on a read-only file system)
+        raise ConfigError(f"cannot create the lock file {LOCK_FILE}: {error.strerror or error}", file=str(out)) from None
     try:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)

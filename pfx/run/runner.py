@@ -52,6 +52,7 @@ from pfx.result_folder import (
     clear_outputs,
     folder_lock,
     inspect_folder,
+    make_folder,
     read_table,
     write_csv,
     write_text,
@@ -122,8 +123,7 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
     state = check_folder(plan, out, fresh)
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
+    created = make_folder(out)
     try:
         with folder_lock(out):
             if fresh:
@@ -221,7 +221,7 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
               report: Callable[[str], None] = lambda message: None) -> Path:
     """Compute a study (:mod:`pfx.studies`) into ``out``: its tables as CSV, then its figures."""
     state = check_folder(plan, out, fresh)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folder(out)
     with folder_lock(out):
         if state.complete:
             update_record(plan, out, state.manifest, report)
