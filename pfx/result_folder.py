@@ -27,6 +27,9 @@ interrupted (``cells/`` kept)          resumes the same run; another trial count
 A folder with another results hash, or not made by pfx, is refused unless ``--fresh``. A
 folder this process could not create or write into (under a regular file, read-only) is
 refused before anything is written (:func:`check_writable`; every command that writes runs it).
+
+One run writes a folder at a time (:func:`folder_lock`); what a run read before it held the
+lock is read again once it does, since another run may have been writing the folder meanwhile.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import os
 import shutil
 import stat
 import tempfile
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -330,12 +334,36 @@ def check_writable(out: Path, what: str = "result folder") -> None:
         return
 
 
-def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
+def inspect_folder(plan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
     """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
-    write to (see the module docstring) or could not write to (:func:`check_writable`)."""
+    write to (see the module docstring) or could not write to (:func:`check_writable`).
+
+    ``locked``: this process holds the folder's lock (:func:`folder_lock`), so what it reads
+    is settled. Without the lock, another run may be writing the folder at this very moment:
+    what it has written so far (a config.yaml before its manifest, a temporary file) is no
+    reason to refuse, so a folder that looks wrong is refused as that run's (naming it) while
+    the run holds the lock, and read again once none does.
+    """
     out = Path(out)
     check_writable(out)
-    if fresh or not out.exists() or not [p for p in out.iterdir() if p.name != LOCK_FILE]:
+    if locked or fresh:
+        return _contents(plan, out, fresh)
+    try:
+        return _contents(plan, out, fresh)
+    except ConfigError:
+        holder = lock_holder(out)
+        if holder is not None:
+            raise _held_error(out, holder) from None
+    return _contents(plan, out, fresh)
+
+
+def _contents(plan, out: Path, fresh: bool) -> FolderState:
+    """:func:`inspect_folder`'s reading of the folder's files."""
+    try:
+        entries = [] if fresh or not out.exists() else [p for p in out.iterdir() if p.name != LOCK_FILE]
+    except FileNotFoundError:          # removed since, by a run that kept nothing: as if never made
+        entries = []
+    if not entries:
         return FolderState()
     if not (out / MANIFEST).exists():
         raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
@@ -388,33 +416,150 @@ def clear_outputs(out: Path, names) -> None:
     shutil.rmtree(out / "figures", ignore_errors=True)
 
 
+# -- the lock: one run writes a folder at a time ---------------------------------------------------
+
+LOCK_ATTEMPTS = 100           # a folder removed under a run this often is given up on
+HOLDER_WAIT_S = 1.0           # how long a refused run waits for the holder's pid to be written
+
+
+def _held_error(out: Path, holder: str) -> ConfigError:
+    return ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
+                       "wait for it or choose another --out", file=str(out))
+
+
+def _written_pid(descriptor: int) -> str:
+    return os.pread(descriptor, 32, 0).decode("ascii", "replace").strip()
+
+
+def lock_holder(out: Path) -> Optional[str]:
+    """The pid (as text) of the pfx run holding ``out``'s lock, "?" if it has not written it
+    yet; None when no run holds it. (The probe holds a shared lock for an instant.)"""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    try:
+        descriptor = os.open(Path(out) / LOCK_FILE, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _written_pid(descriptor) or "?"
+        return None
+    finally:
+        os.close(descriptor)             # releases the probe's shared lock
+
+
+def _same_file(descriptor: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open as ``descriptor`` (not removed, not replaced)."""
+    try:
+        named = os.stat(path)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(descriptor)
+    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)
+
+
+def _unused(out: Path) -> bool:
+    """The folder holds nothing but the lock (and empty folders)."""
+    return not [path for path in out.iterdir()
+                if path.name != LOCK_FILE and not (path.is_dir() and not any(path.iterdir()))]
+
+
+def _remove_unused(out: Path) -> None:
+    """Remove a folder that holds nothing but the lock and empty folders, lock file first (a
+    run that opens the lock file afterwards makes a new one and keeps the folder, whose last
+    removal then fails harmlessly)."""
+    try:
+        for path in out.iterdir():
+            if path.is_dir():
+                path.rmdir()
+        (out / LOCK_FILE).unlink(missing_ok=True)
+        out.rmdir()
+    except OSError:
+        pass
+
+
+def _acquire(out: Path, fcntl) -> tuple[int, bool]:
+    """Make the folder if needed and lock it: (the lock file's open descriptor, whether this
+    call made the folder). Refuses, naming the holder, a folder another run holds."""
+    for _ in range(LOCK_ATTEMPTS):
+        created = make_folder(out)
+        try:
+            descriptor = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
+        except FileNotFoundError:       # removed since the mkdir, by a run that kept nothing: again
+            continue
+        except OSError as error:        # what check_writable cannot see (root on a read-only file system)
+            raise ConfigError(f"cannot create the lock file {LOCK_FILE}: {error.strerror or error}",
+                              file=str(out)) from None
+        try:
+            _lock_or_refuse(out, descriptor, fcntl)
+        except BaseException:
+            os.close(descriptor)
+            raise
+        # Locked, but perhaps a file whose holder removed it (folder and all: its run kept
+        # nothing) between our open and our lock; then start again with a new folder.
+        if _same_file(descriptor, out / LOCK_FILE):
+            return descriptor, created
+        os.close(descriptor)
+    raise ConfigError(f"the result folder was removed {LOCK_ATTEMPTS} times while this run tried to lock "
+                      "it; choose another --out", file=str(out))
+
+
+def _lock_or_refuse(out: Path, descriptor: int, fcntl) -> None:
+    """Take the exclusive lock, or refuse naming the run that holds it. A holder that has not
+    written its pid yet (it has just locked), or a probe (:func:`lock_holder`), is given a
+    moment before the refusal."""
+    deadline = time.monotonic() + HOLDER_WAIT_S
+    while True:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            holder = _written_pid(descriptor)
+        except OSError as error:        # a file system without locks
+            raise ConfigError(f"cannot lock {LOCK_FILE}: {error.strerror or error}", file=str(out)) from None
+        if holder or time.monotonic() > deadline:
+            raise _held_error(out, holder or "?")
+        time.sleep(0.01)
+
+
 @contextmanager
-def folder_lock(out: Path):
-    """Hold an exclusive lock on the result folder; a second run on it is refused.
+def folder_lock(out: Path, *, remove_if_unused: bool = False):
+    """Make the result folder if needed and hold an exclusive lock on it for the block; a
+    second run on it is refused, naming the first (see :func:`_lock_or_refuse`).
 
     The lock (``.pfx.lock``, flock) dies with its process, so a killed run leaves no stale lock.
+    With ``remove_if_unused``, a folder this call made, and that still holds nothing but the
+    lock at the end of the block (the run kept nothing), is removed, while the lock is still
+    held: a run that removed a folder without the lock could remove it under the run that
+    holds it. A run that had opened the removed lock file then notices and starts again.
     """
+    out = Path(out)
     try:
         import fcntl
     except ImportError:          # no flock on this platform: run unlocked
-        yield
-        return
-    try:
-        handle = open(out / LOCK_FILE, "a+")
-    except OSError as error:       # what check_writable cannot see (root on a read-only file system)
-        raise ConfigError(f"cannot create the lock file {LOCK_FILE}: {error.strerror or error}", file=str(out)) from None
-    try:
+        created = make_folder(out)
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "?"
-            raise ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
-                              "wait for it or choose another --out", file=str(out)) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(str(os.getpid()))
-        handle.flush()
+            yield
+        finally:
+            if remove_if_unused and created and _unused(out):
+                _remove_unused(out)
+        return
+    descriptor, created = _acquire(out, fcntl)
+    unused_when_locked = False
+    try:
+        unused_when_locked = created and _unused(out)
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, str(os.getpid()).encode(), 0)
         yield
     finally:
-        handle.close()
+        try:
+            if remove_if_unused and unused_when_locked and _unused(out):
+                _remove_unused(out)
+            else:
+                os.ftruncate(descriptor, 0)      # an idle lock names no run
+        finally:
+            os.close(descriptor)                 # releases the lock
