@@ -297,20 +297,27 @@ def figures(
 ):
     """Re-render a result folder's figures from its CSV files alone (or add one with --figure)."""
     from pfx.figures import FIGURES, render_figures
-    from pfx.result_folder import finished_manifest, record_figures
+    from pfx.result_folder import check_writable, finished_manifest, record_figures
 
     manifest = finished_manifest(result_dir)
     formats = tuple(manifest.get("formats", ["png"]))
     for name in add:
         if name not in FIGURES:
             raise ConfigError(f"--figure: {FIGURES.unknown_message(name)}", file=str(result_dir))
-    written = render_figures(result_dir, add or None, formats)
-    drawn = {path.stem for path in written}
-    for name in add:
-        if name not in drawn:
-            typer.echo(f"{name}: nothing to draw from this folder's tables (not added)", err=True)
-    if add:
-        record_figures(result_dir, [name for name in add if name in drawn])
+    if add:                               # the figures are added to the folder's record
+        check_writable(result_dir)
+    check_writable(result_dir / "figures", "figures folder")
+    try:
+        written = render_figures(result_dir, add or None, formats)
+        drawn = {path.stem for path in written}
+        for name in add:
+            if name not in drawn:
+                typer.echo(f"{name}: nothing to draw from this folder's tables (not added)", err=True)
+        if add:
+            record_figures(result_dir, [name for name in add if name in drawn])
+    except OSError as error:          # what the checks cannot see (a read-only file system for root)
+        raise ConfigError(f"cannot write {error.filename or 'a figure'}: {error.strerror or error}",
+                          file=str(result_dir)) from None
     for path in written:
         typer.echo(str(path))
 
@@ -350,9 +357,10 @@ def compare(
 ):
     """Paired differences between arms (or any label column), trial by trial, with 95% intervals."""
     from pfx.analysis.compare import format_table, output_name, paired_comparison
-    from pfx.result_folder import ResultFolder, finished_manifest, write_csv
+    from pfx.result_folder import ResultFolder, check_writable, finished_manifest, write_csv
 
     finished_manifest(result_dir, needs=("trials.csv",))
+    check_writable(result_dir)              # the comparison's CSV is written into it
     folder = ResultFolder(result_dir)
     try:
         trials = folder.trials

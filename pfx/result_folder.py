@@ -24,7 +24,12 @@ finished, more trials than asked       refused (the extra trials would be droppe
 interrupted (``cells/`` kept)          resumes the same run; another trial count is refused
 =====================================  ==========================================================
 
-A folder with another results hash, or not made by pfx, is refused unless ``--fresh``.
+A folder with another results hash, or not made by pfx, is refused unless ``--fresh``. A
+folder this process could not create or write into (under a regular file, read-only) is
+refused before anything is written (:func:`check_writable`; every command that writes runs it).
+
+One run writes a folder at a time (:func:`folder_lock`); what a run read before it held the
+lock is read again once it does, since another run may have been writing the folder meanwhile.
 """
 
 from __future__ import annotations
@@ -32,7 +37,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import stat
 import tempfile
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -41,6 +48,7 @@ from typing import TYPE_CHECKING, Optional
 
 from pfx.errors import ConfigError
 from pfx.numerics.hashing import canonical_hash
+from pfx.user_files import UnreadableFile, read_user_file
 
 if TYPE_CHECKING:          # pandas and numpy are imported where a table is read, not before
     import numpy as np
@@ -49,6 +57,7 @@ if TYPE_CHECKING:          # pandas and numpy are imported where a table is read
 LOCK_FILE = ".pfx.lock"
 MANIFEST = "manifest.json"
 CELLS = "cells"
+MAX_MANIFEST_BYTES = 100 * 1024 * 1024
 
 
 # -- writing ------------------------------------------------------------------------------------
@@ -256,9 +265,9 @@ class FolderState:
 
 def read_manifest(out: Path) -> Optional[dict]:
     """The folder's manifest, or None if it has none or it is unreadable."""
-    try:
-        manifest = json.loads((Path(out) / MANIFEST).read_text())
-    except (OSError, ValueError):
+    try:        # a user names the folder: its manifest.json could be a pipe that never ends
+        manifest = json.loads(read_user_file(Path(out) / MANIFEST, MAX_MANIFEST_BYTES))
+    except (UnreadableFile, ValueError):
         return None
     return manifest if isinstance(manifest, dict) else None
 
@@ -293,13 +302,73 @@ def record_figures(out: Path, names: list[str]) -> None:
     write_text(json.dumps(manifest, indent=2), Path(out) / MANIFEST)
 
 
-def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
-    """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
-    write to (see the module docstring)."""
+def _may(path: Path, mode: int) -> bool:
+    """Whether this process may access ``path`` so (by its effective user, where the system tells)."""
+    return os.access(path, mode, effective_ids=os.access in os.supports_effective_ids)
+
+
+def check_writable(out: Path, what: str = "result folder") -> None:
+    """Refuse, before anything is written, a folder this process could not create or write into.
+
+    An existing ``out`` must be a folder it may write, enter and read (a run lists it); a missing one is created
+    with its missing parents, so its nearest existing ancestor must be a folder it may write
+    and enter. (Root passes the permission checks whatever the modes, except on a read-only
+    file system; the run's first mkdir and lock file catch what slips through.)
+    """
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError("result path exists and is not a folder", file=str(out))
-    if fresh or not out.exists() or not [p for p in out.iterdir() if p.name != LOCK_FILE]:
+    for folder in (out, *out.parents):
+        try:
+            mode = os.stat(folder).st_mode
+        except (FileNotFoundError, NotADirectoryError, PermissionError):
+            continue       # not there, or behind an ancestor the loop reaches next
+        except OSError as error:      # a loop of symbolic links, a path too long
+            raise ConfigError(f"cannot reach the {what}: {error.strerror or error}", file=str(out)) from None
+        if folder == out:
+            if not stat.S_ISDIR(mode):
+                raise ConfigError(f"exists and is not a folder (the {what} must be one); choose another folder",
+                                  file=str(out))
+            for access, adjective in ((os.W_OK | os.X_OK, "writable"), (os.R_OK, "readable")):
+                if not _may(out, access):
+                    raise ConfigError(f"{what} is not {adjective} (permission denied); choose another folder",
+                                      file=str(out))
+        elif not stat.S_ISDIR(mode):
+            raise ConfigError(f"cannot create the {what}: {folder} is a file, not a folder", file=str(out))
+        elif not _may(folder, os.W_OK | os.X_OK):
+            raise ConfigError(f"cannot create the {what}: {folder} is not writable (permission denied); "
+                              "choose another folder", file=str(out))
+        return
+
+
+def inspect_folder(plan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
+    """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
+    write to (see the module docstring) or could not write to (:func:`check_writable`).
+
+    ``locked``: this process holds the folder's lock (:func:`folder_lock`), so what it reads
+    is settled. Without the lock, another run may be writing the folder at this very moment:
+    what it has written so far (a config.yaml before its manifest, a temporary file) is no
+    reason to refuse, so a folder that looks wrong is refused as that run's (naming it) while
+    the run holds the lock, and read again once none does.
+    """
+    out = Path(out)
+    check_writable(out)
+    if locked or fresh:
+        return _contents(plan, out, fresh)
+    try:
+        return _contents(plan, out, fresh)
+    except ConfigError:
+        holder = lock_holder(out)
+        if holder is not None:
+            raise _held_error(out, holder) from None
+    return _contents(plan, out, fresh)
+
+
+def _contents(plan, out: Path, fresh: bool) -> FolderState:
+    """:func:`inspect_folder`'s reading of the folder's files."""
+    try:
+        entries = [] if fresh or not out.exists() else [p for p in out.iterdir() if p.name != LOCK_FILE]
+    except FileNotFoundError:          # removed since, by a run that kept nothing: as if never made
+        entries = []
+    if not entries:
         return FolderState()
     if not (out / MANIFEST).exists():
         raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
@@ -327,6 +396,23 @@ def inspect_folder(plan, out: Path, fresh: bool) -> FolderState:
     return FolderState(manifest=manifest, kept_trials=int(manifest.get("extending_from", 0)), done=done)
 
 
+def make_folder(out: Path) -> bool:
+    """Create the result folder (and its missing parents); True if this call created it.
+
+    The fallback of :func:`check_writable`: a folder that cannot be made is one line naming it.
+    """
+    try:
+        out.mkdir(parents=True)
+        return True
+    except FileExistsError:
+        if out.is_dir():
+            return False
+        raise ConfigError("exists and is not a folder (the result folder must be one); choose another folder",
+                          file=str(out)) from None
+    except OSError as error:
+        raise ConfigError(f"cannot create the result folder: {error.strerror or error}", file=str(out)) from None
+
+
 def clear_outputs(out: Path, names) -> None:
     """Remove pfx's own outputs from a folder (--fresh): the named files, cells/, figures/ and
     plugins/ (the copies of a plugin run's code)."""
@@ -336,30 +422,150 @@ def clear_outputs(out: Path, names) -> None:
         shutil.rmtree(out / folder, ignore_errors=True)
 
 
+# -- the lock: one run writes a folder at a time ---------------------------------------------------
+
+LOCK_ATTEMPTS = 100           # a folder removed under a run this often is given up on
+HOLDER_WAIT_S = 1.0           # how long a refused run waits for the holder's pid to be written
+
+
+def _held_error(out: Path, holder: str) -> ConfigError:
+    return ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
+                       "wait for it or choose another --out", file=str(out))
+
+
+def _written_pid(descriptor: int) -> str:
+    return os.pread(descriptor, 32, 0).decode("ascii", "replace").strip()
+
+
+def lock_holder(out: Path) -> Optional[str]:
+    """The pid (as text) of the pfx run holding ``out``'s lock, "?" if it has not written it
+    yet; None when no run holds it. (The probe holds a shared lock for an instant.)"""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    try:
+        descriptor = os.open(Path(out) / LOCK_FILE, os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _written_pid(descriptor) or "?"
+        return None
+    finally:
+        os.close(descriptor)             # releases the probe's shared lock
+
+
+def _same_file(descriptor: int, path: Path) -> bool:
+    """Whether ``path`` still names the file open as ``descriptor`` (not removed, not replaced)."""
+    try:
+        named = os.stat(path)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(descriptor)
+    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)
+
+
+def _unused(out: Path) -> bool:
+    """The folder holds nothing but the lock (and empty folders)."""
+    return not [path for path in out.iterdir()
+                if path.name != LOCK_FILE and not (path.is_dir() and not any(path.iterdir()))]
+
+
+def _remove_unused(out: Path) -> None:
+    """Remove a folder that holds nothing but the lock and empty folders, lock file first (a
+    run that opens the lock file afterwards makes a new one and keeps the folder, whose last
+    removal then fails harmlessly)."""
+    try:
+        for path in out.iterdir():
+            if path.is_dir():
+                path.rmdir()
+        (out / LOCK_FILE).unlink(missing_ok=True)
+        out.rmdir()
+    except OSError:
+        pass
+
+
+def _acquire(out: Path, fcntl) -> tuple[int, bool]:
+    """Make the folder if needed and lock it: (the lock file's open descriptor, whether this
+    call made the folder). Refuses, naming the holder, a folder another run holds."""
+    for _ in range(LOCK_ATTEMPTS):
+        created = make_folder(out)
+        try:
+            descriptor = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, FILE_MODE)
+        except FileNotFoundError:       # removed since the mkdir, by a run that kept nothing: again
+            continue
+        except OSError as error:        # what check_writable cannot see (root on a read-only file system)
+            raise ConfigError(f"cannot create the lock file {LOCK_FILE}: {error.strerror or error}",
+                              file=str(out)) from None
+        try:
+            _lock_or_refuse(out, descriptor, fcntl)
+        except BaseException:
+            os.close(descriptor)
+            raise
+        # Locked, but perhaps a file whose holder removed it (folder and all: its run kept
+        # nothing) between our open and our lock; then start again with a new folder.
+        if _same_file(descriptor, out / LOCK_FILE):
+            return descriptor, created
+        os.close(descriptor)
+    raise ConfigError(f"the result folder was removed {LOCK_ATTEMPTS} times while this run tried to lock "
+                      "it; choose another --out", file=str(out))
+
+
+def _lock_or_refuse(out: Path, descriptor: int, fcntl) -> None:
+    """Take the exclusive lock, or refuse naming the run that holds it. A holder that has not
+    written its pid yet (it has just locked), or a probe (:func:`lock_holder`), is given a
+    moment before the refusal."""
+    deadline = time.monotonic() + HOLDER_WAIT_S
+    while True:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            holder = _written_pid(descriptor)
+        except OSError as error:        # a file system without locks
+            raise ConfigError(f"cannot lock {LOCK_FILE}: {error.strerror or error}", file=str(out)) from None
+        if holder or time.monotonic() > deadline:
+            raise _held_error(out, holder or "?")
+        time.sleep(0.01)
+
+
 @contextmanager
-def folder_lock(out: Path):
-    """Hold an exclusive lock on the result folder; a second run on it is refused.
+def folder_lock(out: Path, *, remove_if_unused: bool = False):
+    """Make the result folder if needed and hold an exclusive lock on it for the block; a
+    second run on it is refused, naming the first (see :func:`_lock_or_refuse`).
 
     The lock (``.pfx.lock``, flock) dies with its process, so a killed run leaves no stale lock.
+    With ``remove_if_unused``, a folder this call made, and that still holds nothing but the
+    lock at the end of the block (the run kept nothing), is removed, while the lock is still
+    held: a run that removed a folder without the lock could remove it under the run that
+    holds it. A run that had opened the removed lock file then notices and starts again.
     """
+    out = Path(out)
     try:
         import fcntl
     except ImportError:          # no flock on this platform: run unlocked
-        yield
-        return
-    handle = open(out / LOCK_FILE, "a+")
-    try:
+        created = make_folder(out)
         try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.seek(0)
-            holder = handle.read().strip() or "?"
-            raise ConfigError(f"another pfx run (pid {holder}) is writing to this result folder; "
-                              "wait for it or choose another --out", file=str(out)) from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(str(os.getpid()))
-        handle.flush()
+            yield
+        finally:
+            if remove_if_unused and created and _unused(out):
+                _remove_unused(out)
+        return
+    descriptor, created = _acquire(out, fcntl)
+    unused_when_locked = False
+    try:
+        unused_when_locked = created and _unused(out)
+        os.ftruncate(descriptor, 0)
+        os.pwrite(descriptor, str(os.getpid()).encode(), 0)
         yield
     finally:
-        handle.close()
+        try:
+            if remove_if_unused and unused_when_locked and _unused(out):
+                _remove_unused(out)
+            else:
+                os.ftruncate(descriptor, 0)      # an idle lock names no run
+        finally:
+            os.close(descriptor)                 # releases the lock

@@ -1,5 +1,8 @@
 """Safe YAML reading, for configs and the data files they name (a wall map).
 
+A config file is read by :func:`pfx.user_files.read_user_file`: only a regular file, at most
+:data:`MAX_FILE_BYTES` (a pipe or a device is refused before it is opened).
+
 Only YAML's plain data types are constructed (``yaml.SafeLoader``, reading YAML 1.2 floats): tags that would build
 Python objects are errors. Duplicate keys are errors (plain PyYAML keeps the last one
 silently). Aliases are allowed, but a document whose expansion would exceed
@@ -15,6 +18,7 @@ from typing import Any
 import yaml
 
 from pfx.errors import ConfigError
+from pfx.user_files import UnreadableFile, read_user_file
 
 MAX_EXPANDED_NODES = 100_000
 
@@ -174,20 +178,10 @@ def parse_yaml(text: str, file: str) -> Any:
 def load_config_file(path: str | Path) -> dict:
     """Read a config file: a YAML mapping, checked as described in the module docstring."""
     file = str(path)
-    path = Path(path)
-    if not path.exists():
-        raise ConfigError("no such file", file=file)
-    if path.is_dir():
-        raise ConfigError("is a directory, not a config file", file=file)
-    if not path.is_file():
-        raise ConfigError("not a regular file (a pipe, socket or device?)", file=file)
     try:
-        with path.open("rb") as handle:
-            data = handle.read(MAX_FILE_BYTES + 1)
-    except OSError as error:
-        raise ConfigError(f"cannot read file ({error.strerror})", file=file) from None
-    if len(data) > MAX_FILE_BYTES:
-        raise ConfigError(f"file larger than {MAX_FILE_BYTES // (1024 * 1024)} MiB", file=file)
+        data = read_user_file(path, MAX_FILE_BYTES)
+    except UnreadableFile as error:
+        raise ConfigError("no such file" if error.missing else error.reason, file=file) from None
     if b"\x00" in data:
         raise ConfigError("binary file, not YAML text", file=file)
     try:

@@ -37,7 +37,9 @@ defaults to every trial (10,000, the most it may be). Metrics that need the trut
 without a truth file.
 
 **Bad data** is a :class:`~pfx.errors.ConfigError`: one line naming the data file, its line
-(the header is line 1) and the column, before anything runs. The cell keys include a digest of
+(the header is line 1) and the column, before anything runs. A path that names no regular file
+(a folder, a pipe, ``/dev/zero``) or a file over :data:`MAX_FILE_BYTES` is refused, naming the
+config's key, without being read (:func:`pfx.user_files.read_user_file`). The cell keys include a digest of
 the data, so a result folder is never reused for other data; the resolved config records the
 files' absolute paths, so that a result folder's ``config.yaml`` reruns from anywhere.
 
@@ -64,6 +66,7 @@ from pfx.config.validation import validate
 from pfx.errors import ConfigError
 from pfx.models import MODELS
 from pfx.numerics.hashing import canonical_hash
+from pfx.user_files import UnreadableFile, read_user_file
 
 TRACE_ALL_TRIALS = 10_000      # outputs.trace_trials' maximum: every trial of a data run
 MAX_FILE_BYTES = 100 * 1024 * 1024
@@ -170,15 +173,12 @@ def read_table(given: str, *, config_file: Optional[str], key: str, blanks: bool
     (missing measurements). ``key`` (``data.measurements``, ...) locates a file that cannot be read."""
     shown, path = _display_path(given, config_file)
     try:
-        if path.stat().st_size > MAX_FILE_BYTES:
-            raise ConfigError(f"{shown} is larger than {MAX_FILE_BYTES // 2**20} MB", file=config_file, key=key)
-        text = path.read_bytes().decode("utf-8-sig")
-    except FileNotFoundError:
-        raise ConfigError(f"no such file: {shown}", file=config_file, key=key) from None
+        text = read_user_file(path, MAX_FILE_BYTES).decode("utf-8-sig")
+    except UnreadableFile as error:
+        reason = f"no such file: {shown}" if error.missing else f"{shown} {error.reason}"
+        raise ConfigError(reason, file=config_file, key=key) from None
     except UnicodeDecodeError:
         raise ConfigError("not a UTF-8 text file", file=shown) from None
-    except OSError as error:
-        raise ConfigError(f"cannot read {shown}: {error.strerror or error}", file=config_file, key=key) from None
 
     reader = csv.reader(io.StringIO(text, newline=""))
     header, header_line, rows, lines = None, 0, [], []
@@ -265,6 +265,12 @@ def _check_index(table: DataTable) -> None:
                               file=table.file, line=lines[r], key="column time")
         if index[r] < index[r - 1]:
             raise ConfigError(f"times must increase: {index[r]:g} comes after {index[r - 1]:g}",
+                              file=table.file, line=lines[r], key="column time")
+        # The spacing of the times is their differences: one that overflows (finite times near
+        # the largest float, 1.7e308, of both signs) would become an infinite dt downstream.
+        if not math.isfinite(float(index[r]) - float(index[r - 1])):
+            raise ConfigError(f"the time since the previous row ({index[r]:g} - {index[r - 1]:g}) is too large "
+                              "to be represented as a number: use smaller times (e.g. measured from the first)",
                               file=table.file, line=lines[r], key="column time")
 
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from pfx.errors import ConfigError
 from pfx.safe_yaml import MAX_FILE_BYTES, parse_yaml
+from pfx.user_files import UnreadableFile, read_user_file
 
 CORNER_TOLERANCE = 1e-9     # relative slack on s in [0, 1], so a ray through a corner meets it
 CSV_HEADER = ["x1", "y1", "x2", "y2"]
@@ -120,13 +121,11 @@ def read_wall_file(path: Path) -> list[list[float]]:
     """
     name = str(path)
     try:
-        with open(path, "rb") as handle:
-            data = handle.read(MAX_FILE_BYTES + 1)
-    except (OSError, ValueError) as error:
-        reason = getattr(error, "strerror", None) or str(error)
-        raise ValueError(f"cannot read map file {name!r} ({reason})") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise ValueError(f"map file {name!r} is larger than {MAX_FILE_BYTES // (1024 * 1024)} MiB")
+        data = read_user_file(path, MAX_FILE_BYTES)
+    except UnreadableFile as error:
+        if error.missing:
+            raise ValueError(f"cannot read map file {name!r} (no such file)") from None
+        raise ValueError(f"map file {name!r} {error.reason}") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError:

@@ -18,8 +18,8 @@ from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.papers.gallery import write_gallery
 from pfx.registry import closest_name
-from pfx.result_folder import write_text
-from pfx.run.runner import run_plan
+from pfx.result_folder import check_writable, write_text
+from pfx.run.runner import check_folder, run_plan
 from pfx.safe_yaml import load_config_file
 
 PAPER_FILE = "paper.yaml"      # the document's own numbers, not an experiment
@@ -72,6 +72,10 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
              for paper in chosen for path in available[paper]]
     numbers = {paper: load_config_file(configs_dir / paper / PAPER_FILE)
                for paper in chosen if (configs_dir / paper / PAPER_FILE).exists()}
+    # And every folder before writing any: the gallery's, then each experiment's.
+    check_writable(out, "results folder")
+    for paper, plan in plans:
+        check_folder(plan, out / paper / plan.experiment.name, fresh)
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name

@@ -47,7 +47,6 @@ from pfx.figures import render_figures
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
     CELLS,
-    LOCK_FILE,
     MANIFEST,
     FolderState,
     ResultFolder,
@@ -82,12 +81,13 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool) -> FolderState:
+def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
     """Refuse, without touching anything, a result folder this run may not write to
-    (:func:`pfx.result_folder.inspect_folder`); return what it holds."""
+    (:func:`pfx.result_folder.inspect_folder`); return what it holds. ``locked``: this process
+    holds the folder's lock (what it holds is settled)."""
     if not fresh:
         _check_plugin_code(plan, Path(out))
-    return inspect_folder(plan, Path(out), fresh)
+    return inspect_folder(plan, Path(out), fresh, locked=locked)
 
 
 def _check_plugin_code(plan: Plan | StudyPlan, out: Path) -> None:
@@ -126,27 +126,20 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
         return run_study(plan, out, fresh=fresh, report=report)
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
-    state = check_folder(plan, out, fresh)
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        with folder_lock(out):
-            if fresh:
-                clear_outputs(out, OUTPUT_FILES)
-            if state.complete and state.kept_trials == plan.experiment.trials:
-                update_record(plan, out, state.manifest, report)
-                return out
-            own = make_executor("local", workers) if executor is None else None
-            with own or nullcontext(executor) as running:        # the caller closes an executor it gave
-                _run_and_assemble(plan, out, state, running, budget, progress, report)
-    finally:
-        if created and not [path for path in out.iterdir() if path.name != LOCK_FILE and not _empty_folder(path)]:
-            shutil.rmtree(out, ignore_errors=True)       # a run that kept nothing leaves no folder
+    check_folder(plan, out, fresh)                # refuse early, before making anything
+    with folder_lock(out, remove_if_unused=True):  # a run that kept nothing leaves no folder it made
+        # Read again: until this run held the lock, another one may have been writing the folder
+        # (and may have finished it: then it is up to date).
+        state = check_folder(plan, out, fresh, locked=True)
+        if fresh:
+            clear_outputs(out, OUTPUT_FILES)
+        if state.complete and state.kept_trials == plan.experiment.trials:
+            update_record(plan, out, state.manifest, report)
+            return out
+        own = make_executor("local", workers) if executor is None else None
+        with own or nullcontext(executor) as running:        # the caller closes an executor it gave
+            _run_and_assemble(plan, out, state, running, budget, progress, report)
     return out
-
-
-def _empty_folder(path: Path) -> bool:
-    return path.is_dir() and not any(path.iterdir())
 
 
 def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Executor, budget: int,
@@ -234,9 +227,9 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
 def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
               report: Callable[[str], None] = lambda message: None) -> Path:
     """Compute a study (:mod:`pfx.studies`) into ``out``: its tables as CSV, then its figures."""
-    state = check_folder(plan, out, fresh)
-    out.mkdir(parents=True, exist_ok=True)
+    check_folder(plan, out, fresh)
     with folder_lock(out):
+        state = check_folder(plan, out, fresh, locked=True)      # read again, now that no other run writes it
         if state.complete:
             update_record(plan, out, state.manifest, report)
             return out
