@@ -120,3 +120,13 @@ def test_a_map_file_that_is_a_pipe_is_refused_at_once(run_pfx, tmp_path):
     [line] = result.stderr.splitlines()
     assert line.startswith("pfx: error: config.yaml: model.map_file: ") and \
         "map file 'pipe' is a named pipe (FIFO), not a regular file" in line, line
+
+
+def test_a_plugin_file_that_is_a_pipe_is_refused_at_once(run_pfx, tmp_path):
+    """A config's plugin file is read like a data file: a pipe does not block the command."""
+    os.mkfifo(tmp_path / "walk.py")
+    write_config_file(tmp_path, tiny_config_dict(plugins=["walk.py"]))
+    result = run_pfx("validate", "config.yaml", cwd=tmp_path, timeout=TIMEOUT_S)
+    assert result.returncode == 2, result.output
+    assert result.stderr.splitlines() == [
+        "pfx: error: config.yaml: plugins[0]: plugin file walk.py is a named pipe (FIFO), not a regular file"]

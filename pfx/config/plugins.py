@@ -47,9 +47,11 @@ from typing import Any, Callable, Iterable, Optional
 
 from pfx.errors import ConfigError, ExecutorError, UsageError
 from pfx.registry import RegistrationClash, registering_for
+from pfx.user_files import UnreadableFile, read_user_file
 
 ENTRY_POINT_GROUP = "pfx.plugins"
 PLUGIN_COPIES = "plugins"      # the folder of a result folder that holds its plugin files' code
+MAX_PLUGIN_BYTES = 10 * 1024 * 1024
 
 
 class PluginError(ValueError):
@@ -251,9 +253,12 @@ def load_plugin(entry: str, folder: Path = Path("."), *, config_file: Optional[s
     refuse = ConfigError if config_file else UsageError
     if entry.endswith(".py") or "/" in entry or "\\" in entry:
         path = folder / entry
-        if not path.is_file():
-            raise refuse(f"plugin file not found: {path}", file=config_file, key=key)
-        return _load_file(entry, path)
+        try:         # only a regular file, read at once: a pipe or device is refused, never read
+            source = read_user_file(path, MAX_PLUGIN_BYTES)
+        except UnreadableFile as error:
+            reason = f"plugin file not found: {path}" if error.missing else f"plugin file {path} {error.reason}"
+            raise refuse(reason, file=config_file, key=key) from None
+        return _load_file(entry, path, source)
     entry_point = installed_entry_points().get(entry)
     module = entry_point.module if entry_point is not None else entry
     if not re.fullmatch(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*", module) or _find_spec(module) is None:
@@ -287,8 +292,7 @@ def _find_spec(module: str):
         return None
 
 
-def _load_file(name: str, path: Path) -> LoadedPlugin:
-    source = path.read_bytes()
+def _load_file(name: str, path: Path, source: bytes) -> LoadedPlugin:
     digest = hashlib.sha256(source).hexdigest()
     origin = str(path.resolve())
     earlier = _LOADED.get(origin)
