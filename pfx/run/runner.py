@@ -44,6 +44,7 @@ from pfx.config.plugin_faults import locate, run_time_fault
 from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, copied_entries, ensure_loaded, recorded_names
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
+from pfx.folder_lock import folder_lock
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
     CELLS,
@@ -51,7 +52,6 @@ from pfx.result_folder import (
     FolderState,
     ResultFolder,
     clear_outputs,
-    folder_lock,
     inspect_folder,
     read_table,
     write_bytes,
