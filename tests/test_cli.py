@@ -23,10 +23,12 @@ from conftest import REPO_ROOT, csv_fields, tiny_config_dict, write_config_file
 from scipy import stats
 
 import pfx
+from pfx.analysis.metrics import metric_range
+from pfx.analysis.summary import MINIMUM_VALUES
 
 EXAMPLES = sorted((REPO_ROOT / "configs" / "examples").glob("*.yaml"))
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-TRIALS, PARTICLES, STEPS, TRACE_TRIALS, HOLD = 4, [10, 20], [5, 2], 2, 3
+TRIALS, PARTICLES, STEPS, TRACE_TRIALS, HOLD = 6, [10, 20], [5, 2], 2, 3     # 6: the fewest with intervals
 CELLS = len(PARTICLES) * len(STEPS)
 # hold 3 > 2 steps: those cells never converge, so empty (never 'nan') fields must appear
 BASE = tiny_config_dict(name="cli-base", seed=11, trials=TRIALS,
@@ -239,8 +241,18 @@ def test_summary_matches_statistics_recomputed_from_trials(out):
             half = stats.t.ppf(0.975, n - 1) * sem
             assert row[f"{metric}_std"] == pytest.approx(std, rel=1e-9, abs=1e-12), metric
             assert row[f"{metric}_sem"] == pytest.approx(sem, rel=1e-9, abs=1e-12), metric
-            assert row[f"{metric}_ci95_low"] == pytest.approx(values.mean() - half, rel=1e-9, abs=1e-12), metric
-            assert row[f"{metric}_ci95_high"] == pytest.approx(values.mean() + half, rel=1e-9, abs=1e-12), metric
+            if n < MINIMUM_VALUES:             # too few values for an interval
+                assert np.isnan(row[f"{metric}_ci95_low"]) and np.isnan(row[f"{metric}_ci95_high"]), metric
+                continue
+            value_range = metric_range(metric)
+            if value_range.share:              # the Wilson score interval of the share
+                interval = stats.binomtest(int(values.sum()), n).proportion_ci(method="wilson")
+                low, high = interval.low, interval.high
+            else:                              # the t-interval, cut at the metric's bounds
+                low = max(values.mean() - half, value_range.low)
+                high = min(values.mean() + half, value_range.high)
+            assert row[f"{metric}_ci95_low"] == pytest.approx(low, rel=1e-9, abs=1e-12), metric
+            assert row[f"{metric}_ci95_high"] == pytest.approx(high, rel=1e-9, abs=1e-12), metric
 
 
 def test_steps_csv_traces_the_first_trials_of_each_cell(out):

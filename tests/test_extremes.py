@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 import yaml
 
+from pfx.analysis.summary import MINIMUM_VALUES
 from pfx.errors import ModelNumericalError
 from pfx.filters.particle.diffusion import NoDiffusion, Roughening
 from pfx.filters.particle.engine import run_particle_filter, simulate_truth
@@ -41,9 +42,10 @@ from pfx.numerics.seeding import TrialStreams
 
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
 # empty = never converged; NEES/NIS not recorded (particle filters without metrics.consistency)
-EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nis_mean", "grid_lost_mass",
-                   "move_acceptance"}
-SPREAD_STATISTICS = {"std", "sem", "ci95_low", "ci95_high"}      # empty when n < 2
+EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nees_invalid_steps", "nis_mean",
+                   "nis_invalid_steps", "grid_lost_mass", "move_acceptance"}
+SPREAD_STATISTICS = {"std", "sem"}                               # empty when n < 2
+INTERVAL_STATISTICS = {"ci95_low", "ci95_high"}                  # empty when n < MINIMUM_VALUES (6)
 CENTRAL_STATISTICS = {"mean", "median"}                          # empty when n == 0
 
 
@@ -84,7 +86,8 @@ def check_result_folder(folder: Path) -> dict[str, list[dict[str, str]]]:
                 metric, _, statistic = metric.rpartition("_")[0], None, f"ci95_{statistic}"
             assert f"{metric}_n" in row, f"summary.csv: empty non-statistic column {column}"
             n = int(row[f"{metric}_n"])
-            allowed = (statistic in SPREAD_STATISTICS and n < 2) or (statistic in CENTRAL_STATISTICS and n == 0)
+            allowed = ((statistic in SPREAD_STATISTICS and n < 2) or (statistic in INTERVAL_STATISTICS and n < MINIMUM_VALUES)
+                       or (statistic in CENTRAL_STATISTICS and n == 0))
             assert allowed, f"summary.csv: empty {column} with {metric}_n = {n}"
     figures = [f"{name}.{fmt}" for name in manifest["figures"] for fmt in manifest["formats"]]
     assert figures, "the manifest lists no figure"

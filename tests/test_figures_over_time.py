@@ -4,8 +4,9 @@ Small real result folders (tiny linear-Gaussian runs through :func:`pfx.run.runn
 
 * ``sweep``: 4 resamplers x 2 particle counts = 8 cells, 4 trials of which 2 are traced, with
   NEES recorded; its figures must draw steps_summary.csv (all 4 trials), not steps.csv (2);
-* ``arms``: a particle filter and a Kalman filter on a state named ``log_volatility``, every
-  trial traced, so the steps.csv fallback must reproduce steps_summary.csv;
+* ``arms``: a particle filter and a Kalman filter on a state named ``log_volatility``, 6 trials
+  (the fewest with a 95% band), every one traced, so the steps.csv fallback must reproduce
+  steps_summary.csv;
 * ``single``: one trial, where ``state_error_over_time`` draws the signed error.
 
 Figures are checked through the matplotlib objects the figure functions return: the lines'
@@ -57,7 +58,7 @@ def folders(tmp_path_factory):
                       metrics={"consistency": True},
                       sweep={"filter.resampler": ["multinomial", "stratified", "systematic", "residual"],
                              "filter.particles": [20, 40]}),
-        "arms": _run(root, "arms", model=LOG_VOLATILITY, trials=5, outputs={"trace_trials": 5},
+        "arms": _run(root, "arms", model=LOG_VOLATILITY, trials=6, outputs={"trace_trials": 6},
                      arms={"PF": {}, "KF": {"kind": "kf"}}),
         "single": _run(root, "single", model=TWO_STATES, trials=1, arms={"PF": {}, "SIS": {"kind": "sis"}}),
     }
@@ -93,14 +94,14 @@ def _bounding_boxes_overlap(first, second) -> bool:
 def test_error_over_time_draws_the_mean_over_every_trial(folders):
     result = ResultFolder(folders["arms"])
     summary = result.steps_summary
-    assert set(summary["trials"]) == {5}
+    assert set(summary["trials"]) == {6}
     figure = error_over_time(result)
     for arm in ("PF", "KF"):
         rows = summary[summary["arm"] == arm]
         line = _line(figure, arm)
         np.testing.assert_allclose(line.get_xdata(), rows["time"])
         np.testing.assert_allclose(line.get_ydata(), rows["error_distance_mean"])
-    assert "mean over 5 trials per cell, band: 95% CI" in figure._suptitle.get_text()
+    assert "mean over 6 trials per cell, band: 95% CI" in figure._suptitle.get_text()
 
 
 def test_a_sweep_draws_steps_summary_not_the_traced_trials(folders):
@@ -126,6 +127,12 @@ def test_ess_over_time_is_the_mean_ess_over_n_and_leaves_out_the_kalman_filter(f
     np.testing.assert_allclose(_line(figure, "PF").get_ydata(), particle["ess_mean"] / particle["n_particles"])
     assert "KF" not in [line.get_label() for axes in figure.axes for line in axes.get_lines()]
     assert "no values for: KF" in figure._suptitle.get_text()
+
+
+def test_a_folder_of_too_few_trials_for_an_interval_says_why_it_has_no_band(folders):
+    figure = error_over_time(ResultFolder(folders["sweep"]))             # 4 trials
+    assert "mean over 4 trials per cell, no band: a 95% CI needs 6 trials" in figure._suptitle.get_text()
+    assert ResultFolder(folders["sweep"]).steps_summary["error_distance_ci95_low"].isna().all()
 
 
 def test_nees_over_time_draws_the_mean_nees_against_the_state_dimension(folders):

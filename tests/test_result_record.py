@@ -272,8 +272,8 @@ def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, run_pfx
 
 
 def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, run_pfx):
-    config = write_config_file(tmp_path, tiny_config_dict(
-        arms={"few": {"particles": 10}, "many": {"particles": 40}}, outputs={"figures": []}), "arms.yaml")
+    config = write_config_file(tmp_path, tiny_config_dict(        # 6 trials: the fewest with an interval
+        trials=6, arms={"few": {"particles": 10}, "many": {"particles": 40}}, outputs={"figures": []}), "arms.yaml")
     result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     lines = result.stdout.splitlines()

@@ -72,6 +72,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 import numpy as np
 
+from pfx.analysis.metrics import ANY_VALUE, ValueRange
 from pfx.analysis.summary import NON_METRIC_COLUMNS
 from pfx.errors import ConfigError
 from pfx.registry import closest_name
@@ -258,7 +259,8 @@ def _bootstrap_interval(differences: np.ndarray, resamples: int, seed: int) -> t
     return float(low), float(high)
 
 
-def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float = 0.95,
+                             value_range: ValueRange = ANY_VALUE) -> tuple[float, float, float]:
     r"""Relative change of paired means, :math:`(\bar v - \bar b) / |\bar b|`, with its t-interval.
 
     For a positive baseline mean this is :math:`\hat R - 1` with :math:`\hat R = \bar v / \bar b`;
@@ -271,7 +273,10 @@ def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float =
     :math:`e_i = v_i - \hat R b_i`. The interval is the estimate
     :math:`\pm\, t_{(1+\text{level})/2,\,n-1}\, s_e / (\sqrt n\, |\bar b|)`. Unlike dividing the
     interval of the mean difference by :math:`|\bar b|`, it accounts for the uncertainty of the
-    baseline mean too. Pairs with a missing or infinite value are left out.
+    baseline mean too. Pairs with a missing or infinite value are left out. For a nonnegative
+    metric (``value_range``, :data:`pfx.analysis.metrics.METRIC_RANGES`) the ratio of means is
+    at least 0, so the change is at least -100%: the interval is cut there, which never removes
+    the true change (as summary.csv's intervals are cut, :mod:`pfx.analysis.summary`).
     Returns (estimate, low, high); NaN where there are fewer than 2 pairs or :math:`\bar b = 0`.
     """
     from scipy import stats
@@ -286,7 +291,10 @@ def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float =
     residuals = value - ratio * base
     half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * residuals.std(ddof=1) / (math.sqrt(n) * abs(base.mean()))
     change = (value.mean() - base.mean()) / abs(base.mean())     # = ratio - 1 for a positive baseline
-    return change, change - half, change + half
+    low = change - half
+    if value_range.low >= 0 and low < -1.0:
+        low = -1.0
+    return change, low, change + half
 
 
 def diverged(values: np.ndarray, reference: np.ndarray, factor: float = 1000.0) -> np.ndarray:

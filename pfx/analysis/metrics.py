@@ -22,7 +22,10 @@ transition + measurement, i.e. the k-th action in kim-mcl's counting).
   empty and ``converged`` false.
 * **Consistency**: NEES :math:`(\hat x_k - x_k)^\top P_k^{-1} (\hat x_k - x_k)` (chi-square with d
   degrees of freedom for a consistent filter) and NIS :math:`\nu_k^\top S_k^{-1} \nu_k` (m degrees),
-  averaged over the steps.
+  averaged over the steps. A step whose covariance cannot be inverted reliably (a particle cloud
+  collapsed onto a few particles: singular, or indefinite by rounding; the test is
+  :mod:`pfx.numerics.quadratic_forms`) has no value: it is left out of the mean and counted
+  (``nees_invalid_steps``, ``nis_invalid_steps``), never averaged in as a wrong number.
 * **Mean ESS**, **resample count**, **degenerate-step count** (every weight underflowed; the
   weights are reset to uniform), **lost particles** (states that became non-finite), and the filter's **log-likelihood** estimate
   :math:`\sum_k \log \sum_i w_{k-1,i}\, \ell_k(x_{k,i})` (the marginal likelihood when the
@@ -37,6 +40,8 @@ over the other steps.
 
 from __future__ import annotations
 
+import fnmatch
+import math
 from dataclasses import dataclass
 from typing import Callable, Literal, Optional
 
@@ -44,6 +49,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.numerics.angles import wrap_difference
+from pfx.numerics.quadratic_forms import normalised_squares
 from pfx.registry import Registry
 
 NEVER = -1
@@ -257,37 +263,37 @@ def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"grid_lost_mass": lost.max(axis=1) if lost is not None else inputs.empty()}
 
 
-def normalised_squares(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
-    """e' P^-1 e for every leading index: (..., d), (..., d, d) -> (...).
-
-    A singular covariance (a collapsed particle cloud) gives inf where the error leaves its
-    range, via the pseudo-inverse.
-    """
-    try:
-        solved = np.linalg.solve(covariances, errors[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        solved = np.einsum("...de,...e->...d", np.linalg.pinv(covariances), errors)
-    return np.einsum("...d,...d->...", errors, solved)
-
-
 @METRICS.register("consistency")
 def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
-    """Mean NEES (e' P^-1 e, expected d) and NIS (expected m) over the steps, when recorded."""
+    """Mean NEES (expected d) and NIS (expected m), and the steps left out of them.
+
+    NEES e' P^-1 e and NIS nu' S^-1 nu, averaged over the steps that have one; a step whose
+    covariance cannot be inverted reliably is left out and counted (module docstring)."""
     trace = inputs.trace
-    trials = inputs.trials
-    nees = np.full(trials, np.nan)
-    nis = np.full(trials, np.nan)
+    columns = {name: inputs.empty() for name in
+               ("nees_mean", "nees_invalid_steps", "nis_mean", "nis_invalid_steps")}
     if trace.covariances is not None and inputs.truth is not None:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             errors = state_error(inputs.truth, trace.estimates, inputs.model)
-            nees = normalised_squares(errors, trace.covariances).mean(axis=1)
-    if trace.nis is not None and inputs.observed is None:
-        nis = trace.nis.mean(axis=1)
-    elif trace.nis is not None:                      # over the steps that had a measurement
-        with np.errstate(divide="ignore", invalid="ignore"):
-            nis = (np.where(inputs.observed, trace.nis, 0.0).sum(axis=1)
-                   / inputs.observed.sum(axis=1))
-    return {"nees_mean": nees, "nis_mean": nis}
+            nees = normalised_squares(errors, trace.covariances)
+        columns["nees_mean"], columns["nees_invalid_steps"] = _mean_over_valid_steps(nees, None)
+    if trace.nis is not None:
+        columns["nis_mean"], columns["nis_invalid_steps"] = _mean_over_valid_steps(trace.nis, inputs.observed)
+    return columns
+
+
+def _mean_over_valid_steps(values: np.ndarray, observed: Optional[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(mean over the steps with a value, count of the steps left out) per trial, from a
+    (trials, T) array that is NaN where a covariance could not be inverted reliably.
+
+    Steps without a measurement (``observed`` False) have no NIS by design: they are neither
+    averaged nor counted. A trial with no valid step has an empty mean.
+    """
+    expected = np.ones(values.shape, dtype=bool) if observed is None else observed
+    valid = expected & ~np.isnan(values)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        mean = np.where(valid, values, 0.0).sum(axis=1) / valid.sum(axis=1)
+    return mean, (expected & ~valid).sum(axis=1).astype(float)
 
 
 @METRICS.register("log_likelihood")
@@ -302,6 +308,54 @@ def move_acceptance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     (empty for other moves and filters, and for a trial that never resampled)."""
     acceptance = inputs.trace.move_acceptance
     return {"move_acceptance": acceptance if acceptance is not None else inputs.empty()}
+
+
+# -- the range of each column's values: the intervals of summary.csv respect it ---------------
+
+@dataclass(frozen=True)
+class ValueRange:
+    """The values a metric's column can take: [low, high], and whether it is a share (a yes/no
+    per trial, written True/False, whose mean is a proportion). :mod:`pfx.analysis.summary`
+    keeps its intervals inside the range."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    share: bool = False
+
+
+ANY_VALUE = ValueRange()
+NONNEGATIVE = ValueRange(low=0.0)
+UNIT_INTERVAL = ValueRange(low=0.0, high=1.0)
+SHARE = ValueRange(low=0.0, high=1.0, share=True)
+
+# trials.csv column (an fnmatch pattern; the first that matches counts) -> its range. A column
+# that matches none may take any real value (log_likelihood). A new metric adds its columns here.
+METRIC_RANGES: dict[str, ValueRange] = {
+    "rmse_*": NONNEGATIVE,
+    "error_distance_*": NONNEGATIVE,
+    "convergence_step": ValueRange(low=1.0),
+    "converged": SHARE,
+    "error_at_convergence": NONNEGATIVE,
+    "ess_mean": NONNEGATIVE,
+    "resample_count": NONNEGATIVE,
+    "degenerate_steps": NONNEGATIVE,
+    "lost_particles": NONNEGATIVE,
+    "particles_mean": NONNEGATIVE,
+    "injected_mean": NONNEGATIVE,
+    "grid_lost_mass": UNIT_INTERVAL,
+    "nees_*": NONNEGATIVE,
+    "nis_*": NONNEGATIVE,
+    "move_acceptance": UNIT_INTERVAL,
+    "run_time_s": NONNEGATIVE,
+}
+
+
+def metric_range(column: str) -> ValueRange:
+    """The range of a trials.csv column's values (:data:`METRIC_RANGES`; any real value if unlisted)."""
+    for pattern, value_range in METRIC_RANGES.items():
+        if fnmatch.fnmatchcase(column, pattern):
+            return value_range
+    return ANY_VALUE
 
 
 def compute_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:

@@ -6,23 +6,34 @@ of them. For every cell and step, over the cell's :math:`n` trials, this table h
 * ``trials`` (:math:`n`), and for each of ``error_distance``, ``ess``, ``nees`` and ``nis``:
   ``<q>_mean`` :math:`\bar q_k = \tfrac1n \sum_r q_{k,r}`, ``<q>_std`` (sample standard deviation)
   and the 95% t-interval of the mean ``<q>_ci95_low``/``_high``
-  (:math:`\bar q_k \pm t_{0.975,n-1}\, s_k/\sqrt n`);
+  (:math:`\bar q_k \pm t_{0.975,n-1}\, s_k/\sqrt n`), cut at zero, since all four are
+  nonnegative, and empty from fewer than 6 values (as in summary.csv: :mod:`pfx.analysis.summary`);
+* for ``nees`` and ``nis`` also ``<q>_n``: the trials that have a value at that step, over which
+  their mean, standard deviation and interval are taken. A NEES needs a covariance that can be
+  inverted reliably (:mod:`pfx.numerics.quadratic_forms`: a particle cloud collapsed onto a
+  few particles has none) and the truth; a NIS needs a measurement. ``trials - nees_n`` is the
+  number of trials left out at that step;
 * ``rms_error_<state>`` for every state component:
   :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped).
 
 Every statistic is one a run extended with more trials can update without the old trials'
-traces: means and squared deviations merge exactly in exact arithmetic (Chan, Golub and LeVeque's
-pairwise update), so a summary extended from n to n' trials equals a fresh run's to rounding
-(about 1e-15 relative); a fresh run computes it from every trial's values at once, the same
-whatever the batching. A diverged trial makes its cell's mean infinite at that step: it is not
-hidden. ``nees`` and ``nis`` are empty where the filter records no covariance.
+traces: counts add, and means and squared deviations merge exactly in exact arithmetic (Chan,
+Golub and LeVeque's pairwise update), so a summary extended from n to n' trials equals a fresh
+run's to rounding (about 1e-15 relative); a fresh run computes it from every trial's values at
+once, the same whatever the batching. A diverged trial makes its cell's mean infinite at that
+step: it is not hidden. ``nees`` and ``nis`` are empty where the filter records no covariance.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pfx.analysis.metrics import NONNEGATIVE
+from pfx.analysis.summary import MINIMUM_VALUES, cut_to_range
+
 QUANTITIES = ("error_distance", "ess", "nees", "nis")
+# the quantities a trial may have no value of at a step: counted in <q>_n (module docstring)
+COUNTED = ("nees", "nis")
 STATISTICS = ("mean", "std", "ci95_low", "ci95_high")
 
 
@@ -50,39 +61,51 @@ def step_values(truth, trace, model) -> dict[str, np.ndarray]:
     return values
 
 
-def _t_quantile(trials: int) -> float:
-    from scipy import stats
-
-    return float(stats.t.ppf(0.975, trials - 1)) if trials >= 2 else np.nan
-
-
 def summarize_steps(values: dict[str, np.ndarray], state_names, labels: dict, times: np.ndarray):
     """The summary rows of one cell from every trial's values (``step_values``, trials stacked)."""
     import pandas as pd
 
     trials, steps = values["error_distance"].shape
     columns: dict = {**labels, "step": np.arange(1, steps + 1), "time": times, "trials": trials}
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for quantity in QUANTITIES:
             data = values[quantity]
-            mean = data.mean(axis=0)
-            std = data.std(axis=0, ddof=1) if trials >= 2 else np.full(steps, np.nan)
-            columns.update(_interval(quantity, mean, std, trials))
+            if quantity in COUNTED:
+                # the trials with a value at each step; all of them: the same operations as below
+                present = ~np.isnan(data)
+                n = present.sum(axis=0)
+                mean = np.where(present, data, 0.0).sum(axis=0) / n
+                deviations = np.where(present, data - mean, 0.0)
+                std = np.where(n >= 2, np.sqrt((deviations * deviations).sum(axis=0) / (n - 1)), np.nan)
+            else:
+                n = trials
+                mean = data.mean(axis=0)
+                std = data.std(axis=0, ddof=1) if trials >= 2 else np.full(steps, np.nan)
+            columns.update(_interval(quantity, mean, std, n))
+            if quantity in COUNTED:
+                columns[f"{quantity}_n"] = n
         for name in state_names:
             columns[f"rms_error_{name}"] = np.sqrt(values[f"squared_error_{name}"].mean(axis=0))
     return pd.DataFrame(columns)
 
 
-def _interval(quantity: str, mean: np.ndarray, std: np.ndarray, trials: int) -> dict[str, np.ndarray]:
-    half = _t_quantile(trials) * std / np.sqrt(trials)
+def _interval(quantity: str, mean: np.ndarray, std: np.ndarray, trials) -> dict[str, np.ndarray]:
+    """mean, std and the 95% t-interval of the mean (cut at zero; empty below MINIMUM_VALUES)."""
+    from scipy import stats
+
+    enough = np.asarray(trials) >= MINIMUM_VALUES
+    quantile = np.where(enough, stats.t.ppf(0.975, np.maximum(trials, 2) - 1), np.nan)
+    half = quantile * std / np.sqrt(trials)
+    low, high = cut_to_range(mean - half, mean + half, NONNEGATIVE)
     return {f"{quantity}_mean": mean, f"{quantity}_std": std,
-            f"{quantity}_ci95_low": mean - half, f"{quantity}_ci95_high": mean + half}
+            f"{quantity}_ci95_low": low, f"{quantity}_ci95_high": high}
 
 
 def merge_step_summaries(first, second):
     """One cell's summary over the trials of both (rows matched by step), as if computed at once.
 
-    Means combine weighted by trial counts; squared deviations by the pairwise update
+    Counts add; means combine weighted by the counts of values (``trials``, or ``<q>_n`` for
+    the counted quantities); squared deviations by the pairwise update
     M2 = M2_a + M2_b + delta^2 n_a n_b / n, with M2 = std^2 (n - 1).
     """
     first = first.reset_index(drop=True)
@@ -95,21 +118,47 @@ def merge_step_summaries(first, second):
         for quantity in QUANTITIES:
             mean_a = first[f"{quantity}_mean"].to_numpy(dtype=float)
             mean_b = second[f"{quantity}_mean"].to_numpy(dtype=float)
+            if quantity in COUNTED:
+                count_a, count_b = _values_counted(first, quantity), _values_counted(second, quantity)
+            else:
+                count_a, count_b = np.full(len(first), n_a), np.full(len(second), n_b)
+            count = count_a + count_b
             delta = mean_b - mean_a
-            mean = mean_a + delta * n_b / n
-            squares = (_squared_deviations(first[f"{quantity}_std"], n_a)
-                       + _squared_deviations(second[f"{quantity}_std"], n_b) + delta ** 2 * n_a * n_b / n)
-            for name, column in _interval(quantity, mean, np.sqrt(squares / (n - 1)), n).items():
+            both = (count_a > 0) & (count_b > 0)
+            mean = np.where(count_a == 0, mean_b, np.where(count_b == 0, mean_a, mean_a + delta * count_b / count))
+            squares = (_squared_deviations(first[f"{quantity}_std"], count_a)
+                       + _squared_deviations(second[f"{quantity}_std"], count_b)
+                       + np.where(both, delta ** 2 * count_a * count_b / count, 0.0))
+            std = np.where(count >= 2, np.sqrt(squares / (count - 1)), np.nan)
+            for name, column in _interval(quantity, mean, std, count if quantity in COUNTED else n).items():
                 merged[name] = column
+            if quantity in COUNTED:
+                merged[f"{quantity}_n"] = count
         for column in [c for c in first.columns if c.startswith("rms_error_")]:
             squares = (n_a * first[column].to_numpy(dtype=float) ** 2
                        + n_b * second[column].to_numpy(dtype=float) ** 2)
             merged[column] = np.sqrt(squares / n)
-    return merged
+    return merged[_column_order(merged)]
 
 
-def _squared_deviations(std, trials: int) -> np.ndarray:
-    """M2 = std^2 (n - 1): zero for a single trial (whose std is empty)."""
-    if trials < 2:
-        return np.zeros(len(std))
-    return std.to_numpy(dtype=float) ** 2 * (trials - 1)
+def _values_counted(summary, quantity: str) -> np.ndarray:
+    """``<q>_n`` per step; a table written before that column existed counted every trial
+    wherever the mean has a value."""
+    if f"{quantity}_n" in summary:
+        return summary[f"{quantity}_n"].to_numpy(dtype=int)
+    trials = int(summary["trials"].iloc[0])
+    return np.where(summary[f"{quantity}_mean"].notna().to_numpy(), trials, 0)
+
+
+def _column_order(summary) -> list[str]:
+    """``<q>_n`` after ``<q>_ci95_high``, as :func:`summarize_steps` writes it (a table written
+    before that column existed gets it there)."""
+    columns = [c for c in summary.columns if not (c.endswith("_n") and c[:-2] in COUNTED)]
+    for quantity in COUNTED:
+        columns.insert(columns.index(f"{quantity}_ci95_high") + 1, f"{quantity}_n")
+    return columns
+
+
+def _squared_deviations(std, counts: np.ndarray) -> np.ndarray:
+    """M2 = std^2 (n - 1) per step: zero where fewer than two values (whose std is empty)."""
+    return np.where(counts >= 2, std.to_numpy(dtype=float) ** 2 * (counts - 1), 0.0)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.analysis.compare import diverged, relative_change_interval
+from pfx.analysis.metrics import metric_range
 from pfx.figures.layout import (
     cell_labels,
     legend_columns_of,
@@ -111,7 +112,7 @@ def _rms_errors(result: ResultFolder, summary, states: list[str]) -> dict:
 def relative_change_by_state(result: ResultFolder):
     """Each arm's mean RMSE per state relative to the first arm's, paired by trial, with 95% intervals.
 
-    Delta-method intervals; diverged trials counted; needs one cell per arm.
+    Delta-method intervals, cut at -100% (a ratio of RMSEs is never negative); diverged trials counted; needs one cell per arm.
     """
     import matplotlib.pyplot as plt
 
@@ -132,7 +133,8 @@ def relative_change_by_state(result: ResultFolder):
         for position, arm in zip(positions, others):
             value = table[arm].to_numpy(dtype=float)
             bad = diverged(value, base) | base_bad
-            estimate, low, high = relative_change_interval(base[~bad], value[~bad])
+            estimate, low, high = relative_change_interval(base[~bad], value[~bad],
+                                                           value_range=metric_range(f"rmse_{state}"))
             if np.isfinite(estimate):
                 axes.errorbar(100 * estimate, position, xerr=[[100 * (estimate - low)], [100 * (high - estimate)]],
                               fmt="o", color="C0" if high < 0 else "C3" if low > 0 else "0.4", capsize=4)

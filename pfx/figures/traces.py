@@ -6,11 +6,14 @@ r"""Figures of a quantity over time, one line per cell, over every trial (steps_
 * ``ess_over_time``: the mean effective sample size before resampling as a share of the
   particles, :math:`\overline{N_{\mathrm{eff}}}_k / N`;
 * ``nees_over_time``: the mean NEES (log scale) against its expected value :math:`d`, the
-  state dimension, for a consistent filter.
+  state dimension, for a consistent filter. A (trial, step) whose covariance cannot be
+  inverted reliably (a collapsed particle cloud) has no NEES: the mean is over the others
+  (steps_summary.csv's ``nees_n``), and the title counts the values left out.
 
 Each line is the mean over every trial of the cell, and its band the 95% t-interval of that
 mean (steps_summary.csv, :mod:`pfx.analysis.step_summary`): where two bands do not overlap, the cells
-differ by more than their trials' spread explains. A folder written before steps_summary.csv
+differ by more than their trials' spread explains. With fewer than 6 trials there is no band,
+and the title says why. A folder written before steps_summary.csv
 existed draws the same statistics over its traced trials (steps.csv; see
 :attr:`pfx.figures.registry.ResultFolder.steps_summary`), and its title says "traced trials".
 
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pfx.analysis.summary import MINIMUM_VALUES
 from pfx.figures.layout import (
     cell_labels,
     error_quantity,
@@ -42,12 +46,13 @@ STATISTICS = ("mean", "ci95_low", "ci95_high")
 
 
 def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, unit: str = "",
-               scale=None, log_y: bool = False, reference=None):
+               scale=None, log_y: bool = False, reference=None, notes=()):
     """Mean line and 95% CI band of ``quantity`` per cell, divided by ``scale(rows)`` if given.
 
     ``reference`` = (value, label) draws a dashed horizontal line in every panel (e.g. the
-    expected NEES). Returns the :class:`~pfx.figures.layout.SmallMultiples` (for the figure to
-    set its limits), or None when no cell has a value.
+    expected NEES); ``notes`` are lines added to the title (what the figure left out, what a
+    value means for some cell). Returns the :class:`~pfx.figures.layout.SmallMultiples` (for
+    the figure to set its limits), or None when no cell has a value.
     """
     summary = result.steps_summary
     if summary.empty or summary[f"{quantity}_mean"].isna().all():
@@ -94,8 +99,14 @@ def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, uni
     elif np.isfinite(limit):
         axes.set_ylim(min(0.0, axes.get_ylim()[0]), limit)
     trials = trials_text(summary[drawn], result.steps_summary_covers_every_trial)
-    band = ", band: 95% CI" if any(np.isfinite(low).any() for _, _, low, _ in series.values()) else ""
+    if any(np.isfinite(low).any() for _, _, low, _ in series.values()):
+        band = ", band: 95% CI"
+    elif summary[drawn]["trials"].max() < MINIMUM_VALUES:
+        band = f", no band: a 95% CI needs {MINIMUM_VALUES} trials"
+    else:
+        band = ""
     title = f"{result.manifest.get('name', '')}: {what}\nmean over {trials} per cell{band}"
+    title += "".join(f"\n{note}" for note in notes if note)
     left_out = summary[~drawn].drop_duplicates("cell")
     if not left_out.empty:             # say so, rather than leave the reader looking for them
         title += f"\nno values for: {', '.join(cell_labels(left_out, legend_columns_of(result, left_out)))}"
@@ -122,13 +133,27 @@ def error_over_time(result: ResultFolder):
 def nees_over_time(result: ResultFolder):
     """Mean NEES over time per cell (log scale) against its expected value d, the state dimension.
 
-    From steps_summary.csv, every trial.
+    From steps_summary.csv, every trial; a (trial, step) whose covariance cannot be inverted reliably has no NEES: the mean leaves it out and the title counts what it left out.
     """
     dimension = len(result.state_names)
     layout = _over_time(result, "nees", "normalised estimation error squared (NEES)",
                         f"NEES (consistent filter: d = {dimension})", log_y=True,
-                        reference=(dimension, f"expected: d = {dimension}"))
+                        reference=(dimension, f"expected: d = {dimension}"), notes=[_left_out_nees(result)])
     return layout.figure if layout is not None else None
+
+
+def _left_out_nees(result: ResultFolder) -> str:
+    """What the NEES means leave out: the (trial, step) values whose covariance could not be
+    inverted reliably (steps_summary.csv's ``trials - nees_n``), in the cells that have a NEES."""
+    summary = result.steps_summary
+    if "nees_n" not in summary:
+        return ""
+    counts = summary[summary.groupby("cell")["nees_n"].transform("sum") > 0]
+    left_out = int((counts["trials"] - counts["nees_n"]).sum())
+    if not left_out:
+        return ""
+    return (f"left out: {left_out} of {int(counts['trials'].sum())} (trial, step) values whose covariance "
+            "could not be inverted reliably (a collapsed particle cloud)")
 
 
 @FIGURES.register("ess_over_time")

@@ -36,6 +36,7 @@ from scipy import stats
 
 from pfx.analysis.compare import paired_comparison, relative_change_interval
 from pfx.analysis.estimator_spread import variance_ratio_interval, within_dataset_spread
+from pfx.analysis.metrics import metric_range
 from pfx.papers.base import (
     REPORTS,
     Figure,
@@ -297,7 +298,7 @@ def kld_part(results: PaperResults) -> Part:
                      "convergence time [actions]": converged.mean() if len(converged) else math.nan,
                      "filter time per trial [s]": cell["run_time_s"].mean()})
     both = trials.pivot_table(index="trial", columns="arm", values="rmse_position")
-    change, low, high = relative_change_interval(both[fixed], both[adaptive])
+    change, low, high = relative_change_interval(both[fixed], both[adaptive], value_range=metric_range("rmse_position"))
     fraction = trials.loc[trials["arm"] == adaptive, "particles_mean"].mean() / \
         trials.loc[trials["arm"] == fixed, "particles_mean"].mean()
     claims = results.numbers.get("claims", {})

@@ -45,6 +45,7 @@ import pandas as pd
 from scipy import stats
 
 from pfx.analysis.compare import paired_comparison, relative_change_interval
+from pfx.analysis.metrics import metric_range
 from pfx.errors import ConfigError
 from pfx.papers.base import (
     REPORTS,
@@ -207,7 +208,8 @@ def _verdicts(trials: pd.DataFrame, labels: list[str], variance: float) -> list[
         per_count_verdict(error["ci95_low"], error["ci95_high"], +1),
         f"mean error at convergence noise-free - noisy, paired (95% CI): {listing(error, 'cm')}."))
     pairs = frame.pivot_table(index=["n_particles", "trial"], columns="arm", values="error_at_convergence")
-    change, low, high = relative_change_interval(pairs[NOISE_FREE].to_numpy(), pairs[NOISY].to_numpy())
+    change, low, high = relative_change_interval(pairs[NOISE_FREE].to_numpy(), pairs[NOISY].to_numpy(),
+                                                 value_range=metric_range("error_at_convergence"))
     means = pairs.mean()
     verdicts.append(Verdict(
         f"with {name}: the noisy model is far more accurate (read: at most half the noise-free error)",

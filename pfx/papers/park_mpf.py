@@ -38,6 +38,8 @@ import pandas as pd
 from scipy import stats
 
 from pfx.analysis.compare import diverged, paired_comparison, relative_change_interval
+from pfx.analysis.metrics import metric_range
+from pfx.analysis.summary import describe
 from pfx.errors import ConfigError
 from pfx.papers.base import (
     REPORTS,
@@ -128,16 +130,16 @@ def compare_with_pf(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFr
         for arm in roles:
             values = table[arm].to_numpy(dtype=float)
             kept = values[~bad[arm].to_numpy()]
-            n = kept.size
-            mean = float(kept.mean()) if n else math.nan
-            half = float(stats.t.ppf(0.975, n - 1) * kept.std(ddof=1) / math.sqrt(n)) if n > 1 else math.nan
+            # the interval of summary.csv: an RMSE's t-interval cut at 0, none from too few trials
+            statistics = describe(kept, metric_range(metric))
             row = {"state": state, "arm": arm, "role": roles[arm], "trials": values.size,
-                   "diverged": int(bad[arm].sum()), "mean": mean, "ci95_low": mean - half, "ci95_high": mean + half,
-                   "median": float(np.median(values)), "std": float(kept.std(ddof=1)) if n > 1 else math.nan}
+                   "diverged": int(bad[arm].sum()), "mean": statistics["mean"],
+                   "ci95_low": statistics["ci95_low"], "ci95_high": statistics["ci95_high"],
+                   "median": float(np.median(values)), "std": statistics["std"]}
             if arm != baseline:
                 usable = ~(bad[arm].to_numpy() | bad[baseline].to_numpy())
                 change, low, high = relative_change_interval(table[baseline].to_numpy(dtype=float)[usable],
-                                                             values[usable])
+                                                             values[usable], value_range=metric_range(metric))
                 row.update(relative_change=change, relative_low=low, relative_high=high,
                            pairs=int(usable.sum()))
                 if arm in comparison.index:
@@ -357,7 +359,8 @@ def table3_part(results: PaperResults) -> Part:
         for form, arm in _forms(roles).items():
             usable = ~(bad[arm] | bad[baseline]).to_numpy()
             change, low, high = relative_change_interval(table[baseline].to_numpy(dtype=float)[usable],
-                                                         table[arm].to_numpy(dtype=float)[usable])
+                                                         table[arm].to_numpy(dtype=float)[usable],
+                                                         value_range=metric_range(f"rmse_{state}"))
             rows.append({"state": _state_text(state), "paper: MPF vs PF": percent(paper_change), "ours": arm,
                          "diverged": f"{int(bad[arm].sum())}/{len(table)}", "change of mean RMSE": percent(change),
                          "95% interval": interval(low, high, number=percent)})

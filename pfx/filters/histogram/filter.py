@@ -14,6 +14,7 @@ from pfx.filters.histogram.kernel import CHUNK, Transition
 from pfx.filters.particle.engine import log_normalise
 from pfx.filters.trace import FilterTrace
 from pfx.laws.initial import PointLaw, UniformLaw
+from pfx.numerics.quadratic_forms import normalised_squares
 
 # -- the prior on the grid -----------------------------------------------------------------------
 
@@ -102,7 +103,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
                 centred = predicted_h[None, :, :] - mean_h[:, None, :]
                 S = np.einsum("rg,rgi,rgj->rij", q[part], centred, centred) + R_cov
                 innovation = measurements[part, t] - mean_h
-                nis[part, t] = np.einsum("ri,ri->r", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
+                nis[part, t] = normalised_squares(innovation, S)     # NaN where S is not reliably invertible
 
             with np.errstate(invalid="ignore"):
                 posterior, normaliser = log_normalise(log_q + log_lik)

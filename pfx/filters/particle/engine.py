@@ -55,6 +55,7 @@ from pfx.filters.particle.moves import MoveContext
 from pfx.filters.trace import FilterTrace
 from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.compiled import compiled
+from pfx.numerics.quadratic_forms import normalised_squares
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -573,15 +574,15 @@ class SnapshotRecorder(Recorder):
 
 
 def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R."""
+    """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R; NaN where
+    S cannot be inverted reliably (:mod:`pfx.numerics.quadratic_forms`)."""
     with np.errstate(over="ignore", invalid="ignore"):
         predicted = model.measurement_mean(state)
         mean = np.einsum("rn,rnm->rm", weights, predicted)
         centred = predicted - mean[:, None, :]
         innovation_covariance = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
             + model.measurement_noise.covariance()
-        innovation = measurement - mean
-        return np.einsum("rm,rm->r", innovation, np.linalg.solve(innovation_covariance, innovation[..., None])[..., 0])
+        return normalised_squares(measurement - mean, innovation_covariance)
 
 
 def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
