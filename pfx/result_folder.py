@@ -232,6 +232,13 @@ class ResultFolder:
     def label_columns(self) -> list[str]:
         return self.manifest.get("label_columns", ["arm"])
 
+    @property
+    def auxiliary_cells(self) -> set[str]:
+        """The cells that ran the auxiliary particle filter (``filter.auxiliary``; the manifest's
+        cell entries say so), whose ESS is that of the second-stage weights."""
+        return {entry["cell"] for entry in self.manifest.get("cells", [])
+                if str(entry.get("auxiliary", False)).lower() == "true"}
+
     def cell_names(self, frame: pd.DataFrame) -> pd.Series:
         """A legend label per row: the arm (if several) and the swept values, joined."""
         columns = [c for c in self.manifest.get("legend_columns", []) if c in frame]

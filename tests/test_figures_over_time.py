@@ -61,6 +61,8 @@ def folders(tmp_path_factory):
         "arms": _run(root, "arms", model=LOG_VOLATILITY, trials=6, outputs={"trace_trials": 6},
                      arms={"PF": {}, "KF": {"kind": "kf"}}),
         "single": _run(root, "single", model=TWO_STATES, trials=1, arms={"PF": {}, "SIS": {"kind": "sis"}}),
+        "auxiliary": _run(root, "auxiliary", model=TWO_STATES, trials=4, outputs={"trace_trials": 4},
+                          arms={"bootstrap": {}, "APF": {"auxiliary": True}}),
     }
 
 
@@ -127,6 +129,19 @@ def test_ess_over_time_is_the_mean_ess_over_n_and_leaves_out_the_kalman_filter(f
     np.testing.assert_allclose(_line(figure, "PF").get_ydata(), particle["ess_mean"] / particle["n_particles"])
     assert "KF" not in [line.get_label() for axes in figure.axes for line in axes.get_lines()]
     assert "no values for: KF" in figure._suptitle.get_text()
+
+
+def test_the_ess_figures_say_the_auxiliary_filter_s_ess_is_of_its_second_stage_weights(folders):
+    """Its second-stage weights are flatter than other filters' weights after a first-stage
+    resampling, so its ESS is not the same measure: the figures name its cells, the others none."""
+    result = ResultFolder(folders["auxiliary"])
+    cells = json.loads((folders["auxiliary"] / "manifest.json").read_text())["cells"]
+    assert [cell.get("auxiliary", False) for cell in cells] == [False, True]
+    note = "APF: the auxiliary filter's ESS is that of its second-stage weights"
+    for figure in (ess_over_time(result), ess_decay(result)):
+        assert note in figure._suptitle.get_text()
+    for figure in (ess_over_time(ResultFolder(folders["arms"])), ess_decay(ResultFolder(folders["arms"]))):
+        assert "auxiliary" not in figure._suptitle.get_text()
 
 
 def test_a_folder_of_too_few_trials_for_an_interval_says_why_it_has_no_band(folders):

@@ -17,7 +17,7 @@ their trials (han-lee's degeneracy experiment: ``trace_trials: 20``).
 
 from __future__ import annotations
 
-from pfx.figures.layout import small_multiples, time_axis
+from pfx.figures.layout import auxiliary_note, small_multiples, time_axis
 from pfx.figures.registry import FIGURES
 from pfx.result_folder import ResultFolder
 
@@ -26,7 +26,7 @@ from pfx.result_folder import ResultFolder
 def ess_decay(result: ResultFolder):
     """ESS / N over time per cell on a log scale (median and 10-90% band of the traced trials), with the 1/N floor.
 
-    SIS's collapse, which a linear axis hides. Quantiles need every trial's trace: trace them all (`outputs.trace_trials`) for this figure.
+    SIS's collapse, which a linear axis hides. Quantiles need every trial's trace: trace them all (`outputs.trace_trials`) for this figure. The title names the cells of the auxiliary filter, whose ESS is that of its second-stage weights.
     """
     steps = result.steps
     if steps.empty or steps["n_particles"].isna().all():
@@ -51,8 +51,9 @@ def ess_decay(result: ResultFolder):
     layout.panels[0].set_ylim(floors.min() / 2, 1.5)
     traced = frame.groupby("cell")["trial"].nunique()
     count = f"{traced.min()}" if traced.min() == traced.max() else f"{traced.min()}-{traced.max()}"
+    note = auxiliary_note(result, frame)
     layout.finish(f"{result.manifest.get('name', '')}: effective sample size N_eff = 1 / Σ w² before resampling\n"
                   f"lines: median over the {count} traced trial{'s' if traced.max() > 1 else ''} per cell; "
-                  "bands: 10%-90% of them",
+                  "bands: 10%-90% of them" + (f"\n{note}" if note else ""),
                   x_label, "N_eff / N (log scale)", extra_handles=[floor_line])
     return layout.figure

@@ -293,6 +293,20 @@ def peak_text(peak: float, unit: str) -> str:
     return f"{'∞' if not np.isfinite(peak) else f'{peak:.1e}'} {unit}".rstrip()
 
 
+def auxiliary_note(result: ResultFolder, table) -> str:
+    """For an ESS figure: which of the drawn cells run the auxiliary particle filter, and what
+    their ESS is ("" if none). It is the ESS of the second-stage weights: at a step whose first
+    stage resampled by the look-ahead they hold only what the look-ahead did not foresee, so
+    they are flatter than another filter's weights would be (the ESS runs higher, up to about
+    0.98 N, for the same data), not a measure of the same degeneracy."""
+    cells = table[table["cell"].isin(result.auxiliary_cells)].drop_duplicates("cell")
+    if cells.empty:
+        return ""
+    names = ", ".join(cell_labels(cells, legend_columns_of(result, cells)))
+    return (f"{names}: the auxiliary filter's ESS is that of its second-stage weights, which its\n"
+            "first-stage (look-ahead) resampling leaves flatter: not comparable with other filters' ESS")
+
+
 def trials_text(summary, covers_every_trial: bool) -> str:
     """How many trials a per-step statistic is over: "30 trials", "10-30 trials", "3 traced trials"."""
     counts = summary["trials"].dropna().astype(int)

@@ -10,6 +10,10 @@ r"""Figures of a quantity over time, one line per cell, over every trial (steps_
   inverted reliably (a collapsed particle cloud) has no NEES: the mean is over the others
   (steps_summary.csv's ``nees_n``), and the title counts the values left out.
 
+The ESS of the auxiliary particle filter is that of its second-stage weights, which its
+first-stage resampling leaves flatter than other filters' weights: ``ess_over_time`` and
+``ess_decay`` name its cells in their titles (:func:`pfx.figures.layout.auxiliary_note`).
+
 Each line is the mean over every trial of the cell, and its band the 95% t-interval of that
 mean (steps_summary.csv, :mod:`pfx.analysis.step_summary`): where two bands do not overlap, the cells
 differ by more than their trials' spread explains. With fewer than 6 trials there is no band,
@@ -28,6 +32,7 @@ import numpy as np
 
 from pfx.analysis.summary import MINIMUM_VALUES
 from pfx.figures.layout import (
+    auxiliary_note,
     cell_labels,
     error_quantity,
     legend_columns_of,
@@ -160,13 +165,13 @@ def _left_out_nees(result: ResultFolder) -> str:
 def ess_over_time(result: ResultFolder):
     """Mean effective sample size (as a share of N) over time per cell, before resampling.
 
-    From steps_summary.csv, with the 95% CI of the mean.
+    From steps_summary.csv, with the 95% CI of the mean; the title names the cells of the auxiliary filter, whose ESS is that of its second-stage weights.
     """
     summary = result.steps_summary
     if summary.empty or "n_particles" not in summary or summary["n_particles"].isna().all():
         return None
     layout = _over_time(result, "ess", "effective sample size before resampling", "ESS / N",
-                        scale=lambda rows: float(rows["n_particles"].iloc[0]))
+                        scale=lambda rows: float(rows["n_particles"].iloc[0]), notes=[auxiliary_note(result, summary)])
     if layout is None:
         return None
     layout.panels[0].set_ylim(0, 1.05)

@@ -172,7 +172,9 @@ def _table_note(results: PaperResults, model: str) -> str:
     runs = int(accuracy.groupby("cell").size().min())
     note = (f"{runs} independent datasets per row (RMSE: mean over them; the difference from the bootstrap "
             "filter is paired by dataset, with its 95% t-interval, as `pfx compare` gives it). ESS / N: the mean effective sample "
-            "size after the weight update. Log-likelihood: ")
+            "size after the weight update (for the auxiliary filter, of its second-stage weights, which its "
+            "first stage has already resampled by the look-ahead: not a measure of the same degeneracy). "
+            "Log-likelihood: ")
     if results.has(f"loglik-{model}"):
         spread = results.folder(f"loglik-{model}").trials
         note += (f"{int(spread.groupby('cell').size().min())} runs of each filter on one dataset; the variance "

@@ -409,8 +409,15 @@ def _manifest(plan: Plan, started: str) -> dict:
         "position_states": [model.state_names[i] for i in model.position_components],
         "angular_states": [model.state_names[i] for i in model.angular_components],
         "full_turn": model.full_turn,
-        "cells": [{"cell": c.key, **c.labels} for c in plan.cells],
+        "cells": [{"cell": c.key, **c.labels, **_auxiliary_mark(c)} for c in plan.cells],
     }
+
+
+def _auxiliary_mark(cell) -> dict:
+    """``auxiliary: true`` for a cell of the auxiliary particle filter, whose ESS (that of its
+    second-stage weights) figures must name; its labels say so only when the setting is swept."""
+    auxiliary = cell.filter.uses_particles and getattr(cell.filter, "auxiliary", False)
+    return {"auxiliary": True} if auxiliary and "auxiliary" not in cell.labels else {}
 
 
 def _cell_tables(out: Path, key: str, name: str, kept: Optional[pd.DataFrame]) -> list[pd.DataFrame]:
