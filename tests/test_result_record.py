@@ -286,6 +286,52 @@ def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, run_pfx):
     assert np.isfinite(summary["rmse_position_ci95_low"]).all()
 
 
+def _summary_folder(tmp_path, rows: list[dict], units: dict) -> tuple[Path, dict]:
+    """A folder holding only summary.csv, with the manifest the end-of-run table reads."""
+    pd.DataFrame(rows).to_csv(tmp_path / "summary.csv", index=False)
+    manifest = {"name": "units", "legend_columns": ["arm"], "units": units,
+                "cells": [{"cell": row["cell"]} for row in rows]}
+    return tmp_path, manifest
+
+
+def test_the_end_of_run_table_keeps_its_units_on_a_terminal_and_marks_too_few_trials(tmp_path):
+    """On a terminal rich drew the table and read "[m]" as markup: the units vanished. A cell of
+    3 trials has no interval, and says so; a share's Wilson interval is shown in percent."""
+    import io
+
+    from rich.console import Console
+
+    from pfx.analysis.run_summary import print_run_summary
+
+    statistics = {"rmse_position": (1.5, 1.2, 1.8), "error_distance_final": (0.8, 0.0, 1.9),
+                  "converged": (1.0, 0.8389, 1.0), "log_likelihood": (-40.0, -44.0, -36.0)}
+    many = {"cell": "a", "arm": "many", "trials": 20}
+    few = {"cell": "b", "arm": "few", "trials": 3}
+    for metric, (mean, low, high) in statistics.items():
+        many.update({f"{metric}_n": 20, f"{metric}_mean": mean, f"{metric}_ci95_low": low, f"{metric}_ci95_high": high})
+        few.update({f"{metric}_n": 3, f"{metric}_mean": mean, f"{metric}_ci95_low": None, f"{metric}_ci95_high": None})
+    folder, manifest = _summary_folder(tmp_path, [many, few], {"position": "m"})
+    screen = io.StringIO()
+    plain: list[str] = []
+    print_run_summary(folder, manifest, plain.append, rich_console=True,
+                      console=Console(file=screen, force_terminal=True, color_system=None, width=200))
+    table = screen.getvalue()
+    assert "position RMSE [m]" in table and "final error [m]" in table
+    assert "1.5 [1.2, 1.8]" in table and "100% [83.89%, 100%]" in table and "0.8 [0, 1.9]" in table
+    assert table.count("[no CI]") == 4
+    assert any(line.startswith("no CI: fewer than 6 values") for line in plain)
+
+
+def test_recorded_data_without_a_truth_is_compared_by_log_likelihood(tmp_path):
+    from pfx.analysis.run_summary import next_command
+
+    rows = [{"cell": cell, "arm": cell, "trials": 6, "rmse_position_mean": None, "log_likelihood_mean": -160.9}
+            for cell in ("bootstrap", "auxiliary")]
+    folder, manifest = _summary_folder(tmp_path, rows, {})
+    assert next_command(folder, manifest) == (f"pfx compare {folder} --metric log_likelihood "
+                                              "--higher-is-better --by arm")
+
+
 def test_a_cell_key_that_looks_like_a_number_stays_text(tmp_path):
     """Cell keys are 12 hex digits; "910808017e06" (a real kim-mcl key) must not be read as
     9.1e14, nor "012345678901" lose its leading zero, anywhere a result folder is read."""

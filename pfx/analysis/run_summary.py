@@ -3,8 +3,11 @@ command a user would want next.
 
 Read from the finished folder's summary.csv (the same numbers a notebook would load): per
 cell, the columns that tell cells apart, the trial count, and for each main metric the mean
-with its 95% confidence interval. On a terminal the table is drawn by rich; elsewhere (CI, a
-pipe, a log file) it is plain aligned text.
+with its 95% confidence interval (:mod:`pfx.analysis.summary`: inside the metric's range, the
+Wilson interval for the share of converged trials), or ``[no CI]`` where the cell has too few
+values for one. Headings carry the unit the manifest records for the position; a share is in
+percent, its interval too. On a terminal the table is drawn by rich (as plain text: a unit in
+square brackets is not markup); elsewhere (CI, a pipe, a log file) it is plain aligned text.
 """
 
 from __future__ import annotations
@@ -15,11 +18,16 @@ from pathlib import Path
 
 import pandas as pd
 
-# (summary.csv metric, heading, scale, unit suffix): the metrics a reader looks at first
-MAIN_METRICS = (("rmse_position", "position RMSE", 1.0, ""),
-                ("error_distance_final", "final error", 1.0, ""),
+from pfx.analysis.summary import MINIMUM_VALUES
+
+# (summary.csv metric, heading, scale, unit): the metrics a reader looks at first. The unit is
+# the manifest's unit of the position (None: none, a log-likelihood), or a fixed suffix.
+POSITION = "position"
+MAIN_METRICS = (("rmse_position", "position RMSE", 1.0, POSITION),
+                ("error_distance_final", "final error", 1.0, POSITION),
                 ("converged", "converged", 100.0, "%"),
-                ("log_likelihood", "log-likelihood", 1.0, ""))
+                ("log_likelihood", "log-likelihood", 1.0, None))
+NO_INTERVAL = "no CI"
 
 
 def _number(value: float) -> str:
@@ -29,26 +37,35 @@ def _number(value: float) -> str:
 
 
 def _cell_value(row: pd.Series, metric: str, scale: float, suffix: str) -> str:
+    """"mean [low, high]" with the suffix on every number ("%"), or "mean [no CI]" where the
+    cell has too few values for an interval (pfx.analysis.summary.MINIMUM_VALUES)."""
     mean = row.get(f"{metric}_mean")
     if mean is None or pd.isna(mean):
         return "-"
     low, high = row.get(f"{metric}_ci95_low"), row.get(f"{metric}_ci95_high")
     text = f"{_number(scale * mean)}{suffix}"
-    if suffix == "%":                  # a share: its t-interval says little; the share itself does
-        return text
     if low is not None and not pd.isna(low):
-        text += f" [{_number(scale * low)}, {_number(scale * high)}]"
+        return text + f" [{_number(scale * low)}{suffix}, {_number(scale * high)}{suffix}]"
+    count = row.get(f"{metric}_n")
+    if count is not None and not pd.isna(count) and count < MINIMUM_VALUES:
+        return text + f" [{NO_INTERVAL}]"
     return text
 
 
 def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str]]]:
-    """The table: a header and one row of text per cell."""
+    """The table: a header and one row of text per cell. A heading names its unit as the
+    manifest records it (``position RMSE [m]``), a share its percent sign in the values."""
     summary = pd.read_csv(folder / "summary.csv")
     label_columns = [c for c in manifest.get("legend_columns", []) if c in summary] or ["arm"]
-    unit = manifest.get("units", {}).get("position", "")
-    metrics = [(metric, heading + (f" [{unit}]" if unit and suffix == "" and metric != "log_likelihood" else ""),
-                scale, suffix) for metric, heading, scale, suffix in MAIN_METRICS
-               if f"{metric}_mean" in summary and summary[f"{metric}_mean"].notna().any()]
+    position_unit = manifest.get("units", {}).get("position", "")
+    metrics = []
+    for metric, heading, scale, unit in MAIN_METRICS:
+        if f"{metric}_mean" not in summary or not summary[f"{metric}_mean"].notna().any():
+            continue
+        if unit == POSITION:
+            metrics.append((metric, heading + (f" [{position_unit}]" if position_unit else ""), scale, ""))
+        else:
+            metrics.append((metric, heading, scale, unit or ""))
     header = [*label_columns, "trials", *(heading for _, heading, _, _ in metrics)]
     rows = [[str(row[c]) for c in label_columns] + [str(int(row["trials"]))]
             + [_cell_value(row, metric, scale, suffix) for metric, _, scale, suffix in metrics]
@@ -58,34 +75,43 @@ def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str
 
 def next_command(folder: Path, manifest: dict) -> str | None:
     """``pfx compare`` by the column that varies most naturally (the arm, else the first swept
-    column), or None when the run has a single cell."""
+    column), or None when the run has a single cell. The metric is the position RMSE, or the
+    log-likelihood where there is no RMSE (recorded data without the truth)."""
     columns = manifest.get("legend_columns", [])
     if len(manifest.get("cells", [])) < 2 or not columns:
         return None
-    metric = "rmse_position"
+    summary = pd.read_csv(folder / "summary.csv")
+    has_rmse = "rmse_position_mean" in summary and summary["rmse_position_mean"].notna().any()
+    metric = "rmse_position" if has_rmse else "log_likelihood --higher-is-better"
     return f"pfx compare {shlex.quote(str(folder))} --metric {metric} --by {columns[0]}"
 
 
-def print_run_summary(folder: Path, manifest: dict, echo, rich_console: bool) -> None:
-    """Print the table and the next command (``echo`` for plain text, rich on a terminal)."""
+def print_run_summary(folder: Path, manifest: dict, echo, rich_console: bool, console=None) -> None:
+    """Print the table and the next command (``echo`` for plain text, rich on a terminal:
+    ``console``, a rich Console, or a new one on stdout)."""
     header, rows = summary_rows(folder, manifest)
     title = f"{manifest.get('name', '')}: mean [95% CI] over trials, per cell"
     if rich_console:
         from rich.console import Console
         from rich.table import Table
+        from rich.text import Text
 
-        table = Table(title=title, title_justify="left")
+        # Text, not markup: rich would read "[m]" (a unit) or "[no CI]" as a style and drop it.
+        table = Table(title=Text(title), title_justify="left")
         labels = header.index("trials")              # the label columns come first
         for index, heading in enumerate(header):
-            table.add_column(heading, justify="left" if index < labels else "right")
+            table.add_column(Text(heading), justify="left" if index < labels else "right")
         for row in rows:
-            table.add_row(*row)
-        Console().print(table)
+            table.add_row(*(Text(text) for text in row))
+        (console or Console()).print(table)
     else:
         widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
         echo(title)
         for line in [header, *rows]:
             echo("  " + "  ".join(text.ljust(width) for text, width in zip(line, widths)).rstrip())
+    if any(f"[{NO_INTERVAL}]" in text for row in rows for text in row):
+        echo(f"{NO_INTERVAL}: fewer than {MINIMUM_VALUES} values, too few for a 95% interval "
+             "(docs/output-files.md, summary.csv)")
     command = next_command(folder, manifest)
     if command:
         columns = manifest.get("legend_columns", [])
