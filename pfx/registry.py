@@ -2,7 +2,8 @@
 
 Every interchangeable component (model, resampler, weighting, noise family, diffusion,
 metric, figure) is registered under the name a config uses for it, with a one-line
-description that ``pfx list`` prints. Adding a component is one new function or class plus
+description that ``pfx list`` prints: the first paragraph of its docstring (write it as one
+sentence or phrase), or a description given to ``register``. Adding a component is one new function or class plus
 one ``register`` call; nothing else in pfx needs to change.
 
 Components come from pfx itself (built-in) or from plugins (docs/plugins.md). Each entry
@@ -48,12 +49,15 @@ class RegistrationClash(ValueError):
     """A name registered twice (a plugin naming its component like a built-in one, say)."""
 
 
-def first_line(text: str | None) -> str:
-    """The first non-empty line of a docstring, for one-line descriptions."""
+def first_paragraph(text: str | None) -> str:
+    """A docstring's first paragraph on one line, for one-line descriptions: its summary,
+    whole even where it wraps onto a second line (the first line alone would stop mid-sentence)."""
+    lines = []
     for line in (text or "").strip().splitlines():
-        if line.strip():
-            return line.strip()
-    return ""
+        if not line.strip():
+            break
+        lines.append(line.strip())
+    return " ".join(lines)
 
 
 def closest_name(name: str, candidates) -> str | None:
@@ -109,7 +113,7 @@ class Registry(Generic[T]):
                 taken = f"a built-in {self.what} of pfx" if owner is None else f"taken by plugin {owner}"
                 raise RegistrationClash(f"{self.what} {name!r} is {taken}; choose another name")
             self._items[name] = item
-            self._descriptions[name] = description or first_line(getattr(item, "__doc__", ""))
+            self._descriptions[name] = description or first_paragraph(getattr(item, "__doc__", ""))
             self._origins[name] = _current_origin
             _changes += 1
             return item

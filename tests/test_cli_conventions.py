@@ -123,6 +123,35 @@ def test_list_shows_every_registry_including_studies():
     assert any(line.startswith("  offspring_counts ") for line in studies)    # a registered study, with its description
 
 
+def _first_paragraph_of(text: str) -> str:
+    """The first paragraph of a docstring, its lines joined by single spaces (written here, not
+    taken from pfx, so the test does not check pfx against itself)."""
+    paragraph = []
+    for line in (text or "").strip().splitlines():
+        if not line.strip():
+            break
+        paragraph.append(" ".join(line.split()))
+    return " ".join(paragraph)
+
+
+def test_no_listed_description_stops_mid_sentence():
+    """`pfx list` printed the first line of a docstring, so a summary wrapped onto a second line
+    was cut mid-sentence ("... (particles_mean: N, or the mean"). Every description is now a
+    docstring's whole first paragraph, or one written for the listing, and complete."""
+    for name, registry in _registries().items():
+        for item, description in registry.describe().items():
+            summary = _first_paragraph_of(getattr(registry[item], "__doc__", None))
+            # The docstring's whole summary, or a description written for the listing (a noise
+            # family's, a resampler's), never the start of the summary cut short.
+            assert description == summary or not summary.startswith(description), (name, item, description)
+            # every bracket closed (counted together: a half-open interval "[0, 1)" is closed)
+            opened = sum(description.count(bracket) for bracket in "([")
+            assert description and opened == sum(description.count(bracket) for bracket in ")]"), (name, item)
+            assert not description.rstrip().endswith((",", ":", ";", "(", " the", " of", " and", " or")), (name, item)
+    output = CliRunner().invoke(app, ["list", "metrics"], prog_name="pfx").output
+    assert "the mean particle count and the mean number injected per step." in output
+
+
 def test_list_of_a_misspelt_registry_suggests_it(run_pfx):
     line = _one_error_line(run_pfx("list", "studys"))
     assert "did you mean 'studies'?" in line

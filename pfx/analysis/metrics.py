@@ -243,9 +243,10 @@ def lost_particle_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 
 @METRICS.register("particle_count")
 def particle_count_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
-    """Particle filters: the mean particle count over the steps (particles_mean: N, or the mean
-    adaptive count) and the mean number injected per step (injected_mean; 0 without injection).
-    Empty for other filters."""
+    """Particle filters: the mean particle count and the mean number injected per step.
+
+    particles_mean: N, or the mean adaptive count; injected_mean: 0 without injection. Empty
+    for other filters."""
     trace = inputs.trace
     counts = getattr(trace, "particle_counts", None)
     if counts is None:
@@ -257,8 +258,9 @@ def particle_count_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 
 @METRICS.register("grid_lost_mass")
 def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
-    """Grid filter: the largest probability mass that left the grid in one step (empty for
-    other filters); near 0 when the grid covers where the state goes."""
+    """Grid filter: the largest probability mass that left the grid in one step.
+
+    Near 0 when the grid covers where the state goes; empty for other filters."""
     lost = inputs.trace.grid_lost_mass
     return {"grid_lost_mass": lost.max(axis=1) if lost is not None else inputs.empty()}
 
@@ -304,8 +306,9 @@ def log_likelihood_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 
 @METRICS.register("move_acceptance")
 def move_acceptance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
-    """filter.move mcmc: the mean Metropolis acceptance rate over the moved steps and proposals
-    (empty for other moves and filters, and for a trial that never resampled)."""
+    """filter.move mcmc: the mean Metropolis acceptance rate over the moved steps and proposals.
+
+    Empty for other moves and filters, and for a trial that never resampled."""
     acceptance = inputs.trace.move_acceptance
     return {"move_acceptance": acceptance if acceptance is not None else inputs.empty()}
 
