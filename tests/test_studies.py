@@ -114,6 +114,49 @@ def test_map_figures_and_the_scene_come_from_csv(tmp_path):
     assert sorted(particles["step"].unique()) == list(range(7))
 
 
+def test_trajectory_map_draws_each_cell_s_median_trial_on_shared_axes_without_empty_slots(tmp_path):
+    """Five cells of one world: five panels (centred, no empty slot) sharing their axes, each the
+    traced trial with the median position RMSE, named in its title (trial 0 could be the worst)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pfx.figures.maps import trajectory_map
+    from pfx.result_folder import ResultFolder
+
+    config = {
+        "name": "map", "seed": 4, "trials": 6,
+        "model": {"kind": "range_beacons", "beacons": [[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]], "steps": 8,
+                  "path": {"kind": "lissajous", "center": [2.0, 2.0]}},
+        "filter": {"particles": 20}, "sweep": {"filter.particles": [5, 10, 20, 40, 80]},
+        "outputs": {"figures": [], "trace_trials": 5},
+    }
+    result = ResultFolder(run_plan(build_plan(config, "map.yaml"), tmp_path / "run"))
+    figure = trajectory_map(result)
+    try:
+        figure.canvas.draw()                                                # lay the panels out
+        assert len(figure.axes) == 5 and all(axes.get_visible() for axes in figure.axes)
+        first = figure.axes[0]
+        assert all(first.get_shared_x_axes().joined(first, axes) and first.get_shared_y_axes().joined(first, axes)
+                   for axes in figure.axes[1:])
+        trials, steps = result.trials, result.steps
+        for axes, (cell, rows) in zip(figure.axes, trials.groupby("cell", sort=False)):
+            traced = rows[rows["trial"] < 5].sort_values(["rmse_position", "trial"])
+            median = int(traced["trial"].iloc[2])                          # the middle one of five
+            rmse = float(traced["rmse_position"].iloc[2])
+            assert f"(trial {median}, median RMSE of 5 traced trials: {rmse:.3g} m)" in axes.get_title()
+            estimated = next(line for line in axes.get_lines() if line.get_label() == "estimated path")
+            path = steps[(steps["cell"] == cell) & (steps["trial"] == median)].sort_values("step")
+            np.testing.assert_array_equal(estimated.get_xdata(), path["estimate_x"])
+        bottom = [axes.get_position() for axes in figure.axes[3:]]          # the last row, centred
+        middle = (bottom[0].x0 + bottom[1].x1) / 2
+        row_above = (figure.axes[0].get_position().x0 + figure.axes[2].get_position().x1) / 2
+        assert abs(middle - row_above) < 0.02
+    finally:
+        plt.close(figure)
+
+
 def test_sweep_figures_render_from_summary(tmp_path, tiny_config_dict):
     config = tiny_config_dict()
     config["sweep"] = {"filter.particles": [10, 20], "filter.resampler": ["multinomial", "systematic"]}

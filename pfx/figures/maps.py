@@ -1,7 +1,10 @@
 """Map figures for planar models: the world (scene.csv), paths (steps.csv), particles (particles.csv).
 
-* ``trajectory_map``: the true and the estimated path of the first traced trial, over the
-  model's scene (beacons, walls, designed path), one panel per cell.
+* ``trajectory_map``: the true and the estimated path of a representative trial, over the
+  model's scene (beacons, walls, designed path), one panel per cell: of the cell's traced
+  trials, the one with the median position RMSE (the lower middle one of an even count), so a
+  panel shows neither the luckiest nor the worst trial; its title names it. Panels of the
+  same world (one model) share their axes, so their paths compare at a glance.
 * ``particle_snapshots``: the particle cloud at the kept steps of the first cell's first trial
   (marker area proportional to weight), with the true and estimated positions.
 * ``particle_animation``: the same, step by step, as an animated GIF.
@@ -62,23 +65,58 @@ def _planar(result: ResultFolder):
     return names[:2] if len(names) >= 2 else None
 
 
-def _grid(count: int):
+def _grid(count: int, share: bool = False):
+    """A figure with ``count`` map panels and no empty slot: up to three a row (four as two
+    by two), a shorter last row centred. ``share``: every panel shares the first one's axes."""
     import matplotlib.pyplot as plt
 
-    columns = min(count, 3)
+    columns = 2 if count == 4 else min(count, 3)
     rows = -(-count // columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 4.3 * rows), layout="constrained",
-                                squeeze=False)
-    for extra in axes.ravel()[count:]:
-        extra.set_visible(False)
-    return figure, axes.ravel()
+    figure = plt.figure(figsize=(4.6 * columns, 4.3 * rows), layout="constrained")
+    # Each panel spans two half-columns, so a last row of fewer panels can sit in the middle.
+    grid = figure.add_gridspec(rows, 2 * columns)
+    axes_list = []
+    for index in range(count):
+        row, column = divmod(index, columns)
+        in_row = min(columns, count - row * columns)
+        start = (columns - in_row) + 2 * column
+        shared = axes_list[0] if share and axes_list else None
+        axes_list.append(figure.add_subplot(grid[row, start:start + 2], sharex=shared, sharey=shared))
+    return figure, axes_list
+
+
+def _representative_trial(result: ResultFolder, rows) -> tuple[int, float, int]:
+    """(trial, its position RMSE, traced trials) for one cell's rows of steps.csv: the traced
+    trial with the median position RMSE (trials.csv's ``rmse_position``; the lower middle one
+    of an even count, the lower trial number on a tie). Without the truth (no RMSE): the
+    first traced trial, with RMSE NaN."""
+    traced = sorted(int(t) for t in rows["trial"].unique())
+    trials = result.trials
+    rmse = {}
+    if "rmse_position" in trials:
+        cell_trials = trials[(trials["cell"] == rows["cell"].iloc[0]) & trials["trial"].isin(traced)]
+        rmse = {int(t): float(v) for t, v in zip(cell_trials["trial"], cell_trials["rmse_position"])
+                if np.isfinite(v)}
+    if not rmse:
+        return traced[0], float("nan"), len(traced)
+    ranked = sorted(rmse, key=lambda trial: (rmse[trial], trial))
+    chosen = ranked[(len(ranked) - 1) // 2]
+    return chosen, rmse[chosen], len(traced)
+
+
+def _same_world(frame, cells: list[str]) -> bool:
+    """Whether the drawn cells' truth models agree (one model kind, no model setting swept
+    apart), so that their panels show one world and can share axes."""
+    drawn = frame[frame["_cell"].isin(cells)]
+    columns = [c for c in drawn.columns if c == "model" or c.startswith("model_")]
+    return all(drawn[c].nunique(dropna=False) <= 1 for c in columns)
 
 
 @FIGURES.register("trajectory_map")
 def trajectory_map(result: ResultFolder):
-    """True and estimated path of the first traced trial over the model's world, per cell.
+    """True and estimated path of a representative trial (the median position RMSE of the traced ones) over the model's world, per cell.
 
-    Planar models: the world from scene.csv.
+    Planar models: the world from scene.csv; panels of one world share their axes.
     """
     planar = _planar(result)
     steps = result.steps
@@ -86,24 +124,32 @@ def trajectory_map(result: ResultFolder):
         return None
     x_name, y_name = planar
     frame = steps.assign(_cell=result.cell_names(steps))
-    cells = list(dict.fromkeys(frame["_cell"]))[:MAX_PANELS]
-    figure, axes_list = _grid(len(cells))
+    names = list(dict.fromkeys(frame["_cell"]))
+    cells = names[:MAX_PANELS]
+    figure, axes_list = _grid(len(cells), share=_same_world(frame, cells))
+    unit = result.units.get("position", "")
     for axes, cell in zip(axes_list, cells):
         rows = frame[frame["_cell"] == cell]
-        rows = rows[rows["trial"] == rows["trial"].min()].sort_values("step")
+        trial, rmse, traced = _representative_trial(result, rows)
+        rows = rows[rows["trial"] == trial].sort_values("step")
         draw_scene(axes, result.scene)
         axes.plot(rows[f"truth_{x_name}"], rows[f"truth_{y_name}"], color="black", linewidth=1.6, label="true path")
         axes.plot(rows[f"estimate_{x_name}"], rows[f"estimate_{y_name}"], color="tab:blue", linewidth=1.3,
                   marker=".", markersize=4, label="estimated path")
         axes.scatter(rows[f"truth_{x_name}"].iloc[:1], rows[f"truth_{y_name}"].iloc[:1], marker="o",
                      color="black", zorder=6, label="start")
-        error = rows["error_distance"].mean()
-        unit = result.units.get("position", "")
-        axes.set_title(f"{cell}\n(trial {int(rows['trial'].iloc[0])}, mean error {error:.3g} {unit})", fontsize=10)
+        if not np.isfinite(rmse):
+            which = f"trial {trial}" + (f", first of {traced} traced" if traced > 1 else "")
+        elif traced > 1:
+            which = f"trial {trial}, median RMSE of {traced} traced trials: {rmse:.3g} {unit}".rstrip()
+        else:
+            which = f"trial {trial}: RMSE {rmse:.3g} {unit}".rstrip()
+        axes.set_title(f"{cell}\n({which})", fontsize=10)
         _axes_labels(axes, result, x_name, y_name)
     handles, labels = axes_list[0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside lower center", ncol=4, fontsize=8)
-    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths", fontsize=12)
+    shown = f" (the first {len(cells)} of {len(names)} cells)" if len(names) > len(cells) else ""
+    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths{shown}", fontsize=12)
     return figure
 
 

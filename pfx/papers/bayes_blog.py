@@ -190,8 +190,9 @@ def landmark_demo_part(results: PaperResults) -> Part:
     model, filter_settings = config.get("model", {}), config.get("filter", {})
     sigma = _range_sigma(config)
     for name, caption in (
-            ("trajectory_map.png", "The landmark demo, trial 0: the target's path (black), the filter's estimate "
-                                   "(blue), the four landmarks (red)."),
+            ("trajectory_map.png", "The landmark demo, its traced trial of median position RMSE (the title names "
+                                   "it): the target's path (black), the filter's estimate (blue), the four "
+                                   "landmarks (red)."),
             ("particle_snapshots.png", "The particle cloud of trial 0 at a few steps, from the uniform prior over "
                                        "the square to tracking (marker area ∝ weight)."),
             ("particle_animation.gif", "The demo as an animation: trial 0, the weighted particles step by step."),
