@@ -162,6 +162,29 @@ def test_nees_over_time_draws_the_mean_nees_against_the_state_dimension(folders)
     assert all(any(np.allclose(y, mean) for y in drawn) for mean in means)
 
 
+def test_a_nees_beyond_any_reading_leaves_the_log_axis_with_a_note(folders, tmp_path):
+    """A collapsed cloud's mean NEES of 1e278 made matplotlib's log ticks pass the largest double
+    and the figure fail to draw; such a line now stops at the axes' top, and a note says so."""
+    import io
+
+    copy = tmp_path / "huge"
+    shutil.copytree(folders["sweep"], copy)
+    summary = pd.read_csv(copy / "steps_summary.csv")
+    first = summary["cell"] == summary["cell"].iloc[0]
+    summary.loc[first & (summary["step"] >= 3), ["nees_mean", "nees_ci95_high"]] = 3.7e278
+    summary.to_csv(copy / "steps_summary.csv", index=False)
+    result = ResultFolder(copy)
+    figure = nees_over_time(result)
+    figure.savefig(io.BytesIO(), format="png")                     # drawing is where it failed
+    notes = [axes.get_title(loc="left") for axes in figure.axes]
+    assert any("off scale from" in note and "3.7e+278" in note for note in notes), notes
+    assert all(axes.get_ylim()[1] == 1e100 for axes in figure.axes)
+    panel = next(axes for axes in figure.axes if axes.get_title(loc="left"))      # the note sits under the panel's title
+    renderer = figure.canvas.get_renderer()
+    note, title = (panel._left_title.get_window_extent(renderer), panel.title.get_window_extent(renderer))
+    assert title.y1 - note.y1 >= 0.9 * note.height           # the title's line is a whole line above the note
+
+
 def test_state_error_over_time_draws_the_rms_over_every_trial(folders):
     result = ResultFolder(folders["sweep"])
     summary = result.steps_summary

@@ -180,11 +180,13 @@ class SmallMultiples:
         """
         columns = _grid_columns(len(self.panels))
         for index, (axes, panel_title) in enumerate(zip(self.panels, self.panel_titles)):
-            notes = self.notes.get(index)
+            notes = self.notes.get(index) or []
             if notes:                   # above the data, in red, left; the panel's title above it
                 axes.set_title("\n".join(notes), loc="left", fontsize=8, color="C3")
             if panel_title:
-                axes.set_title(panel_title, fontsize=9, pad=6 + 11 * len(notes) if notes else 6)
+                # One empty line per note under the title lifts it above them: the axes' titles
+                # share one offset, so a larger pad for this one would move the notes too.
+                axes.set_title(panel_title + "\n" * len(notes), fontsize=9)
             if index % columns == 0:
                 axes.set_ylabel(y_label)
             if index + columns >= len(self.panels):          # nothing below it: the bottom of a column

@@ -23,7 +23,8 @@ existed draws the same statistics over its traced trials (steps.csv; see
 
 Sweeps with many cells are drawn as small multiples, legends sit below the panels, and a cell
 whose mean diverges (a filter that lost the target: errors of 1e20) stops at the edge of the
-axes with a triangle and a note, so the other lines keep their scale (:mod:`pfx.figures.layout`).
+axes with a triangle and a note, so the other lines keep their scale (:mod:`pfx.figures.layout`);
+on the NEES's log axis the edge is :data:`LOG_AXIS_CEILING`.
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ from pfx.figures.registry import FIGURES
 from pfx.result_folder import ResultFolder
 
 STATISTICS = ("mean", "ci95_low", "ci95_high")
+# The top of a log axis: a mean NEES of 1e278 (a collapsed cloud's) made matplotlib place ticks
+# past the largest double and fail; nothing near this is a value to read, so a line beyond it
+# leaves the axes with a note, as a diverging line does on a linear axis.
+LOG_AXIS_CEILING = 1e100
 
 
 def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, unit: str = "",
@@ -74,13 +79,14 @@ def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, uni
     drawn = summary["cell"].isin(series)
     layout = small_multiples(result, summary[drawn], log_y=log_y)
     if log_y:
-        # A log axis spans the decades: no line needs clipping, but a band's lower edge at or
-        # below zero (a wide interval) is drawn at the bottom of the axes instead.
+        # A log axis spans the decades: only a line beyond LOG_AXIS_CEILING needs clipping; a
+        # band's lower edge at or below zero (a wide interval) is drawn at the bottom of the axes.
         positive = np.concatenate([np.concatenate([mean, low]) for _, mean, low, _ in series.values()])
         bottom = np.min(positive[np.isfinite(positive) & (positive > 0)], initial=1.0) / 2
         series = {cell: (time, mean, np.where(low > 0, low, bottom), high)
                   for cell, (time, mean, low, high) in series.items()}
-        limit, in_scale = np.inf, list(series)
+        limit = LOG_AXIS_CEILING
+        in_scale = [cell for cell, (_, mean, _, _) in series.items() if not np.nanmax(mean) > limit]
     else:
         peaks = {cell: float(np.nanmax(np.abs(np.concatenate([mean, np.where(np.isfinite(high), high, mean)]))))
                  for cell, (_, mean, _, high) in series.items()}
@@ -100,7 +106,7 @@ def _over_time(result: ResultFolder, quantity: str, what: str, y_label: str, uni
         extra[0].set_label(label)      # once, in the legend's last place
     axes = layout.panels[0]            # every panel shares its limits
     if log_y:
-        axes.set_ylim(bottom=bottom)
+        axes.set_ylim(bottom=bottom, top=limit if len(in_scale) < len(series) else None)
     elif np.isfinite(limit):
         axes.set_ylim(min(0.0, axes.get_ylim()[0]), limit)
     trials = trials_text(summary[drawn], result.steps_summary_covers_every_trial)
