@@ -284,7 +284,7 @@ def finished_manifest(out: Path, *, needs: tuple[str, ...] = ()) -> dict:
     missing = [name for name in needs if not (Path(out) / name).is_file()]
     if manifest is None or manifest.get("complete") is not True or missing:
         wanted = " and ".join(["a complete manifest.json", *missing])
-        raise ConfigError(f"not a finished pfx result folder (no {wanted})", file=str(out))
+        raise ConfigError(f"not a finished pfx result folder (it needs {wanted})", file=str(out))
     return manifest
 
 
