@@ -16,6 +16,7 @@ from typing import List, Optional
 import typer
 import yaml
 
+from pfx.config.components import NAMES as COMPONENT_NAMES
 from pfx.errors import ConfigError, ExecutorError, ModelContractError, ModelNumericalError, PluginFault
 from pfx.run.interrupts import Interrupted, stop_on_signals
 
@@ -49,23 +50,9 @@ def _global_options(
         os.environ[TRACEBACK_VARIABLE] = "1"
 
 
-# What `pfx list` can show, in the order it shows them: name -> (module, registry in it).
-# The one source of truth for both LISTABLE and _registries(); the modules are imported only
-# when a listing is asked for (importing them all takes a second or more).
-REGISTRY_SOURCES = {
-    "models": ("pfx.models", "MODELS"),
-    "studies": ("pfx.studies", "STUDIES"),
-    "filters": ("pfx.filters", "FILTERS"),
-    "resamplers": ("pfx.filters.particle.resampling", "RESAMPLERS"),
-    "weightings": ("pfx.filters.particle.weighting", "WEIGHTINGS"),
-    "noises": ("pfx.laws.noise", "NOISE_FAMILIES"),
-    "diffusions": ("pfx.filters.particle.diffusion", "DIFFUSIONS"),
-    "moves": ("pfx.filters.particle.moves", "MOVES"),
-    "proposals": ("pfx.filters.particle.proposals", "PROPOSALS"),
-    "metrics": ("pfx.analysis.metrics", "METRICS"),
-    "figures": ("pfx.figures", "FIGURES"),
-}
-LISTABLE = tuple(REGISTRY_SOURCES)
+# What `pfx list` can show, in the order it shows them: the one list of registries
+# (pfx/config/components.py), whose modules are imported only when a listing is asked for.
+LISTABLE = COMPONENT_NAMES
 
 
 TRACEBACK_VARIABLE = "PFX_TRACEBACK"     # set to 1 (or pass --traceback): errors show their traceback too
@@ -262,10 +249,9 @@ def list_components(
 
 def _registries() -> dict:
     """Every listable registry by name, in LISTABLE's order (imports the registries' modules)."""
-    import importlib
+    from pfx.config.components import all_registries
 
-    return {name: getattr(importlib.import_module(module), attribute)
-            for name, (module, attribute) in REGISTRY_SOURCES.items()}
+    return all_registries()
 
 
 @app.command()

@@ -379,19 +379,10 @@ def loaded_plugins() -> list[LoadedPlugin]:
 
 
 def registries() -> list:
-    """Every registry a plugin may add to."""
-    from pfx.analysis.metrics import METRICS
-    from pfx.figures import FIGURES
-    from pfx.filters import FILTERS
-    from pfx.filters.particle.diffusion import DIFFUSIONS
-    from pfx.filters.particle.moves import MOVES
-    from pfx.filters.particle.resampling import RESAMPLERS
-    from pfx.filters.particle.weighting import WEIGHTINGS
-    from pfx.laws.noise import NOISE_FAMILIES
-    from pfx.models import MODELS
-    from pfx.studies import STUDIES
+    """Every registry a plugin may add to (:mod:`pfx.config.components`, the one list)."""
+    from pfx.config.components import all_registries
 
-    return [MODELS, FILTERS, RESAMPLERS, WEIGHTINGS, DIFFUSIONS, MOVES, NOISE_FAMILIES, METRICS, FIGURES, STUDIES]
+    return list(all_registries().values())
 
 
 def _prepare_registries() -> None:

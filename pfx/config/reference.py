@@ -11,11 +11,9 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from pfx.analysis.metrics import ConvergenceCriterion
+from pfx.config.components import REGISTRIES, registry
 from pfx.config.schema import ParticleSnapshots, config_schema
 from pfx.config.validation import _union_members, _unwrap
-from pfx.filters.particle.diffusion import DIFFUSIONS
-from pfx.filters.particle.moves import MOVES
-from pfx.filters.particle.weighting import WEIGHTINGS
 from pfx.laws.initial import GaussianLaw, PointLaw, UniformLaw
 from pfx.laws.noise import Noise
 from pfx.models import MODELS
@@ -85,18 +83,13 @@ def markdown_reference(plugins: Collection[str] = ()) -> str:
     for law in (PointLaw, GaussianLaw, UniformLaw):
         parts += [f"- `kind: {law.model_fields['kind'].default}`: {law.__doc__.strip()} Keys: "
                   + ", ".join(f"`{f.alias or n}`" for n, f in law.model_fields.items() if n != "kind")]
-    parts += ["", "### Weightings (`filter.weighting`)", ""]
-    for name, model in WEIGHTINGS.visible(plugins).items():
-        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
-        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
-    parts += ["", "### Diffusion (`filter.diffusion`)", ""]
-    for name, model in DIFFUSIONS.visible(plugins).items():
-        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
-        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
-    parts += ["", "### Moves after resampling (`filter.move`)", ""]
-    for name, model in MOVES.visible(plugins).items():
-        keys = [f"`{n}`" for n in model.model_fields if n != "kind"]
-        parts.append(f"- `{name}`: {model.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
+    for title, name in (("Weightings", "weightings"), ("Diffusion", "diffusions"),
+                        ("Moves after resampling", "moves"), ("Proposals", "proposals")):
+        source = next(source for source in REGISTRIES if source.name == name)
+        parts += ["", f"### {title} (`{source.config_key}`)", ""]
+        for kind, component in registry(name).visible(plugins).items():
+            keys = [f"`{n}`" for n in component.model_fields if n != "kind"]
+            parts.append(f"- `{kind}`: {component.__doc__.strip()}" + (f" Keys: {', '.join(keys)}." if keys else ""))
     parts += ["", "### `metrics.convergence`", "", model_table(ConvergenceCriterion), ""]
     parts += ["### `outputs`", "", model_table(classes.OutputsConfig), ""]
     parts += ["### `outputs.particles`", "", model_table(ParticleSnapshots), ""]
