@@ -45,6 +45,11 @@ _LAZY_NAMES = {
     "PointLaw": "pfx.laws.initial",
     "GaussianLaw": "pfx.laws.initial",
     "UniformLaw": "pfx.laws.initial",
+    # one filter from Python, on arrays (pfx/filtering.py; docs/python-api.md)
+    "model": "pfx.filtering",
+    "particle_filter": "pfx.filtering",
+    "filter": "pfx.filtering",
+    "FilterResult": "pfx.filtering",
 }
 
 # Running configs and reading results from Python (pfx/api.py, which imports nothing heavy until

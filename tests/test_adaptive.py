@@ -10,23 +10,16 @@ from conftest import tiny_config_dict
 from pydantic import ValidationError
 from scipy import stats
 
+import pfx
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.filters.particle.adaptive import KLDSampling, kld_bound, kld_count, occupied_bins_by_prefix
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import (
-    ParticleFilter,
-    SpreadCriterion,
-    SpreadRecorder,
-    StandardDeviationRecorder,
-    active_uniform,
-    run_particle_filter,
-    simulate_truth,
-)
+from pfx.filters.particle.cloud import active_uniform
+from pfx.filters.particle.engine import ParticleFilter
 from pfx.filters.particle.injection import AugmentedMCL
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.filters.particle.recorders import Recording, SpreadCriterion
 from pfx.models.planar_robot import PlanarRobot
+from pfx.models.simulation import simulate_truth
 from pfx.models.sonar_mcl import FreeSpaceLaw, SonarMCL
 from pfx.numerics.seeding import TrialStreams
 
@@ -97,9 +90,7 @@ def test_adaptive_filter_shrinks_as_the_cloud_localises():
     model = _model()
     truth, measurements = simulate_truth(model, TrialStreams.from_seeds([1, 2]))
     adaptive = KLDSampling(bin_size=[5.0, 5.0, 10.0], min_particles=50)
-    trace = run_particle_filter(model, measurements, TrialStreams.from_seeds([3, 4]), prior=FreeSpaceLaw(walls=SQUARE),
-                                particles=3000, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-                                weighting=GaussianWeighting(), diffusion=NoDiffusion(), adaptive=adaptive)
+    trace = pfx.particle_filter(model, prior=FreeSpaceLaw(walls=SQUARE), particles=3000, resampler="systematic", ess_threshold=1.0, adaptive=adaptive)(measurements, seeds=[3, 4]).trace
     counts = trace.particle_counts
     assert (counts[:, 0] == 3000).all()                # the prior: the maximum
     assert (counts >= 50).all() and (counts <= 3000).all()
@@ -108,25 +99,21 @@ def test_adaptive_filter_shrinks_as_the_cloud_localises():
 
 # -- inactive particles never count ----------------------------------------------------------------
 
-def _filter(model, particles, adaptive, streams, recorders=()):
+def _filter(model, particles, adaptive, streams, recording=Recording()):
     measurements = np.array([[[40.0]]])
-    return ParticleFilter(model, measurements, streams, prior=FreeSpaceLaw(walls=SQUARE), particles=particles,
-                          resampler=RESAMPLERS["systematic"], ess_threshold=1.0, weighting=GaussianWeighting(),
-                          move=NoDiffusion(), recorders=recorders, adaptive=adaptive)
+    bound = pfx.particle_filter(model, prior=FreeSpaceLaw(walls=SQUARE), particles=particles, adaptive=adaptive).planned.bound
+    return ParticleFilter(bound, measurements, streams, recording)
 
 
 def test_inactive_particles_never_affect_the_estimate_or_the_diagnostics():
     model = _model()
     active, maximum = 300, 1000
     cloud = FreeSpaceLaw(walls=SQUARE).sample(TrialStreams.from_seeds([9]), (active,))
-    criterion = SpreadCriterion(radius=20.0, weighted=False)
-
-    def recorders():
-        return [SpreadRecorder(model, criterion), StandardDeviationRecorder(model, None)]
-
-    fixed = _filter(model, active, None, TrialStreams.from_seeds([1]), recorders())
+    # the spread criterion (every row), the spread and the standard deviations (the one traced row)
+    recording = Recording(spread_criterion=SpreadCriterion(radius=20.0, weighted=False), trace_rows=np.arange(1))
+    fixed = _filter(model, active, None, TrialStreams.from_seeds([1]), recording)
     fixed.state = cloud.copy()
-    adaptive = _filter(model, maximum, KLDSampling(bin_size=5.0), TrialStreams.from_seeds([1]), recorders())
+    adaptive = _filter(model, maximum, KLDSampling(bin_size=5.0), TrialStreams.from_seeds([1]), recording)
     adaptive.state = np.concatenate([cloud, np.full((1, maximum - active, 3), 1e6)], axis=1)  # far outside
     adaptive.active = np.array([active])
     adaptive.log_weights, adaptive.weights = active_uniform(adaptive.active, maximum)
@@ -155,10 +142,7 @@ def test_no_injection_while_the_fast_average_stays_above_the_slow_one():
 def test_no_injection_in_a_filter_with_a_constant_likelihood():
     model = _model(measurement_noise={"variance": 1e12})      # the reading says nothing: L_k ~ constant
     _, measurements = simulate_truth(model, TrialStreams.from_seeds([1]))
-    trace = run_particle_filter(model, measurements, TrialStreams.from_seeds([2]), prior=FreeSpaceLaw(walls=SQUARE),
-                                particles=500, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-                                weighting=GaussianWeighting(), diffusion=NoDiffusion(),
-                                injection=AugmentedMCL(alpha_slow=0.1, alpha_fast=0.5))
+    trace = pfx.particle_filter(model, prior=FreeSpaceLaw(walls=SQUARE), particles=500, resampler="systematic", ess_threshold=1.0, injection=AugmentedMCL(alpha_slow=0.1, alpha_fast=0.5))(measurements, seeds=[2]).trace
     assert (trace.injected == 0).all()
 
 
@@ -169,12 +153,13 @@ def test_injection_replaces_active_particles_at_the_stated_rate():
     state.log_slow[:] = 0.0
     state.log_fast[:] = np.log(0.7)
     cloud = np.zeros((trials, maximum, 3))                  # (0, 0) is outside free space: a replaced
-    injected = state.inject(cloud, np.full(trials, active), np.arange(trials),   # particle is recognisable
-                            TrialStreams.from_seeds(range(trials)), FreeSpaceLaw(walls=[[w + 1.0 for w in wall]
-                                                                                        for wall in SQUARE]))
+    marked = state.inject(cloud, np.full(trials, active), np.arange(trials),   # particle is recognisable
+                          TrialStreams.from_seeds(range(trials)), FreeSpaceLaw(walls=[[w + 1.0 for w in wall]
+                                                                                      for wall in SQUARE]))
+    injected = marked.sum(axis=1)
     replaced = (cloud != 0.0).any(axis=-1)
     assert not replaced[:, active:].any()                  # inactive particles: never
-    np.testing.assert_array_equal(replaced.sum(axis=1), injected)
+    np.testing.assert_array_equal(replaced, marked)
     rate, draws = injected.sum() / (trials * active), trials * active
     standard_error = math.sqrt(0.3 * 0.7 / draws)           # binomial
     assert abs(rate - 0.3) < 4 * standard_error
@@ -218,9 +203,7 @@ def test_kidnap_moves_the_truth_at_its_step_only(make, to):
 def test_the_filter_is_not_told_of_the_kidnapping():
     plain, kidnapped = _model(), _model(kidnap={"step": 2, "to": [20.0, 80.0, 270.0]})
     _, measurements = simulate_truth(kidnapped, TrialStreams.from_seeds([1]))
-    traces = [run_particle_filter(model, measurements, TrialStreams.from_seeds([2]), prior=FreeSpaceLaw(walls=SQUARE),
-                                  particles=200, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-                                  weighting=GaussianWeighting(), diffusion=NoDiffusion())
+    traces = [pfx.particle_filter(model, prior=FreeSpaceLaw(walls=SQUARE), particles=200, resampler="systematic", ess_threshold=1.0)(measurements, seeds=[2]).trace
               for model in (plain, kidnapped)]
     np.testing.assert_array_equal(traces[0].estimates, traces[1].estimates)
 

@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pfx.filters.particle.engine import log_normalise, normalise_weights, resample_rows
+from pfx.filters.particle.cloud import resample_rows
 from pfx.filters.particle.resampling import inverse_cdf
+from pfx.numerics.log_weights import log_normalise, normalise_weights
 from pfx.numerics.seeding import TrialStreams
 
 

@@ -14,7 +14,7 @@ import pytest
 from conftest import tiny_config_dict, write_config_file
 
 from pfx.config.plan import build_plan
-from pfx.filters.particle.engine import simulate_truth
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.run.batch import run_batch
 

@@ -29,15 +29,14 @@ import numpy as np
 import pytest
 import yaml
 
+import pfx
 from pfx.analysis.summary import MINIMUM_VALUES
 from pfx.errors import ModelNumericalError
 from pfx.filters.particle.diffusion import NoDiffusion, Roughening
-from pfx.filters.particle.engine import run_particle_filter, simulate_truth
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
 from pfx.laws.initial import GaussianLaw
 from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
@@ -113,11 +112,7 @@ def _filter(model, measurements, *, particles, resampler="systematic", threshold
             prior=None, seed=0):
     prior = prior if prior is not None else bind_law(model.default_prior(), model.state_dimension, "initial")
     trials = measurements.shape[0]
-    return run_particle_filter(
-        model, measurements, TrialStreams.from_seeds(range(seed, seed + trials)), prior=prior,
-        particles=particles, resampler=RESAMPLERS[resampler], ess_threshold=threshold,
-        weighting=GaussianWeighting(), diffusion=diffusion or NoDiffusion(),
-        trace_rows=np.arange(trials))                    # every trial traced: its spread recorded
+    return pfx.particle_filter(model, prior=prior, particles=particles, resampler=resampler, ess_threshold=threshold, diffusion=diffusion or NoDiffusion())(measurements, seeds=range(seed, seed + trials), traced=True).trace                    # every trial traced: its spread recorded
 
 
 FILTERS = [(name, 1.0) for name in RESAMPLER_NAMES] + [("systematic", 0.0)]     # threshold 0 = SIS

@@ -17,15 +17,13 @@ import pytest
 from scipy.special import logsumexp
 from scipy.stats import norm
 
+import pfx
 from pfx.errors import ConfigError
 from pfx.filters import run_filter
 from pfx.filters.histogram.filter import run_histogram_filter
 from pfx.filters.histogram.grid import GridParameters, axis_noises, plan_grid
 from pfx.filters.histogram.kernel import Transition
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import SpreadCriterion, run_particle_filter, simulate_truth
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.filters.particle.recorders import SpreadCriterion
 from pfx.laws.initial import GaussianLaw
 from pfx.models import MODELS
 from pfx.models.base import bind_law
@@ -33,6 +31,7 @@ from pfx.models.falling_body import FallingBody
 from pfx.models.growth import GrowthModel
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -306,10 +305,7 @@ def test_particle_filter_agrees_with_the_grid_on_the_growth_model():
     assert grid.cells == (2000,) and grid.low[0] < -30 and grid.high[0] > 30
     reference = run_histogram_filter(model, measurements, prior=model.initial, grid=grid)
     assert reference.grid_lost_mass.max() < 1e-4
-    particles = run_particle_filter(
-        model, measurements, TrialStreams.from_seeds(range(900, 900 + trials)), prior=model.initial,
-        particles=20_000, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-        weighting=GaussianWeighting(), diffusion=NoDiffusion())
+    particles = pfx.particle_filter(model, prior=model.initial, particles=20_000, resampler="systematic", ess_threshold=1.0)(measurements, seeds=range(900, 900 + trials)).trace
     variance = reference.covariances[..., 0, 0]
     normalised = (particles.estimates[..., 0] - reference.estimates[..., 0]) / np.sqrt(variance / particles.ess)
     rms = float(np.sqrt(np.mean(normalised ** 2)))
@@ -346,9 +342,7 @@ def test_grid_filter_on_range_beacons_random_walk_agrees_with_a_large_particle_f
     assert np.all((coarse.within_radius > 0.5) & (coarse.within_radius <= 1.0))
     assert np.abs(fine.estimates - states[:, 1:]).max() < 5 * std.max()      # and it tracks the truth
 
-    particles = run_particle_filter(
-        model, measurements, TrialStreams.from_seeds(range(900, 900 + trials)), prior=prior, particles=100_000,
-        resampler=RESAMPLERS["systematic"], ess_threshold=1.0, weighting=GaussianWeighting(), diffusion=NoDiffusion())
+    particles = pfx.particle_filter(model, prior=prior, particles=100_000, resampler="systematic", ess_threshold=1.0)(measurements, seeds=range(900, 900 + trials)).trace
     error = particles.estimates - fine.estimates
     squared = np.einsum("rti,rtij,rtj->rt", error, np.linalg.inv(fine.covariances), error)
     normalised = squared * np.minimum.accumulate(particles.ess, axis=1) / 2

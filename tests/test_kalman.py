@@ -26,12 +26,12 @@ from pfx.errors import ConfigError, ModelNumericalError
 from pfx.filters import FILTERS, run_filter
 from pfx.filters.kalman.linearisation import finite_difference_jacobian
 from pfx.filters.kalman.unscented import UnscentedParameters, robust_square_root, run_unscented
-from pfx.filters.particle.engine import simulate_truth
 from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.models.base import bind_law
 from pfx.models.falling_body import FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 SETTINGS = types.SimpleNamespace(unscented=UnscentedParameters())

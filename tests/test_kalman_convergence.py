@@ -6,13 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import run_particle_filter, simulate_truth
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
+import pfx
 from pfx.laws.initial import GaussianLaw
 from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 A = [[0.9, 0.2], [0.0, 0.8]]
@@ -86,11 +84,7 @@ def test_particle_filter_converges_to_kalman_mean():
 
     msd = {}
     for n in (100, 1000, 10_000):
-        trace = run_particle_filter(
-            model, measurements, TrialStreams.from_seeds(range(7000 + n, 7000 + n + TRIALS)),
-            prior=bind_law(GaussianLaw(mean=PRIOR_MEAN, covariance=PRIOR_COV), 2, "initial"),
-            particles=n, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-            weighting=GaussianWeighting(), diffusion=NoDiffusion())
+        trace = pfx.particle_filter(model, prior=bind_law(GaussianLaw(mean=PRIOR_MEAN, covariance=PRIOR_COV), 2, "initial"), particles=n, resampler="systematic", ess_threshold=1.0)(measurements, seeds=range(7000 + n, 7000 + n + TRIALS)).trace
         assert trace.resampled.all()
         msd[n] = float(np.mean(np.sum((trace.estimates - kf_means) ** 2, axis=-1)))
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from pfx.filters.particle.engine import simulate_truth
 from pfx.models.falling_body import FOOT, FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.range_beacons import RangeBeacons
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 

@@ -14,6 +14,7 @@ import pytest
 from scipy import stats
 
 from pfx.config.plan import build_plan
+from pfx.config.schema import config_schema
 from pfx.errors import ConfigError
 from pfx.filters.particle.moves import MoveContext, Regularisation, ResampleMove, square_root, weighted_covariance
 from pfx.models import MODELS
@@ -65,7 +66,7 @@ def test_mcmc_move_leaves_the_target_invariant_and_accepts_at_the_gaussian_rate(
     cloud[:, 0], cloud[:, 1] = tau, -tau
     context = MoveContext(model=model, step=1, resampled=start.copy(), cloud=cloud, weights=weights,
                           measurement=np.full((trials, 1), MEASUREMENT), parents=parents)
-    move = ResampleMove(steps=steps)
+    move = ResampleMove(steps=steps).bind(model, config_schema().FilterConfig())
     moved, acceptance = move.apply(context, TrialStreams.from_seeds([101, 102]))
 
     standardised = ((moved - mean) / tau).ravel()
@@ -90,7 +91,8 @@ def test_mcmc_move_without_a_measurement_targets_the_transition_density():
     start = parents + std * setup.standard_normal((trials, particles, 1))
     context = MoveContext(model=model, step=1, resampled=start, cloud=start, weights=np.full((1, particles), 1 / particles),
                           measurement=np.full((trials, 1), np.nan), parents=parents)
-    moved, acceptance = ResampleMove(steps=3).apply(context, TrialStreams.from_seeds([7]))
+    moved, acceptance = ResampleMove(steps=3).bind(model, config_schema().FilterConfig()).apply(
+        context, TrialStreams.from_seeds([7]))
     standardised = ((moved - parents) / std).ravel()
     n = standardised.size
     assert abs(standardised.mean()) < Z_LIMIT / math.sqrt(n)
@@ -176,11 +178,12 @@ def _config(filter_settings: dict, model: dict | None = None, **extra) -> dict:
      "filter.move: the mcmc move targets p(z | x) p(x | parent), the filter's target only with weighting: "
      "gaussian, not euclidean"),
     ({"move": "mcmc"}, {"kind": "planar_robot"},
-     "filter.move: the mcmc move needs additive process noise (x' = f(x, u) + w); model planar_robot's noise "
-     "does not enter additively"),
-    ({"move": "mcmc"}, {"kind": "growth", "process_noise": {"family": "laplace", "variance": 10.0}},
-     "filter.move: the mcmc move evaluates the transition density, which needs additive gaussian process noise "
-     "with one component per state component; model growth has laplace noise with 1 component(s) for 1"),
+     "filter.move: the mcmc move evaluates the transition density p(x_k | x_k-1), which needs additive process "
+     "noise; model planar_robot has noise that does not enter additively (x' = f(x, u) + L w does not hold for "
+     "its propagate)"),
+    ({"move": "mcmc"}, {"kind": "growth", "process_noise": {"variance": 0.0}},
+     "filter.move: the mcmc move evaluates the transition density, which needs a positive-definite process noise "
+     "covariance L Q L' (model growth's is singular)"),
 ])
 def test_invalid_moves_are_refused_in_one_line(settings, model, message):
     with pytest.raises(ConfigError) as caught:

@@ -11,16 +11,15 @@ import pytest
 from pydantic import ValidationError
 from scipy import stats
 
+import pfx
 from pfx.errors import ModelNumericalError
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import effective_sample_size, log_normalise, run_particle_filter, simulate_truth
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
 from pfx.laws.initial import GaussianLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import bind_law
 from pfx.models.falling_body import FallingBody
 from pfx.models.linear_gaussian import LinearGaussian
+from pfx.models.simulation import simulate_truth
+from pfx.numerics.log_weights import effective_sample_size, log_normalise
 from pfx.numerics.seeding import TrialStreams
 
 _trapezoid = getattr(np, "trapezoid", None) or np.trapz  # numpy < 2 has only trapz
@@ -210,10 +209,7 @@ def test_noise_validation():
 
 def _run(model, measurements, seeds, particles=500, prior=None):
     prior = prior if prior is not None else bind_law(model.default_prior(), model.state_dimension, "initial")
-    return run_particle_filter(
-        model, measurements, TrialStreams.from_seeds(seeds), prior=prior, particles=particles,
-        resampler=RESAMPLERS["systematic"], ess_threshold=1.0, weighting=GaussianWeighting(),
-        diffusion=NoDiffusion())
+    return pfx.particle_filter(model, prior=prior, particles=particles, resampler="systematic", ess_threshold=1.0)(measurements, seeds=seeds).trace
 
 
 def test_engine_degenerate_steps_are_counted_and_survived():

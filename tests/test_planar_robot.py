@@ -15,8 +15,8 @@ import yaml
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.filters.kalman.linearisation import finite_difference_jacobian, noise_jacobian
-from pfx.filters.particle.engine import simulate_truth
 from pfx.models import MODELS
+from pfx.models.simulation import simulate_truth
 from pfx.motion import wrap_to_pi
 from pfx.numerics.seeding import TrialStreams
 

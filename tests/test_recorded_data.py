@@ -23,6 +23,7 @@ from conftest import REPO_ROOT, tiny_config_dict, write_config_file
 
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
+from pfx.filters import FILTERS
 from pfx.filters.base import run_filter
 from pfx.models import MODELS
 from pfx.numerics.seeding import TrialStreams, truth_seed
@@ -149,7 +150,7 @@ MISSING = (2, 5, 6)           # 0-based steps without a measurement
 def missing_setup(trials=1, steps=10):
     model = local_level(measurement=1.0, level=0.5, prior_variance=2.0, steps=steps)
     random = TrialStreams.from_seeds([3])
-    from pfx.filters.particle.engine import simulate_truth
+    from pfx.models.simulation import simulate_truth
 
     _, measurements = simulate_truth(model, random)
     measurements = np.repeat(measurements, trials, axis=0)
@@ -249,11 +250,10 @@ def test_particle_filters_skip_the_weight_update_where_the_measurement_is_missin
 
 def test_particle_sd_is_recorded_for_the_traced_rows_only():
     model, measurements, _ = missing_setup(trials=4)
-    from pfx.filters.particle.kinds import SampleImportanceResampling
-
-    trace = SampleImportanceResampling().run(model, measurements, TrialStreams.from_seeds([0, 1, 2, 3]),
-                                             settings=build_settings("particle", particles=100),
-                                             prior=model.initial, trace_rows=np.array([1, 3]))
+    settings = build_settings("particle", particles=100)
+    planned = FILTERS["particle"].plan(model, settings, model.initial)
+    trace = planned.run(model, measurements, TrialStreams.from_seeds([0, 1, 2, 3]), settings=settings,
+                        prior=model.initial, trace_rows=np.array([1, 3]))
     assert np.isfinite(trace.standard_deviations[[1, 3]]).all()
     assert np.isnan(trace.standard_deviations[[0, 2]]).all()
 
@@ -274,7 +274,7 @@ SIMULATED = {
 
 def write_simulated_trial(folder: Path) -> None:
     """measurements.csv and truth.csv of trial 0 of SIMULATED, as pfx simulates it."""
-    from pfx.filters.particle.engine import simulate_truth
+    from pfx.models.simulation import simulate_truth
 
     model = MODELS["linear_gaussian"](**SIMULATED["model"])
     states, measurements = simulate_truth(model, TrialStreams.from_seeds([truth_seed(SIMULATED["seed"], 0)]))

@@ -14,15 +14,14 @@ from conftest import REPO_ROOT, write_config_file
 from matplotlib.path import Path as PolygonPath
 from scipy import integrate, stats
 
+import pfx
 from pfx.analysis.metrics import error_distance, state_error
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import posterior_mean, run_particle_filter, simulate_truth, weighted_mean
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
+from pfx.filters.particle.cloud import posterior_mean, weighted_mean
 from pfx.laws.noise import NOISE_FAMILIES
 from pfx.models.range_beacons import RangeBeacons
+from pfx.models.simulation import simulate_truth
 from pfx.models.sonar_mcl import FreeSpaceLaw, SonarMCL
 from pfx.models.walls import WallMap
 from pfx.numerics.seeding import TrialStreams
@@ -201,9 +200,7 @@ def test_noise_free_motion_is_the_commanded_action_and_draws_nothing():
 
 
 def _filter(model, measurements, seed: int, prior, particles: int):
-    return run_particle_filter(model, measurements, TrialStreams.from_seeds([seed]), prior=prior, particles=particles,
-                               resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-                               weighting=GaussianWeighting(), diffusion=NoDiffusion())
+    return pfx.particle_filter(model, prior=prior, particles=particles, resampler="systematic", ess_threshold=1.0)(measurements, seeds=[seed]).trace
 
 
 def _example_models(**filter_changes):

@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.filters.particle.diffusion import NoDiffusion
-from pfx.filters.particle.engine import run_particle_filter, simulate_truth
-from pfx.filters.particle.resampling import RESAMPLERS
-from pfx.filters.particle.weighting import GaussianWeighting
+import pfx
 from pfx.laws.initial import GaussianLaw
 from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
 A = [[0.9, 0.2], [0.0, 0.8]]
@@ -51,9 +49,7 @@ def kalman(model: LinearGaussian, measurements: np.ndarray):
 
 def _particle_filter(model, measurements, particles, seeds):
     prior = bind_law(GaussianLaw(mean=[0.0, 0.0], covariance=[1.0, 1.0]), 2, "initial")
-    return run_particle_filter(model, measurements, TrialStreams.from_seeds(seeds), prior=prior,
-                               particles=particles, resampler=RESAMPLERS["systematic"], ess_threshold=1.0,
-                               weighting=GaussianWeighting(), diffusion=NoDiffusion())
+    return pfx.particle_filter(model, prior=prior, particles=particles, resampler="systematic", ess_threshold=1.0)(measurements, seeds=seeds).trace
 
 
 def test_error_against_kalman_mean_falls_as_inverse_square_root_of_n():

@@ -31,7 +31,7 @@ from typing import Optional
 import numpy as np
 
 from pfx.config.plan import Cell, build_plan
-from pfx.filters.particle.engine import simulate_truth
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
 SEED = 20240611

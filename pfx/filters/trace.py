@@ -42,6 +42,9 @@ class FilterTrace:
     # resampling (pfx.filters.particle.injection; None: no injection)
     particle_counts: Optional[np.ndarray] = None
     injected: Optional[np.ndarray] = None
+    # particle filters, when asked for (the genealogy): (trials, T, N) the index of each particle's
+    # ancestor in the previous step's weighted cloud (-1: injected from the prior; step 1: the prior)
+    ancestors: Optional[np.ndarray] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -47,6 +47,7 @@ the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
 
 from __future__ import annotations
 
+import copy
 import inspect
 import math
 from types import FunctionType
@@ -139,6 +140,7 @@ class Model(BaseModel):
     # recorded data with irregular times can be filtered with it; no built-in model does.
     variable_dt: ClassVar[bool] = False
     _recorded_times: Optional[np.ndarray] = PrivateAttr(None)    # set by use_recorded_times
+    _transition_density: Any = PrivateAttr(None)                   # derived on first use (transition_density)
 
     def control(self, step: int) -> Optional[np.ndarray]:
         """The control input u_k applied between step k-1 and step k (k = 1..T)."""
@@ -212,6 +214,51 @@ class Model(BaseModel):
         None for settings it does not cover (another noise family, say).
         """
         return None
+
+    # -- the transition density and the look-ahead (for algorithms that evaluate them) ---------
+
+    def transition_density(self):
+        """The model's additive transition (:class:`~pfx.laws.transition_density.AdditiveTransition`:
+        L, the noise, Q and its Cholesky factor), derived once per model, or
+        :class:`~pfx.laws.transition_density.TransitionDensityUnavailable` saying why there is
+        none (:mod:`pfx.laws.transition_density`). Guided proposals, the MCMC move, the
+        histogram filter and smoothers read it; none probes the model on its own."""
+        if self._transition_density is None:
+            from pfx.laws.transition_density import derive_transition_density
+
+            self._transition_density = derive_transition_density(self)
+        return self._transition_density
+
+    def transition_log_density(self, state: np.ndarray, previous: np.ndarray, step: int) -> np.ndarray:
+        r"""log p(x_k | x_{k-1}, u_k): ``state`` x_k (..., d) and ``previous`` x_{k-1} (..., d)
+        broadcast against each other; shape (...).
+
+        Default: from the additive noise, :math:`\log p_{Lw}(x_k - f(x_{k-1}, u_k, 0))`
+        (:meth:`transition_density`; ValueError if the model has none). A model whose noise does
+        not enter additively, but whose transition has a density, may override it.
+        """
+        density = self.transition_density()
+        if isinstance(density, ValueError) or not density.has_density:
+            reason = density.reason if isinstance(density, ValueError) else "has a singular process noise covariance"
+            raise ValueError(f"model {self.kind} has no transition density pfx can evaluate: it {reason}")
+        mean = self.propagate(previous, self.control(step), np.zeros(previous.shape[:-1] + (self.process_noise_dimension,)))
+        return density.log_density(state, mean)
+
+    def look_ahead_log_weight(self, previous: np.ndarray, step: int, measurement: np.ndarray) -> np.ndarray:
+        r"""The auxiliary particle filter's first-stage log-weight g(x_{k-1}) of each particle,
+        :math:`\log \hat p(z_k \mid x_{k-1})`: (R, N) from ``previous`` (R, N, d) and ``measurement``
+        (R, 1, m) (rows whose measurement is missing hold a finite stand-in; their values are
+        ignored).
+
+        Default (Pitt & Shephard 1999): the likelihood at the point prediction,
+        :math:`\log p(z_k \mid f(x_{k-1}, u_k, 0))`. A model may give a better look-ahead (the
+        ``logeta`` of the ``particles`` library): the closer to :math:`\log p(z_k \mid x_{k-1})`,
+        the flatter the second-stage weights. Any finite function keeps the likelihood estimate
+        unbiased: the second stage divides its exponential out again.
+        """
+        predicted = self.propagate(previous, self.control(step),
+                                   np.zeros(previous.shape[:-1] + (self.process_noise_dimension,)))
+        return self.log_likelihood(measurement, predicted)
 
     # -- composed operations used by the engine and the truth simulator ------------------------
 
@@ -316,7 +363,21 @@ class Model(BaseModel):
         _bind(self.measurement_noise, self.measurement_dimension, "measurement_noise", need_density=True)
         _bind(self.initial, self.state_dimension, "initial")
         self.setup()
+        self._transition_density = None           # derived again from these parameters when asked
         return self
+
+    def model_copy(self, *, update: Optional[dict[str, Any]] = None, deep: bool = False) -> "Model":
+        """A copy of the model; with ``update``, a new model validated from the copy's parameters
+        and the updated ones: its checks run and ``setup()`` computes its caches again, so none
+        is stale (pydantic's own ``model_copy(update=...)`` would keep the old ones beside the new
+        parameters). Fields the presets filled keep their values. Recorded times are kept."""
+        if not update:
+            return super().model_copy(deep=deep)
+        parameters = {name: copy.deepcopy(getattr(self, name)) for name in type(self).model_fields}
+        parameters.update(update)
+        fresh = type(self).model_validate(parameters)
+        fresh._recorded_times = self._recorded_times
+        return fresh
 
 
 def _check_result(method: str, value, shape: tuple) -> np.ndarray:

@@ -4,7 +4,7 @@
 simulation applies the transition of step k as usual (the same random draws as without the
 event), then sets :math:`x_k` = ``to``, and the measurement :math:`z_k` is taken there. The filter
 is not told: its model may carry the setting (it is merged from the truth's), but only
-:func:`pfx.filters.particle.engine.simulate_truth` calls :meth:`pfx.models.base.Model.truth_event`.
+:func:`pfx.models.simulation.simulate_truth` calls :meth:`pfx.models.base.Model.truth_event`.
 """
 
 from __future__ import annotations

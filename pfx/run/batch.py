@@ -24,7 +24,8 @@ from pfx.analysis.metrics import MetricInputs, compute_metrics, error_distance, 
 from pfx.analysis.step_summary import step_values
 from pfx.config.plan import Cell
 from pfx.config.schema import ParticleSnapshots
-from pfx.filters.particle.engine import SnapshotRequest, SpreadCriterion, simulate_truth
+from pfx.filters.particle.recorders import SnapshotRequest, SpreadCriterion
+from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
 

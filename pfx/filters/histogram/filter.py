@@ -11,9 +11,9 @@ from pfx.errors import ModelNumericalError, note_step
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.histogram.grid import Grid, GridParameters, axis_noises, plan_grid
 from pfx.filters.histogram.kernel import CHUNK, Transition
-from pfx.filters.particle.engine import log_normalise
 from pfx.filters.trace import FilterTrace
 from pfx.laws.initial import PointLaw, UniformLaw
+from pfx.numerics.log_weights import log_normalise
 from pfx.numerics.quadratic_forms import normalised_squares
 
 # -- the prior on the grid -----------------------------------------------------------------------

@@ -12,7 +12,6 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from pfx.errors import ConfigError
-from pfx.filters.transition import noise_enters_additively
 from pfx.laws.initial import GaussianLaw, UniformLaw
 from pfx.laws.noise import Noise
 from pfx.numerics.seeding import TrialStreams
@@ -105,10 +104,11 @@ def axis_noises(model) -> list[Noise]:
     return [Noise(family=noise.family, variance=float(v), df=noise.df).bind(1) for v in variances]
 
 
-def _check_additive(model, points: np.ndarray, noises: list[Noise]) -> None:
-    """propagate(x, u, w) - propagate(x, u, 0) must be w (checked on a few grid points)."""
-    std = np.array([math.sqrt(n.covariance()[0, 0]) for n in noises])
-    if not noise_enters_additively(model, points, std):
+def _check_additive(model) -> None:
+    """The noise must be added to the state, x' = f(x, u) + w (the model's transition density,
+    :meth:`pfx.models.base.Model.transition_density`)."""
+    density = model.transition_density()
+    if isinstance(density, ValueError) or not density.identity_gain:
         raise ConfigError(f"the histogram filter needs additive process noise (x' = f(x, u) + w); "
                           f"model {model.kind}'s noise does not enter additively", key="filter.kind")
 
@@ -194,6 +194,6 @@ def plan_grid(model, prior, parameters: Optional[GridParameters]) -> Grid:
     if kernel_bytes > MAX_KERNEL_BYTES:
         raise ConfigError(f"a grid of {'x'.join(map(str, cells))} cells needs a {kernel_bytes / 1024**3:.1f} GiB "
                           "transition kernel; use fewer cells", key="filter.grid.cells")
-    _check_additive(model, grid.points, noises)
+    _check_additive(model)
     return grid
 

@@ -123,5 +123,14 @@ class KLDSampling(BaseModel):
                            self.min_particles)
         return order, counts
 
+    def apply(self, resampled: np.ndarray, random: TrialStreams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cloud, counts, order): the resampled clouds (R, N, d) in a random order, the KLD
+        count of each, and the order (for the genealogy); particles past the count are parked
+        on particle 0 (inactive)."""
+        order, counts = self.select(resampled, random)
+        ordered = np.take_along_axis(resampled, order[..., None], axis=1)
+        inactive = np.arange(resampled.shape[1]) >= counts[:, None]
+        return np.where(inactive[..., None], ordered[:, :1], ordered), counts, order
+
 
 AdaptiveCount = Optional[KLDSampling]

@@ -37,35 +37,40 @@ by the same :math:`e^{g}`); a point prediction that is NaN (outside the model's 
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
+from pfx.numerics.log_weights import normalise_weights
 
-def first_stage(run, step: int) -> np.ndarray:
-    """Resample ``run``'s ancestors by the first-stage weights (module docstring); add
-    :math:`L^{(1)}_k` to the log-likelihood; return :math:`g_{a_i}` per particle, (R, N)."""
-    model, t = run.model, step - 1
-    observed = None if run.missing is None else ~run.missing[:, t]
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        predicted = model.propagate(run.state, model.control(step),
-                                    np.zeros(run.state.shape[:-1] + (model.process_noise_dimension,)))
-        measurement = run.measurements[:, t, None, :]
+
+class AuxiliaryFirstStage:
+    """The first stage: the look-ahead weights of the particles of step k-1 (module docstring).
+
+    It computes and returns; the engine applies (adds the increment to the log-likelihood, takes
+    the weights, resamples the trials the ESS rule picks with its resampling stage, and gathers
+    the ancestors' look-ahead :math:`g_{a_i}` for the second stage).
+    """
+
+    def weights(self, model, log_weights: np.ndarray, previous: np.ndarray, step: int,
+                measurement: np.ndarray, observed: Optional[np.ndarray]):
+        """(log lambda, lambda, L1, g): the normalised first-stage log-weights and weights (R, N),
+        the log-likelihood increment :math:`L^{(1)}_k` (R,) and the look-ahead g (R, N), from the
+        normalised ``log_weights`` of ``previous`` (R, N, d), ``measurement`` z_k (R, m) and
+        ``observed`` (None: every trial has its measurement)."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            measurement = measurement[:, None, :]
+            if observed is not None:
+                measurement = np.where(observed[:, None, None], measurement, 0.0)
+            look_ahead = model.look_ahead_log_weight(previous, step, measurement)
+        look_ahead = np.where(np.isnan(look_ahead), -np.inf, look_ahead)
         if observed is not None:
-            measurement = np.where(observed[:, None, None], measurement, 0.0)
-        look_ahead = model.log_likelihood(measurement, predicted)
-    look_ahead = np.where(np.isnan(look_ahead), -np.inf, look_ahead)
-    if observed is not None:
-        look_ahead[~observed] = 0.0
-    log_first, first, normaliser = run.normalise(run.log_weights + look_ahead)
-    underflow = ~np.isfinite(normaliser)
-    if underflow.any():
-        look_ahead[underflow] = 0.0
-        log_first[underflow], first[underflow], normaliser[underflow] = run.normalise(run.log_weights[underflow])
-    if observed is not None:
-        normaliser = np.where(observed, normaliser, 0.0)
-    run.trace.log_likelihood += normaliser
-    run.log_weights, run.weights = log_first, first
-    rows = run.rows_to_resample(1.0 / np.einsum("rn,rn->r", first, first))
-    if rows.size:
-        indices, selected = run.resample(rows, step)
-        look_ahead[selected] = np.take_along_axis(look_ahead[selected], indices, axis=-1)
-    return look_ahead
+            look_ahead[~observed] = 0.0
+        log_first, first, normaliser = normalise_weights(log_weights + look_ahead)
+        underflow = ~np.isfinite(normaliser)
+        if underflow.any():
+            look_ahead[underflow] = 0.0
+            log_first[underflow], first[underflow], normaliser[underflow] = normalise_weights(log_weights[underflow])
+        if observed is not None:
+            normaliser = np.where(observed, normaliser, 0.0)
+        return log_first, first, normaliser, look_ahead

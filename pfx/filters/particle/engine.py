@@ -16,16 +16,25 @@ Particles are an array of shape (trials, N, d); log-weights (trials, N). Each st
 5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
    :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
 
-In the code, :class:`ParticleFilter` runs these as named stages, ``predict`` (the proposal:
-the transition, i.e. the bootstrap filter, or a guided proposal, :mod:`pfx.filters.particle.proposals`,
-after the auxiliary filter's first stage, :mod:`pfx.filters.particle.auxiliary`; their importance
-terms reach the weight update as a per-particle weight adjustment), ``update_weights``, ``estimate`` and
-``resample_and_move`` (the resampler; a move given the step's context, ``filter.move``:
-:mod:`pfx.filters.particle.moves`; the particle count, fixed or adaptive,
-:mod:`pfx.filters.particle.adaptive`; the diffusion or roughening; particle injection,
-:mod:`pfx.filters.particle.injection`). Diagnostics (particle snapshots, NEES/NIS, the spread and
-the share within a radius) are :class:`Recorder` s called after each stage; they only read.
-For the bootstrap filter with the likelihood as weight, a model's optional compiled step
+In the code, :class:`ParticleFilter` runs one batch of a filter bound once
+(:class:`~pfx.filters.particle.bound.BoundParticleFilter`, which holds every setting, resolved),
+and :meth:`ParticleFilter.step` is the order of the stages, written once:
+
+* ``look_ahead``: the auxiliary filter's first stage (:mod:`pfx.filters.particle.auxiliary`),
+  which resamples by the look-ahead weights before the proposal; nothing otherwise;
+* ``predict``: the proposal, i.e. the transition (the bootstrap filter) or a guided proposal
+  (:mod:`pfx.filters.particle.proposals`), whose importance correction (and the auxiliary
+  filter's :math:`-g_{a_i}`) reaches the weight update as a per-particle weight adjustment;
+* ``update_weights``, ``estimate``;
+* ``resample_and_move`` (not for the auxiliary filter, which resamples in its next first
+  stage): the resampler and the ESS rule (:class:`~pfx.filters.particle.resampling.Resampling`),
+  then on the resampled particles the move (``filter.move``, :mod:`pfx.filters.particle.moves`,
+  given the step's context), the adaptive count (:mod:`pfx.filters.particle.adaptive`), the
+  diffusion and the injection (:mod:`pfx.filters.particle.injection`), in that order.
+
+Diagnostics (particle snapshots, NEES/NIS, the spread, the genealogy) are recorders
+(:mod:`pfx.filters.particle.recorders`) called after each stage; they only read. For the
+bootstrap filter with the likelihood as weight, a model's optional compiled step
 (:meth:`pfx.models.base.Model.compiled_step`) does the transition and the likelihood in one
 pass: ``predict`` then hands the likelihood to ``update_weights``.
 
@@ -44,220 +53,43 @@ usual, and the ESS rule may still resample.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError, note_step
-from pfx.filters.particle.auxiliary import first_stage
+from pfx.filters.particle.cloud import active_uniform, posterior_mean, resample_rows
 from pfx.filters.particle.moves import MoveContext
+from pfx.filters.particle.recorders import Recording, recorders_for
 from pfx.filters.trace import FilterTrace
-from pfx.numerics.angles import circular_mean, wrap_difference
-from pfx.numerics.compiled import compiled
-from pfx.numerics.quadratic_forms import normalised_squares
+from pfx.numerics.log_weights import effective_sample_size, normalise_rows
 from pfx.numerics.seeding import TrialStreams
 
 
-@dataclass
-class SnapshotRequest:
-    """Which particle clouds to keep: trials (rows of the batch), steps, stages.
-
-    Stages: ``prior`` (step 0), ``predicted`` (after the transition, with the previous
-    weights), ``weighted`` (after the weight update, before resampling) and ``resampled``
-    (after resampling and diffusion). Each kept cloud is appended to ``clouds`` as a dict with
-    keys stage, step, rows, state (len(rows), N, d) and weights (len(rows), N).
-    """
-
-    rows: np.ndarray
-    steps: object                 # a collection of steps, or "all"
-    stages: frozenset
-    clouds: list = field(default_factory=list)
-
-    def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
-        if (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps):
-            self.clouds.append({"stage": stage, "step": step, "rows": self.rows,
-                                "state": state[self.rows].copy(), "weights": weights[self.rows].copy()})
-
-
-@dataclass
-class SpreadCriterion:
-    """Record, per step, the share of particles within ``radius`` of the particle mean."""
-
-    radius: float
-    weighted: bool
-
-
-def guided_predict(run: "ParticleFilter", k: int) -> np.ndarray:
-    """The predict stage with a guided proposal and/or the auxiliary filter's first stage:
-    sets ``run.state`` to x_k and returns the weight adjustment (R, N) that the weight update
-    adds to log p(z_k | x_k): log p(x_k | x_k-1) - log q(x_k | x_k-1, z_k) - g_a."""
-    adjustment = first_stage(run, k) if run.auxiliary else None
-    t = k - 1
-    if run.proposal is None:
-        with np.errstate(over="ignore", invalid="ignore"):
-            run.state = run.model.transition(run.state, k, run.random)
-        return -adjustment
-    observed = None if run.missing is None else ~run.missing[:, t]
-    run.state, correction = run.proposal.propose(run.model, run.state, k, run.measurements[:, t], observed,
-                                                 run.random)
-    return correction if adjustment is None else correction - adjustment
-
-
-def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Row-wise log-sum-exp normalisation; returns (normalised log-weights, log normaliser).
-
-    A row whose entries are all -inf has normaliser -inf and is returned unchanged.
-    """
-    normalised, _, normaliser = normalise_weights(log_weights)
-    return normalised, normaliser
-
-
-def normalise_weights(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    r"""Log-sum-exp normalisation, row by row: (log w, w, L).
-
-    With :math:`m = \max_i \log \tilde w_i` and :math:`S = \sum_i e^{\log \tilde w_i - m}`:
-    :math:`\log w_i = \log \tilde w_i - m - \log S`, :math:`w_i = e^{\log \tilde w_i - m} / S`
-    (the exponentials are computed once, for the sum and the weights) and
-    :math:`L = m + \log S`. A row whose entries are all -inf has L = -inf, log-weights
-    unchanged and weights 0.
-    """
-    with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
-        return normalise_rows(log_weights)
-
-
-def normalise_rows(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`normalise_weights` without its ``np.errstate`` (the engine's loop sets it once)."""
-    peak = np.max(log_weights, axis=-1, keepdims=True)
-    finite_peak = np.where(np.isfinite(peak), peak, 0.0)
-    shifted = log_weights - finite_peak
-    weights = np.exp(shifted)
-    total = np.sum(weights, axis=-1, keepdims=True)
-    log_total = np.log(total)
-    usable = np.isfinite(log_total)
-    # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
-    # rounding when |peak| > ~1e16.
-    shifted -= np.where(usable, log_total, 0.0)
-    weights /= np.where(usable, total, 1.0)
-    return shifted, weights, (log_total + finite_peak)[..., 0]
-
-
-def effective_sample_size(weights: np.ndarray) -> np.ndarray:
-    """ESS = 1 / sum_i w_i^2 for normalised weights, per row."""
-    return 1.0 / np.einsum("rn,rn->r", weights, weights)
-
-
-def weighted_mean(weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
-    """sum_i w_i x_i per trial: (R, N), (R, N, d) -> (R, d).
-
-    A (1 x N) by (N x d) matrix product per trial: BLAS does it about ten times faster than
-    ``einsum`` (which loops over the short last axis d).
-    """
-    return np.matmul(weights[:, None, :], particles)[:, 0, :]
-
-
-def resample_rows(state: np.ndarray, rows: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """The resampled particles of the given trials: out[r, i] = state[rows[r], indices[r, i]].
-
-    One compiled pass (:func:`gather_particles`): NumPy's ``take_along_axis`` on (R, N, d)
-    costs several times more.
-    """
-    # Every trial resampled: the same memory layout as the state (models may keep each state
-    # component contiguous, see Noise.sample).
-    out = np.empty_like(state) if len(rows) == len(state) else np.empty((len(rows),) + state.shape[1:])
-    gather_particles(state, np.asarray(rows, dtype=np.intp), indices, out)
-    return out
-
-
-@compiled
-def gather_particles(state, rows, indices, out):
-    """out[r, i, :] = state[rows[r], indices[r, i], :]."""
-    dimension = state.shape[2]
-    for r in range(rows.size):
-        source = rows[r]
-        for c in range(dimension):           # component by component: contiguous writes when
-            for i in range(indices.shape[1]):    # the state keeps its components contiguous
-                out[r, i, c] = state[source, indices[r, i], c]
-
-
-def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
-    """The estimate: the weighted mean, with the model's angular components (if any) averaged
-    on the circle (:func:`pfx.numerics.angles.circular_mean`)."""
-    mean = weighted_mean(weights, particles)
-    angular = list(model.angular_components)
-    if angular:
-        mean[:, angular] = circular_mean(weights, particles[..., angular], model.full_turn)
-    return mean
-
-
-def run_particle_filter(model, measurements: np.ndarray, random: TrialStreams, *, prior,
-                        particles: int, resampler, ess_threshold: float, weighting, diffusion,
-                        spread_criterion: Optional[SpreadCriterion] = None,
-                        consistency: bool = False, snapshot: Optional[SnapshotRequest] = None,
-                        trace_rows: Optional[np.ndarray] = None, move=None, adaptive=None,
-                        injection=None, proposal=None, auxiliary: bool = False) -> FilterTrace:
-    """Run the filter on measurements of shape (trials, T, m); see the module docstring.
-
-    With ``consistency``, also record the weighted posterior covariance (before resampling) and
-    the normalised innovation squared of the predicted cloud, for NEES and NIS. With
-    ``snapshot``, keep the particle clouds it asks for (in ``snapshot.clouds``). The weighted
-    posterior standard deviations are recorded for the rows ``trace_rows`` (the traced trials),
-    and only for them: a second moment per step costs about what the estimate does, and only
-    steps.csv shows it (None: for no row, as in ``pfx bench``, whose timings are the filter's).
-    ``move`` is ``filter.move`` (:mod:`pfx.filters.particle.moves`; None or ``none``: no move).
-    """
-    recorders: list[Recorder] = []
-    traced = trace_rows is not None and len(trace_rows) > 0
-    if traced or spread_criterion is not None:      # steps.csv's spread; the spread convergence criterion
-        recorders.append(SpreadRecorder(model, spread_criterion, None if spread_criterion is not None else trace_rows))
-    if traced:
-        recorders.append(StandardDeviationRecorder(model, trace_rows))
-    if consistency:
-        recorders.append(ConsistencyRecorder(model))
-    if snapshot is not None:
-        recorders.append(SnapshotRecorder(snapshot))
-    return ParticleFilter(model, measurements, random, prior=prior, particles=particles, resampler=resampler,
-                          ess_threshold=ess_threshold, weighting=weighting, move=diffusion,
-                          recorders=recorders, adaptive=adaptive, injection=injection,
-                          rejuvenation=move if move is not None and move.kind != "none" else None,
-                          proposal=proposal, auxiliary=auxiliary).run()
-
-
 class ParticleFilter:
-    """One batch of trials of the particle filter, advanced step by step in named stages.
+    """One batch of trials of a bound particle filter (``bound``, a
+    :class:`~pfx.filters.particle.bound.BoundParticleFilter`), advanced step by step in named stages.
 
-    :meth:`run` is the algorithm; each stage is a method, and the points where a variant plugs
-    in are objects: the proposal, the weighting (the weight update), the resampler, the move after
-    resampling (``filter.move``), the particle count (fixed, or ``filter.adaptive``), the
-    diffusion and the injection. Diagnostics are
-    :class:`Recorder` s: they look at the cloud after a stage and fill their part of the trace,
-    so the loop holds the algorithm and nothing else.
+    :meth:`step` is the algorithm; each stage is a method, and the points where a variant plugs
+    in are the bound filter's objects (``self.filter``): the proposal, the weighting, the
+    resampling, the move, the adaptive count, the diffusion and the injection.
     """
 
-    normalise = staticmethod(normalise_weights)
-
-    def __init__(self, model, measurements: np.ndarray, random: TrialStreams, *, prior, particles: int,
-                 resampler, ess_threshold: float, weighting, move, recorders=(), adaptive=None, injection=None,
-                 rejuvenation=None, proposal=None, auxiliary: bool = False):
-        self.model, self.measurements, self.random = model, measurements, random
-        self.resampler, self.ess_threshold, self.weighting, self.move = resampler, ess_threshold, weighting, move
-        self.recorders = list(recorders)
-        # a guided proposal (None: the transition) and the auxiliary filter (proposals.py, auxiliary.py)
-        self.proposal, self.auxiliary = proposal, auxiliary
-        self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
-        # filter.move (pfx.filters.particle.moves): None when off, so that it costs nothing
-        self.rejuvenation = rejuvenation
-        self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
-        self.keep_previous = rejuvenation is not None and rejuvenation.needs_parents
+    def __init__(self, bound, measurements: np.ndarray, random: TrialStreams,
+                 recording: Recording = Recording()):
+        self.filter, self.model, self.measurements, self.random = bound, bound.model, measurements, random
         self.trials, self.steps, _ = measurements.shape
-        self.particles = particles                       # the particle count (with ``adaptive``: the maximum)
-        # the adaptive count (pfx.filters.particle.adaptive): active particles per trial, None: all N
-        self.adaptive, self.prior = adaptive, prior
-        self.active: Optional[np.ndarray] = None if adaptive is None else np.full(self.trials, particles)
-        # particle injection (pfx.filters.particle.injection): its running averages, or None
-        self.injection = None if injection is None else injection.start(self.trials)
+        particles = self.particles = bound.particles         # with an adaptive count: the maximum
+        self.recorders = recorders_for(bound.model, recording)
+        self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
+        self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
+        self.keep_previous = bound.move is not None and bound.move.needs_parents
+        # the adaptive count: active particles per trial (None: all N)
+        self.active: Optional[np.ndarray] = None if bound.adaptive is None else np.full(self.trials, particles)
+        # particle injection's running averages, or None
+        self.injection = None if bound.injection is None else bound.injection.start(self.trials)
         self.uniform_log_weight = -np.log(particles)
-        self.state = prior.sample(random, (particles,))
+        self.state = bound.prior.sample(random, (particles,))
         self.cloud_shape = self.state.shape             # (trials, N, d), at every step
         self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
         self.weights = np.full((self.trials, particles), 1.0 / particles)    # always exp(log_weights)
@@ -272,14 +104,15 @@ class ParticleFilter:
             degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.full((self.trials, self.steps), np.nan),
             log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64),
             particle_counts=np.full((self.trials, self.steps), particles),
-            injected=None if injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
+            injected=None if bound.injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
+        # each particle's ancestor at the previous step (the genealogy), only when recorded
+        self.ancestors: Optional[np.ndarray] = None
+        if recording.genealogy:
+            self.ancestors = np.broadcast_to(np.arange(particles), (self.trials, particles)).copy()
         # per trial: the sum of the move's acceptance rates over the steps it moved, and their count
         self.acceptance_tally = np.zeros((2, self.trials)) \
-            if rejuvenation is not None and rejuvenation.reports_acceptance else None
-        # The model's compiled transition-and-likelihood (Model.compiled_step), where it computes
-        # exactly this filter's proposal and weights: the bootstrap filter with the likelihood.
-        plain = proposal is None and not auxiliary and getattr(weighting, "kind", None) == "gaussian"
-        self.compiled_step = model.compiled_step() if plain else None
+            if bound.move is not None and bound.move.reports_acceptance else None
+        self.compiled_step = bound.model.compiled_step() if bound.uses_compiled_step else None
         self.log_likelihood: Optional[np.ndarray] = None     # this step's log p(z_k | x_k), from compiled_step
 
     def run(self) -> FilterTrace:
@@ -291,13 +124,7 @@ class ParticleFilter:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
                 self.record("prior", 0)
                 for k in range(1, self.steps + 1):
-                    self.predict(k)
-                    self.record("predicted", k)
-                    self.update_weights(k)
-                    self.estimate(k)
-                    self.record("weighted", k)
-                    self.resample_and_move(k)
-                    self.record("resampled", k)
+                    self.step(k)
         except Exception as error:        # where it happened, for the one-line report
             note_step(error, k, "filter")
             raise
@@ -306,19 +133,54 @@ class ParticleFilter:
                 self.trace.move_acceptance = self.acceptance_tally[0] / self.acceptance_tally[1]
         return self.trace
 
+    def step(self, k: int) -> None:
+        """Step k: the stages in their order (module docstring), each followed by its recorders."""
+        self.look_ahead(k)
+        self.predict(k)
+        self.record("predicted", k)
+        self.update_weights(k)
+        self.estimate(k)
+        self.record("weighted", k)
+        self.resample_and_move(k)
+        self.record("resampled", k)
+
     def record(self, stage: str, step: int) -> None:
         for recorder in self.recorders:
             recorder.record(stage, step, self)
 
+    def observed(self, k: int) -> Optional[np.ndarray]:
+        """The trials with a measurement at step k (None: all of them)."""
+        return None if self.missing is None else ~self.missing[:, k - 1]
+
+    def look_ahead(self, k: int) -> None:
+        """The auxiliary filter's first stage: weights lambda from the look-ahead, whose
+        normaliser joins the log-likelihood; the trials the ESS rule picks resample by them; the
+        ancestors' look-ahead g_a is kept for the second stage's weights."""
+        self.weight_adjustment = None
+        if self.filter.auxiliary is None:
+            return
+        log_first, first, increment, look_ahead = self.filter.auxiliary.weights(
+            self.model, self.log_weights, self.state, k, self.measurements[:, k - 1], self.observed(k))
+        self.trace.log_likelihood += increment
+        self.log_weights, self.weights = log_first, first
+        rows = self.filter.resampling.rows(effective_sample_size(first), self.particles, self.active)
+        if rows.size:
+            indices, selected = self.resample(rows, k)
+            look_ahead[selected] = np.take_along_axis(look_ahead[selected], indices, axis=-1)
+        self.weight_adjustment = -look_ahead
+
     def predict(self, k: int) -> None:
         """Propose x_k: from the transition (the bootstrap proposal), or from a guided proposal
-        (:mod:`pfx.filters.particle.proposals`), after the auxiliary filter's first stage if
-        asked (:mod:`pfx.filters.particle.auxiliary`); park particles that left the model's
-        domain at weight zero."""
+        (:mod:`pfx.filters.particle.proposals`); park particles that left the model's domain at
+        weight zero."""
         if self.keep_previous:
             self.previous_state = self.state
-        if self.auxiliary or self.proposal is not None:
-            self.weight_adjustment = guided_predict(self, k)
+        proposal = self.filter.proposal
+        if proposal is not None:
+            self.state, correction = proposal.propose(self.state, k, self.measurements[:, k - 1], self.observed(k),
+                                                      self.random)
+            self.weight_adjustment = correction if self.weight_adjustment is None else \
+                correction + self.weight_adjustment
         elif self.compiled_step is not None:         # the model's fused transition and likelihood
             noise = self.model.process_noise.sample(self.random, self.state.shape[1:-1])
             self.state, self.log_likelihood = self.compiled_step(self.state, self.model.control(k), noise,
@@ -326,7 +188,7 @@ class ParticleFilter:
         else:
             self.state = self.model.transition(self.state, k, self.random)    # non-finite values: below
         if self.state.shape != self.cloud_shape:       # a tuple comparison: the contract, at the run's size
-            source = "the proposal" if self.proposal is not None else \
+            source = "the proposal" if proposal is not None else \
                 "compiled_step" if self.compiled_step is not None else "the transition (propagate)"
             raise ModelContractError(f"model {self.model.kind}: {source} returned shape {self.state.shape} at step "
                                      f"{k} of the filter, for {self.trials} trials x {self.particles} particles; "
@@ -357,11 +219,11 @@ class ParticleFilter:
             if self.log_likelihood is not None:      # computed with the transition (compiled_step)
                 increment = self.log_likelihood
             else:
-                increment = self.weighting.log_weights(self.model, self.measurements[:, t, None, :],
-                                                       self.state, self.weights)
+                increment = self.filter.weighting.log_weights(self.model, self.measurements[:, t, None, :],
+                                                              self.state, self.weights)
             if increment.shape != self.log_weights.shape:      # would broadcast silently
                 raise ModelContractError(
-                    f"model {self.model.kind}: the weighting {getattr(self.weighting, 'kind', '')} (log_likelihood) "
+                    f"model {self.model.kind}: the weighting {getattr(self.filter.weighting, 'kind', '')} (log_likelihood) "
                     f"returned shape {np.shape(increment)} at step {k} of the filter, for {self.trials} trials x "
                     f"{self.particles} particles; expected {self.log_weights.shape}")
             if skipped is not None:
@@ -409,67 +271,55 @@ class ParticleFilter:
                                       "of the filter (check the prior and the noise)")
 
     def resample_and_move(self, k: int) -> None:
-        """Resample the trials whose ESS fell below the threshold, then move their particles (the
-        diffusion, or ``filter.move`` with the step's context: :meth:`rejuvenate`)."""
+        """Resample the trials whose ESS fell below the threshold, then move their particles
+        (:meth:`resample`); the auxiliary filter resamples in its next first stage instead."""
         if self.active is not None:                  # the count this step's cloud was weighted with
             self.trace.particle_counts[:, k - 1] = self.active
-        if self.auxiliary:
-            return          # the auxiliary filter resamples in the next step's first stage
-        rows = self.rows_to_resample(self.trace.ess[:, k - 1])
+        if self.filter.auxiliary is not None:
+            return
+        rows = self.filter.resampling.rows(self.trace.ess[:, k - 1], self.particles, self.active)
         if rows.size:
             self.resample(rows, k)
 
-    def rows_to_resample(self, ess: np.ndarray) -> np.ndarray:
-        """The trials the ESS rule resamples: ESS < threshold * N (threshold 1: all; 0: none),
-        N the active count with an adaptive count."""
-        if self.ess_threshold >= 1.0:
-            return np.arange(self.trials)
-        if self.ess_threshold > 0.0:
-            count = self.particles if self.active is None else self.active
-            return np.flatnonzero(ess < self.ess_threshold * count)
-        return np.empty(0, dtype=np.intp)
-
     def resample(self, rows: np.ndarray, k: int):
-        """Resample and move the trials ``rows`` (not empty) at step k; their weights become
-        uniform. Returns the ancestor indices (len(rows), N) and the rows' selector."""
-        t = k - 1
+        """Resample the trials ``rows`` (not empty) at step k and apply, to their resampled
+        particles, the move, the adaptive count, the diffusion and the injection; their weights
+        become uniform. Returns the ancestor indices (len(rows), N) and the rows' selector."""
+        bound, t = self.filter, k - 1
         every = rows.size == self.trials
         selected = slice(None) if every else rows      # a slice spares fancy-index copies
         streams = self.random if every else self.random.subset(rows)
-        indices = self.resampler(self.weights[selected], streams)
+        indices = bound.resampling.indices(self.weights[selected], streams)
+        ancestors = indices
         resampled = resample_rows(self.state, rows, indices)
-        if self.rejuvenation is not None:            # filter.move, on the parents' resampled order
-            resampled = self.rejuvenate(k, rows, selected, indices, resampled, streams)
-        if self.adaptive is not None:                # KLD: keep the first n of a random order
-            resampled, counts = self._adapt_count(resampled, streams)
-        moved = self.move.apply(resampled, streams)
+        if bound.move is not None:                   # filter.move, on the parents' resampled order
+            resampled = self.move(k, rows, selected, indices, resampled, streams)
+        if bound.adaptive is not None:               # KLD: keep the first n of a random order
+            resampled, counts, order = bound.adaptive.apply(resampled, streams)
+            ancestors = np.take_along_axis(indices, order, axis=1)
+        moved = bound.diffusion.apply(resampled, streams)
         if self.injection is not None:               # augmented MCL: replace some by prior draws
             active = np.full(rows.size, self.particles) if self.active is None else self.active[rows]
-            self.trace.injected[rows, t] = self.injection.inject(moved, active, rows, streams, self.prior)
+            replaced = self.injection.inject(moved, active, rows, streams, bound.prior)
+            self.trace.injected[rows, t] = replaced.sum(axis=1)
+            ancestors = np.where(replaced, -1, ancestors)          # a prior draw has no ancestor
         if every:
             self.state = moved
         else:
             self.state[rows] = moved
-        if self.adaptive is not None:
+        if bound.adaptive is not None:
             self.active[rows] = counts
             self.log_weights[selected], self.weights[selected] = active_uniform(counts, self.particles)
         else:
             self.log_weights[selected] = self.uniform_log_weight
             self.weights[selected] = 1.0 / self.particles
         self.trace.resampled[selected, t] = True
+        if self.ancestors is not None:
+            self.ancestors[selected] = ancestors
         return indices, selected
 
-    def _adapt_count(self, resampled: np.ndarray, streams: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
-        """The resampled clouds in a random order with the KLD count of each
-        (:mod:`pfx.filters.particle.adaptive`); particles past the count are parked on particle 0."""
-        order, counts = self.adaptive.select(resampled, streams)
-        ordered = np.take_along_axis(resampled, order[..., None], axis=1)
-        inactive = np.arange(self.particles) >= counts[:, None]
-        ordered = np.where(inactive[..., None], ordered[:, :1], ordered)
-        return ordered, counts
-
-    def rejuvenate(self, k: int, rows: np.ndarray, selected, indices: np.ndarray, resampled: np.ndarray,
-                   streams: TrialStreams) -> np.ndarray:
+    def move(self, k: int, rows: np.ndarray, selected, indices: np.ndarray, resampled: np.ndarray,
+             streams: TrialStreams) -> np.ndarray:
         """Apply ``filter.move`` to the resampled trials, giving it the cloud and weights before
         resampling, the measurement and (if it needs them) the parents' previous states; tally
         its acceptance rate."""
@@ -477,171 +327,8 @@ class ParticleFilter:
         context = MoveContext(model=self.model, step=k, resampled=resampled, cloud=self.state[selected],
                               weights=self.weights[selected], measurement=self.measurements[selected, k - 1],
                               parents=parents)
-        moved, acceptance = self.rejuvenation.apply(context, streams)
+        moved, acceptance = self.filter.move.apply(context, streams)
         if self.acceptance_tally is not None:
             self.acceptance_tally[0, selected] += acceptance
             self.acceptance_tally[1, selected] += 1
         return moved
-
-
-class Recorder:
-    """A diagnostic attached to :class:`ParticleFilter`: after each stage ("prior",
-    "predicted", "weighted", "resampled") it may read the filter's cloud and fill its part of
-    the trace. Recorders never change the cloud or draw random numbers."""
-
-    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
-        raise NotImplementedError
-
-
-class SpreadRecorder(Recorder):
-    """After each step: the weighted RMS distance of the positions from their mean (``spread``,
-    a column of steps.csv: for the traced ``rows`` only, None: every row) and, for the spread
-    convergence criterion, the share within its radius (every row)."""
-
-    def __init__(self, model, criterion: Optional[SpreadCriterion], rows: Optional[np.ndarray] = None):
-        position = list(model.position_components)
-        if position == list(range(position[0], position[-1] + 1)):
-            position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
-        self.position, self.criterion = position, criterion
-        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)
-
-    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
-        if stage != "resampled":
-            return
-        if self.criterion is not None and run.trace.within_radius is None:
-            run.trace.within_radius = np.empty((run.trials, run.steps))
-        # (a diverging cloud has infinite spread: the run's np.errstate lets it be)
-        run.trace.spread[self.rows, step - 1] = _spread(run.weights[self.rows], run.state[self.rows][..., self.position])
-        if self.criterion is not None:
-            run.trace.within_radius[:, step - 1] = _share_within(run.weights, run.state[..., self.position],
-                                                                 self.criterion, run.active)
-
-
-class StandardDeviationRecorder(Recorder):
-    """The posterior standard deviation of each state component, weighted, before resampling
-    (at the estimate's stage), for some rows of the batch (the traced trials; None: all); the others stay NaN.
-
-    An angular component's deviations are taken from the circular mean, wrapped into half a
-    turn either side, as its errors are.
-    """
-
-    def __init__(self, model, rows: Optional[np.ndarray]):
-        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)   # None: every row
-        self.angular = list(model.angular_components)
-        self.full_turn = model.full_turn
-
-    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
-        trace, t = run.trace, step - 1
-        if stage == "prior":
-            trace.standard_deviations = np.full((run.trials, run.steps, run.state.shape[-1]), np.nan)
-        elif stage == "weighted":
-            with np.errstate(over="ignore", invalid="ignore"):    # a diverging cloud: infinite spread
-                centred = run.state[self.rows] - trace.estimates[self.rows, t, None, :]
-                if self.angular:
-                    centred[..., self.angular] = wrap_difference(centred[..., self.angular], self.full_turn)
-                variances = np.einsum("rn,rnd->rd", run.weights[self.rows], centred * centred)
-                trace.standard_deviations[self.rows, t] = np.sqrt(variances)
-
-
-class ConsistencyRecorder(Recorder):
-    """NEES and NIS for particle filters: the NIS of the predicted cloud, and the weighted
-    posterior covariance (before resampling)."""
-
-    def __init__(self, model):
-        self.model = model
-
-    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
-        trace, t = run.trace, step - 1
-        if stage == "prior":
-            dimension = run.state.shape[-1]
-            trace.covariances = np.empty((run.trials, run.steps, dimension, dimension))
-            trace.nis = np.empty((run.trials, run.steps))
-        elif stage == "predicted":
-            trace.nis[:, t] = _innovation_squared(self.model, run.measurements[:, t], run.state, run.weights)
-        elif stage == "weighted":
-            centred = run.state - trace.estimates[:, t, None, :]
-            trace.covariances[:, t] = np.einsum("rn,rnd,rne->rde", run.weights, centred, centred)
-
-
-class SnapshotRecorder(Recorder):
-    """Keeps the particle clouds a :class:`SnapshotRequest` asks for."""
-
-    def __init__(self, request: SnapshotRequest):
-        self.request = request
-
-    def record(self, stage: str, step: int, run: ParticleFilter) -> None:
-        self.request.keep(stage, step, run.state, run.weights)
-
-
-def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R; NaN where
-    S cannot be inverted reliably (:mod:`pfx.numerics.quadratic_forms`)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        predicted = model.measurement_mean(state)
-        mean = np.einsum("rn,rnm->rm", weights, predicted)
-        centred = predicted - mean[:, None, :]
-        innovation_covariance = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
-            + model.measurement_noise.covariance()
-        return normalised_squares(measurement - mean, innovation_covariance)
-
-
-def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Weighted RMS distance of the particles' positions from their weighted mean."""
-    centre = weighted_mean(weights, positions)[:, None, :]
-    squared = np.sum((positions - centre) ** 2, axis=-1)
-    return np.sqrt(np.einsum("rn,rn->r", weights, squared))
-
-
-def _share_within(weights: np.ndarray, positions: np.ndarray, criterion: SpreadCriterion,
-                  active: Optional[np.ndarray] = None) -> np.ndarray:
-    """Share of particles (by weight, or by count: of the active ones) within the radius of the
-    (matching) mean."""
-    if not criterion.weighted:
-        weights = np.full_like(weights, 1.0 / weights.shape[-1]) if active is None \
-            else active_uniform(active, weights.shape[-1])[1]
-    centre = weighted_mean(weights, positions)[:, None, :]
-    inside = np.sum((positions - centre) ** 2, axis=-1) <= criterion.radius ** 2
-    return np.sum(weights * inside, axis=-1)
-
-
-def active_uniform(counts: np.ndarray, maximum: int) -> tuple[np.ndarray, np.ndarray]:
-    """(log-weights, weights) uniform over the first ``counts[r]`` particles of each row
-    (log 1/n, 1/n), -inf and 0 past them: an adaptive count's inactive particles."""
-    active = np.arange(maximum) < counts[:, None]
-    uniform = 1.0 / counts[:, None]
-    return np.where(active, -np.log(counts)[:, None], -np.inf), np.where(active, uniform, 0.0)
-
-
-def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]:
-    """True states x_0..x_T (R, T+1, d) and measurements z_1..z_T (R, T, m) from ``model``;
-    the model's truth events (a kidnapping: :meth:`truth_event`) apply here, never in a filter."""
-    trials = len(random)
-    state = model.initial.sample(random)
-    states = np.empty((trials, model.steps + 1, state.shape[-1]))
-    measurements = np.empty((trials, model.steps, model.measurement_dimension))
-    states[:, 0] = state
-    k = 0
-    try:
-        for k in range(1, model.steps + 1):
-            with np.errstate(over="ignore", invalid="ignore"):   # reported just below
-                state = model.transition(state, k, random)
-                _check_shape(model, "the transition (propagate)", state, states.shape[::2], k)
-                state = model.truth_event(state, k)
-                states[:, k] = state
-                measurement = model.simulate_measurement(state, random)
-                _check_shape(model, "simulate_measurement", measurement, measurements.shape[::2], k)
-                measurements[:, k - 1] = measurement
-            if not (np.isfinite(state).all() and np.isfinite(measurements[:, k - 1]).all()):
-                raise ModelNumericalError(f"model {model.kind} produced NaN or infinite values at step {k} "
-                                          "of the truth")
-    except Exception as error:            # where it happened, for the one-line report
-        note_step(error, k, "truth")
-        raise
-    return states, measurements
-
-
-def _check_shape(model, source: str, value, expected: tuple, k: int) -> None:
-    """The truth's arrays keep their shape (R, d) / (R, m): a wrong one would broadcast silently."""
-    if np.shape(value) != expected:
-        raise ModelContractError(f"model {model.kind}: {source} returned shape {np.shape(value)} at step {k} of "
-                                 f"the truth, for {expected[0]} trials; expected {expected}")

@@ -82,26 +82,26 @@ class InjectionState:
     def inject(self, state: np.ndarray, active: np.ndarray, rows: np.ndarray, random: TrialStreams,
                prior) -> np.ndarray:
         """Replace each active particle of the resampled ``rows`` (state: their clouds, (R, N, d))
-        with probability p by a prior draw, in place; returns the number replaced per row.
+        with probability p by a prior draw, in place; returns which were replaced, (R, N) bool.
 
         Only the trials with p > 0 draw (from their own streams), so a trial's draws never
         depend on the other trials of its batch.
         """
         probability = self.probability(rows)
-        injected = np.zeros(len(rows), dtype=np.int64)
+        count = state.shape[1]
+        replaced_rows = np.zeros((len(rows), count), dtype=bool)
         drawing = np.flatnonzero(probability > 0.0)
         if not drawing.size:
-            return injected
+            return replaced_rows
         streams = random.subset(drawing)
-        count = state.shape[1]
         replaced = streams.uniform((count,)) < probability[drawing, None]
         replaced &= np.arange(count) < active[drawing, None]
         fresh = prior.sample(streams, (count,))
         target = state[drawing]
         target[replaced] = fresh[replaced]
         state[drawing] = target
-        injected[drawing] = replaced.sum(axis=1)
-        return injected
+        replaced_rows[drawing] = replaced
+        return replaced_rows
 
 
 def _blend(log_average: np.ndarray, log_value: np.ndarray, alpha: float) -> np.ndarray:

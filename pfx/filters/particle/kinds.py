@@ -1,15 +1,18 @@
 """The particle filter kinds: ``particle`` (SIR with the ESS rule) and ``sis`` (never resample).
 
-Both run :class:`pfx.filters.particle.engine.ParticleFilter`; ``sis`` forces the ESS threshold to 0.
+Both bind their settings once, at plan time (:func:`pfx.filters.particle.bound.bind_particle_filter`;
+``sis`` with the ESS threshold 0), and run the engine on each batch with the diagnostics the
+batch asks for.
 """
 
 from __future__ import annotations
 
+from typing import Optional
+
+import numpy as np
+
 from pfx.filters.base import FILTERS, FilterKind
-from pfx.filters.particle.engine import run_particle_filter
-from pfx.filters.particle.moves import check_move
-from pfx.filters.particle.proposals import check_particle_settings
-from pfx.filters.particle.resampling import RESAMPLERS
+from pfx.filters.particle.bound import BoundParticleFilter, Recording, bind_particle_filter
 
 
 @FILTERS.register_kind
@@ -22,28 +25,26 @@ class SampleImportanceResampling(FilterKind):
     carries_particles = True
     takes_trace_rows = True
 
+    def __init__(self, bound: BoundParticleFilter):
+        self.bound = bound
+
     @classmethod
     def plan(cls, model, settings, prior):
-        check_move(cls.kind, settings.move, model, settings)     # filter.move (pfx.filters.particle.moves)
-        if settings.adaptive is not None:
-            settings.adaptive.check(model.state_dimension, settings.particles)
-        check_particle_settings(cls.kind, model, settings)       # proposal and auxiliary (proposals.py)
-        return super().plan(model, settings, prior)
+        cls.check_model_needs(model)
+        return cls(bind_particle_filter(cls.kind, model, settings, prior))
 
     @classmethod
     def ess_threshold(cls, settings) -> float:
         """Resample when ESS < threshold * N."""
         return settings.ess_threshold
 
-    def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
-            snapshot=None, trace_rows=None):
-        return run_particle_filter(
-            model, measurements, random, prior=prior, particles=settings.particles,
-            resampler=RESAMPLERS[settings.resampler], ess_threshold=self.ess_threshold(settings),
-            weighting=settings.weighting, diffusion=settings.diffusion, spread_criterion=spread_criterion,
-            consistency=consistency, snapshot=snapshot, trace_rows=trace_rows, move=settings.move,
-            adaptive=getattr(settings, "adaptive", None), injection=getattr(settings, "injection", None),
-            proposal=settings.proposal if settings.proposal.guided else None, auxiliary=settings.auxiliary)
+    def run(self, model, measurements, random, *, settings=None, prior=None, spread_criterion=None,
+            consistency=False, snapshot=None, trace_rows: Optional[np.ndarray] = None, genealogy: bool = False):
+        """Run the bound filter (its model, settings and prior are the plan's; ``model``,
+        ``settings`` and ``prior``, the generic interface's, are the same objects)."""
+        return self.bound.run(measurements, random, Recording(
+            spread_criterion=spread_criterion, consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
+            genealogy=genealogy))
 
 
 @FILTERS.register_kind

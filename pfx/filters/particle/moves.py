@@ -66,11 +66,8 @@ from typing import Annotated, ClassVar, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
-from pfx.filters.transition import noise_enters_additively
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
-
-ADDITIVITY_SEED = 20_010_601     # private seed of the states the additivity check propagates
 
 
 @dataclass
@@ -112,16 +109,15 @@ class _Move(BaseModel):
     needs_parents: ClassVar[bool] = False      # whether the engine keeps x_{k-1} for MoveContext.parents
     reports_acceptance: ClassVar[bool] = False
 
+    def bind(self, model, settings) -> "_Move":
+        """The move for ``model`` (ValueError('@move: reason') if it cannot run with it and the
+        filter's ``settings``); a move that needs constants per cell computes them here."""
+        return self
+
     def apply(self, context: MoveContext, random: TrialStreams) -> tuple[np.ndarray, Optional[np.ndarray]]:
         """The moved particles (R, N, d) and, for moves that accept or reject, each trial's
         acceptance rate at this step (R,); draws from ``random``, the resampled trials' streams."""
         raise NotImplementedError
-
-    def check(self, model, settings) -> None:
-        """Raise ValueError('@move: reason') if the move cannot run with this model and settings."""
-        if settings.diffusion.kind != "none":
-            raise ValueError(f"@move: a move ({self.kind}) and a diffusion ({settings.diffusion.kind}) would both "
-                             "rejuvenate the resampled particles; set diffusion: none (or move: none)")
 
 
 MOVES: Registry[type["_Move"]] = Registry("move")
@@ -132,9 +128,6 @@ class NoMove(_Move):
     """No move after resampling."""
 
     kind: Literal["none"] = "none"
-
-    def check(self, model, settings):
-        pass
 
 
 @MOVES.register_kind
@@ -186,39 +179,48 @@ class ResampleMove(_Move):
     needs_parents: ClassVar[bool] = True
     reports_acceptance: ClassVar[bool] = True
 
-    def check(self, model, settings):
-        super().check(model, settings)
-        if settings.weighting.kind != "gaussian":
+    def bind(self, model, settings) -> "BoundResampleMove":
+        if not settings.weighting.is_likelihood:
             raise ValueError(f"@move: the mcmc move targets p(z | x) p(x | parent), the filter's target only with "
                              f"weighting: gaussian, not {settings.weighting.kind}")
-        d, noise = model.state_dimension, model.process_noise
-        if noise.family != "gaussian" or model.process_noise_dimension != d:
-            raise ValueError(f"@move: the mcmc move evaluates the transition density, which needs additive gaussian "
-                             f"process noise with one component per state component; model {model.kind} has "
-                             f"{noise.family} noise with {model.process_noise_dimension} component(s) for {d}")
-        covariance = noise.covariance()
-        if np.linalg.eigvalsh(covariance).min() <= 0.0:
+        density = model.transition_density()
+        if isinstance(density, ValueError):
+            raise ValueError(f"@move: the mcmc move evaluates the transition density p(x_k | x_k-1), which needs "
+                             f"additive process noise; model {model.kind} {density.reason}")
+        if not density.has_density:
             raise ValueError("@move: the mcmc move evaluates the transition density, which needs a positive-definite "
-                             "process noise covariance")
-        points = model.initial.sample(TrialStreams.from_seeds([ADDITIVITY_SEED]), (7,))[0]
-        if not noise_enters_additively(model, points, np.sqrt(np.diag(covariance))):
-            raise ValueError(f"@move: the mcmc move needs additive process noise (x' = f(x, u) + w); model "
-                             f"{model.kind}'s noise does not enter additively")
+                             f"process noise covariance L Q L' (model {model.kind}'s is singular)")
+        return BoundResampleMove(self, density)
+
+
+class BoundResampleMove:
+    """The mcmc move bound to a model: its transition density derived once (ResampleMove)."""
+
+    needs_parents: ClassVar[bool] = True
+    reports_acceptance: ClassVar[bool] = True
+
+    def __init__(self, settings: ResampleMove, density):
+        self.settings, self.density = settings, density
+
+    @property
+    def kind(self) -> str:
+        return self.settings.kind
 
     def apply(self, context, random):
-        model = context.model
+        model, density, steps = context.model, self.density, self.settings.steps
         trials, n, d = context.resampled.shape
-        scale = self.scale if self.scale is not None else 2.38 / math.sqrt(d)
+        scale = self.settings.scale if self.settings.scale is not None else 2.38 / math.sqrt(d)
         factor = scale * square_root(weighted_covariance(context.weights, context.cloud)).transpose(0, 2, 1)
-        predicted_mean = model.propagate(context.parents, model.control(context.step), np.zeros_like(context.parents))
+        parents = context.parents
+        predicted_mean = model.propagate(parents, model.control(context.step),
+                                         np.zeros(parents.shape[:-1] + (model.process_noise_dimension,)))
         measurement = context.measurement[:, None, :]
         observed = ~np.isnan(context.measurement).any(axis=-1)
-        noise = model.process_noise
 
         def log_target(state):
             """log p(z | x) + log p(x | parent), up to a constant; -inf where undefined."""
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                value = noise.log_density(state - predicted_mean)
+                value = density.log_density(state, predicted_mean)
                 if observed.any():
                     value = value + np.where(observed[:, None], model.log_likelihood(measurement, state), 0.0)
             return np.where(np.isnan(value), -np.inf, value)
@@ -226,7 +228,7 @@ class ResampleMove(_Move):
         state = context.resampled
         current = log_target(state)
         accepted = np.zeros(trials)
-        for _ in range(self.steps):
+        for _ in range(steps):
             proposal = state + np.matmul(random.standard_normal((n, d)), factor)
             proposed = log_target(proposal)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -234,15 +236,7 @@ class ResampleMove(_Move):
             state = np.where(accept[..., None], proposal, state)
             current = np.where(accept, proposed, current)
             accepted += accept.sum(axis=-1)
-        return state, accepted / (n * self.steps)
+        return state, accepted / (n * steps)
 
 
 Move = MOVES.kind_union()
-
-
-def check_move(kind: str, move: _Move, model, settings) -> None:
-    """The plan-time checks of ``filter.move`` for the particle kind ``kind``."""
-    if move.kind != "none" and kind == "sis":
-        raise ValueError(f"@move: sis never resamples, so there are no resampled particles to move ({move.kind}); "
-                         "use kind: particle")
-    move.check(model, settings)

@@ -56,7 +56,6 @@ weighting is not :math:`p(z \mid x)`, and the ratio above would not be an import
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar, Literal, Optional
 
 import numpy as np
@@ -70,19 +69,30 @@ from pfx.filters.kalman.unscented import (
     unscented_moments,
     unscented_sigma_points,
 )
+from pfx.laws.transition_density import LOG_TWO_PI, AdditiveTransition
 from pfx.registry import Registry
-
-LOG_TWO_PI = math.log(2.0 * math.pi)
 
 
 class _Proposal(BaseModel):
+    """A proposal's settings (``filter.proposal``); :meth:`bind` makes the object the engine calls.
+
+    A plugin's proposal (``pfx.register_proposal``, docs/plugins.md) subclasses this class (as
+    ``pfx.Proposal``), declares ``kind: Literal["name"] = "name"`` and its settings, and defines
+    :meth:`propose`; :meth:`check` refuses a model it cannot run on.
+    """
+
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     #: False for the bootstrap proposal only: the engine then runs the transition itself
-    guided: ClassVar[bool] = False
+    guided: ClassVar[bool] = True
 
     def check(self, model) -> None:
         """Raise ValueError('@proposal: reason') if this proposal cannot run on ``model``."""
+
+    def bind(self, model) -> "BoundProposal":
+        """The proposal for ``model``, checked, with whatever it computes once per cell."""
+        self.check(model)
+        return BoundProposal(self, model)
 
     def propose(self, model, previous: np.ndarray, step: int, measurement: np.ndarray,
                 observed: Optional[np.ndarray], random) -> tuple[np.ndarray, np.ndarray]:
@@ -90,9 +100,20 @@ class _Proposal(BaseModel):
 
         ``observed`` is None when every trial has its measurement, else a boolean (R,) mask.
         Returns the new particles and the weight adjustment
-        log p(x_k | x_{k-1}) - log q(x_k | x_{k-1}, z_k), shape (R, N).
+        log p(x_k | x_{k-1}) - log q(x_k | x_{k-1}, z_k), shape (R, N); every draw from
+        ``random`` (the trials' streams). ``model.transition_log_density`` gives the first term.
         """
         raise NotImplementedError
+
+
+class BoundProposal:
+    """A proposal bound to a model: ``propose(previous, step, measurement, observed, random)``."""
+
+    def __init__(self, settings: _Proposal, model):
+        self.settings, self.model = settings, model
+
+    def propose(self, previous, step, measurement, observed, random):
+        return self.settings.propose(self.model, previous, step, measurement, observed, random)
 
 
 PROPOSALS: Registry[type["_Proposal"]] = Registry("proposal")
@@ -103,58 +124,52 @@ class BootstrapProposal(_Proposal):
     """The transition p(x_k | x_{k-1}, u_k) (the bootstrap filter)."""
 
     kind: Literal["bootstrap"] = "bootstrap"
+    guided: ClassVar[bool] = False
 
 
-def additive_process_noise(model) -> np.ndarray:
-    """Q = L Q_w L' (d, d), the covariance of x_k given x_{k-1}, for additive gaussian process
-    noise; ValueError('@proposal: ...') when the model's transition density is not that."""
-    reason = None
-    d = model.state_dimension
-    probes = np.stack([np.zeros(d), np.ones(d)])[:, None, :]       # two states: is L constant?
-    jacobians = model.process_noise_jacobian(probes, model.control(1))
-    noise = model.process_noise
-    if noise.family != "gaussian":
-        reason = f"has {noise.family} process noise"
-    elif jacobians is None:
-        reason = "gives no process_noise_jacobian (it does not declare its process noise additive)"
-    elif not np.array_equal(jacobians[0], jacobians[1]):
-        reason = "has a process-noise Jacobian L that depends on the state (noise not additive)"
+def gaussian_transition(model) -> AdditiveTransition:
+    """The model's transition density N(x_k; f(x_{k-1}, u_k, 0), Q), Q = L Q_w L', which every
+    guided proposal here needs (:meth:`pfx.models.base.Model.transition_density`);
+    ValueError('@proposal: ...') when the model's transition density is not that."""
+    density = model.transition_density()
+    if isinstance(density, ValueError):
+        reason = density.reason
+    elif density.noise.family != "gaussian":
+        reason = f"has {density.noise.family} process noise"
+    elif density.factor is None:
+        reason = "has no transition density: its process noise covariance L Q L' is singular"
     else:
-        L = np.asarray(jacobians[0, 0], dtype=float)
-        covariance = L @ noise.covariance() @ L.T
-        try:
-            np.linalg.cholesky(covariance)
-        except np.linalg.LinAlgError:
-            reason = "has no transition density: its process noise covariance L Q L' is singular"
-    if reason is not None:
-        raise ValueError(f"@proposal: a guided proposal needs the transition density "
-                         f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}")
-    return covariance
-
-
-def gaussian_log_density(value: np.ndarray, mean: np.ndarray, factor: np.ndarray) -> np.ndarray:
-    """log N(value; mean, C C') for one lower-triangular factor C (d, d): shape (...)."""
-    standard = (value - mean) @ np.linalg.inv(factor).T
-    d = value.shape[-1]
-    return -0.5 * np.sum(standard * standard, axis=-1) - np.sum(np.log(np.diag(factor))) - 0.5 * d * LOG_TWO_PI
+        return density
+    raise ValueError(f"@proposal: a guided proposal needs the transition density "
+                     f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}")
 
 
 class _GaussianProposal(_Proposal):
     """q = N(m_i, P_i) around each particle's prediction (module docstring)."""
 
-    guided: ClassVar[bool] = True
-
     def check(self, model):
-        additive_process_noise(model)
+        gaussian_transition(model)
+
+    def bind(self, model) -> "BoundGaussianProposal":
+        self.check(model)
+        return BoundGaussianProposal(self, model, gaussian_transition(model))
 
     def moments(self, model, predicted: np.ndarray, noise: np.ndarray, measurement: np.ndarray):
         """(m, C): the proposal's mean (R, N, d) and a factor C of its covariance, C C' = P
-        ((R, N, d, d), or (d, d) shared by every particle)."""
+        ((R, N, d, d), or (d, d) shared by every particle); ``noise`` is Q."""
         raise NotImplementedError
 
-    def propose(self, model, previous, step, measurement, observed, random):
-        noise = additive_process_noise(model)
-        noise_factor = np.linalg.cholesky(noise)
+
+class BoundGaussianProposal(BoundProposal):
+    """A Gaussian proposal bound to a model, with Q and its Cholesky factor computed once."""
+
+    def __init__(self, settings: _GaussianProposal, model, density: AdditiveTransition):
+        super().__init__(settings, model)
+        self.density = density
+
+    def propose(self, previous, step, measurement, observed, random):
+        model, density = self.model, self.density
+        noise, noise_factor = density.covariance, density.factor
         control = model.control(step)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             predicted = model.propagate(previous, control, np.zeros(previous.shape[:-1] + (model.process_noise_dimension,)))
@@ -164,7 +179,7 @@ class _GaussianProposal(_Proposal):
             safe = np.where(finite[..., None], predicted, 0.0)
             if observed is not None:          # a missing measurement: any finite stand-in; see below
                 measurement = np.where(observed[:, None], measurement, 0.0)
-            mean, factor = self.moments(model, safe, noise, measurement[:, None, :])
+            mean, factor = self.settings.moments(model, safe, noise, measurement[:, None, :])
             if observed is not None:          # missing measurement: the transition, no adjustment
                 mean = np.where(observed[:, None, None], mean, safe)
                 factor = np.where(observed[:, None, None, None], factor, noise_factor)
@@ -173,7 +188,7 @@ class _GaussianProposal(_Proposal):
             d = state.shape[-1]
             log_proposal = -0.5 * np.sum(standard * standard, axis=-1) \
                 - np.sum(np.log(np.diagonal(factor, axis1=-2, axis2=-1)), axis=-1) - 0.5 * d * LOG_TWO_PI
-            log_transition = gaussian_log_density(state, safe, noise_factor)
+            log_transition = density.log_density(state, safe)
             adjustment = log_transition - log_proposal
             if observed is not None:
                 adjustment = np.where(observed[:, None], adjustment, 0.0)
@@ -199,7 +214,7 @@ class LocallyOptimalProposal(_GaussianProposal):
     kind: Literal["locally_optimal"] = "locally_optimal"
 
     def check(self, model):
-        additive_process_noise(model)
+        gaussian_transition(model)
         if getattr(model, "matrices", None) is None:
             raise ValueError(f"@proposal: the locally_optimal proposal needs a measurement linear in the state, "
                              f"z = H x + v (a model with `matrices`, e.g. linear_gaussian); model {model.kind} "
@@ -241,7 +256,7 @@ class UnscentedProposal(_GaussianProposal):
     kappa: StrictFloat = Field(0.0, ge=-1e6, le=1e6, description="secondary scaling; needs d + kappa > 0")
 
     def check(self, model):
-        additive_process_noise(model)
+        gaussian_transition(model)
         try:
             self.parameters().check(model.state_dimension)
         except ValueError as error:
@@ -270,28 +285,3 @@ class UnscentedProposal(_GaussianProposal):
 
 
 Proposal = PROPOSALS.kind_union()
-
-
-def check_particle_settings(kind: str, model, settings) -> None:
-    """The refusals of ``proposal`` and ``auxiliary`` (one line each; see docs/filters-and-models.md)."""
-    proposal = settings.proposal
-    weighting = settings.weighting
-    if proposal.guided:
-        if weighting.kind != "gaussian":
-            raise ValueError(f"@proposal: a guided proposal's importance weight needs the model's likelihood "
-                             f"p(z | x); weighting {weighting.label()} is not one (use weighting: gaussian)")
-        proposal.check(model)
-    if settings.auxiliary:
-        if kind == "sis":
-            raise ValueError("@auxiliary: the auxiliary particle filter resamples in its first stage and sis never "
-                             "resamples; use kind: particle")
-        if weighting.kind != "gaussian":
-            raise ValueError(f"@auxiliary: the auxiliary particle filter weighs by the model's likelihood "
-                             f"p(z | x); weighting {weighting.label()} is not one (use weighting: gaussian)")
-        # its first stage resamples before the proposal, where a move, an adaptive count or an
-        # injection (stages after the end-of-step resampling) have no defined place yet
-        for key in ("move", "adaptive", "injection"):
-            value = getattr(settings, key, None)
-            if value is not None and getattr(value, "kind", "none") != "none":
-                raise ValueError(f"@auxiliary: the auxiliary particle filter does not combine with filter.{key} "
-                                 f"({value.kind}): its resampling is its first stage; use one or the other")

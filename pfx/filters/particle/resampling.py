@@ -172,3 +172,28 @@ for _function in (multinomial, stratified, systematic, residual):
     RESAMPLERS.add(_function.__name__, Resampler(_function, unbiased=True), _function.__doc__.splitlines()[0])
 RESAMPLERS.add("han_lee_iv", Resampler(han_lee_iv, unbiased=False),
                "BIASED: han-lee Algorithm IV as printed (N smallest of N+1 sorted uniforms)")
+
+
+@dataclass(frozen=True)
+class Resampling:
+    """The resampling stage's rule: which trials resample at a step, and with which resampler.
+
+    A trial resamples when its ESS falls below ``threshold`` times its particle count (N, or
+    its active count with an adaptive count): 1 resamples every step, 0 never (``sis``).
+    """
+
+    resampler: Resampler
+    threshold: float
+
+    def rows(self, ess: np.ndarray, particles: int, active: np.ndarray | None = None) -> np.ndarray:
+        """The trials (indices) whose ESS is below the threshold."""
+        if self.threshold >= 1.0:
+            return np.arange(len(ess))
+        if self.threshold > 0.0:
+            count = particles if active is None else active
+            return np.flatnonzero(ess < self.threshold * count)
+        return np.empty(0, dtype=np.intp)
+
+    def indices(self, weights: np.ndarray, random: TrialStreams) -> np.ndarray:
+        """Each trial's N ancestor indices, drawn from its normalised weights (R, N)."""
+        return self.resampler(weights, random)

@@ -26,7 +26,7 @@ implemented as described and named honestly in every table.
 
 from __future__ import annotations
 
-from typing import Literal, Optional
+from typing import ClassVar, Literal, Optional
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
@@ -36,6 +36,11 @@ from pfx.registry import Registry
 
 class _Weighting(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    #: whether the log-weight increment is the model's log-likelihood log p(z | x), the Bayesian
+    #: weight: guided proposals, the auxiliary filter, the mcmc move and a model's compiled step
+    #: need it (their importance weights and targets are ratios of densities)
+    is_likelihood: ClassVar[bool] = False
 
     def label(self) -> str:
         """Short name for tables: the kind, plus the form where there is one."""
@@ -63,6 +68,7 @@ class GaussianWeighting(_Weighting):
     """The model's measurement likelihood p(z | x) (the Bayesian weight)."""
 
     kind: Literal["gaussian"] = "gaussian"
+    is_likelihood: ClassVar[bool] = True
 
     def log_weights(self, model, measurement, particles, weights):
         return model.log_likelihood(measurement, particles)

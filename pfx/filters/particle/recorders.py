@@ -1,0 +1,232 @@
+"""Diagnostics of the particle filter: what a run records besides its estimates.
+
+A :class:`Recorder` is attached to the engine (:class:`pfx.filters.particle.engine.ParticleFilter`)
+and called after each stage of a step ("prior", "predicted", "weighted", "resampled"); it reads
+the cloud and fills its part of the trace, and never changes the cloud or draws a random number.
+So the engine's loop holds the algorithm and nothing else, and a diagnostic that is not asked
+for costs nothing.
+
+* :class:`SpreadRecorder`: the weighted RMS distance of the positions from their mean (steps.csv's
+  ``spread``) and, for the spread convergence criterion, the share within a radius;
+* :class:`StandardDeviationRecorder`: the posterior standard deviation of each component;
+* :class:`ConsistencyRecorder`: the weighted posterior covariance and the NIS (for NEES and NIS);
+* :class:`SnapshotRecorder`: the particle clouds a :class:`SnapshotRequest` asks for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from pfx.filters.particle.cloud import active_uniform, weighted_mean
+from pfx.numerics.angles import wrap_difference
+from pfx.numerics.quadratic_forms import normalised_squares
+
+
+@dataclass
+class SnapshotRequest:
+    """Which particle clouds to keep: trials (rows of the batch), steps, stages.
+
+    Stages: ``prior`` (step 0), ``predicted`` (after the transition, with the previous
+    weights), ``weighted`` (after the weight update, before resampling) and ``resampled``
+    (after resampling and diffusion). Each kept cloud is appended to ``clouds`` as a dict with
+    keys stage, step, rows, state (len(rows), N, d) and weights (len(rows), N).
+    """
+
+    rows: np.ndarray
+    steps: object                 # a collection of steps, or "all"
+    stages: frozenset
+    clouds: list = field(default_factory=list)
+
+    def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
+        if (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps):
+            self.clouds.append({"stage": stage, "step": step, "rows": self.rows,
+                                "state": state[self.rows].copy(), "weights": weights[self.rows].copy()})
+
+
+@dataclass
+class SpreadCriterion:
+    """Record, per step, the share of particles within ``radius`` of the particle mean."""
+
+    radius: float
+    weighted: bool
+
+
+class Recorder:
+    """A diagnostic attached to :class:`ParticleFilter`: after each stage ("prior",
+    "predicted", "weighted", "resampled") it may read the filter's cloud and fill its part of
+    the trace. Recorders never change the cloud or draw random numbers."""
+
+    def record(self, stage: str, step: int, run) -> None:
+        raise NotImplementedError
+
+
+class SpreadRecorder(Recorder):
+    """After each step: the weighted RMS distance of the positions from their mean (``spread``,
+    a column of steps.csv: for the traced ``rows`` only, None: every row) and, for the spread
+    convergence criterion, the share within its radius (every row)."""
+
+    def __init__(self, model, criterion: Optional[SpreadCriterion], rows: Optional[np.ndarray] = None):
+        position = list(model.position_components)
+        if position == list(range(position[0], position[-1] + 1)):
+            position = slice(position[0], position[-1] + 1)      # a view of the state, not a copy per step
+        self.position, self.criterion = position, criterion
+        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)
+
+    def record(self, stage: str, step: int, run) -> None:
+        if stage != "resampled":
+            return
+        if self.criterion is not None and run.trace.within_radius is None:
+            run.trace.within_radius = np.empty((run.trials, run.steps))
+        # (a diverging cloud has infinite spread: the run's np.errstate lets it be)
+        run.trace.spread[self.rows, step - 1] = _spread(run.weights[self.rows], run.state[self.rows][..., self.position])
+        if self.criterion is not None:
+            run.trace.within_radius[:, step - 1] = _share_within(run.weights, run.state[..., self.position],
+                                                                 self.criterion, run.active)
+
+
+class StandardDeviationRecorder(Recorder):
+    """The posterior standard deviation of each state component, weighted, before resampling
+    (at the estimate's stage), for some rows of the batch (the traced trials; None: all); the others stay NaN.
+
+    An angular component's deviations are taken from the circular mean, wrapped into half a
+    turn either side, as its errors are.
+    """
+
+    def __init__(self, model, rows: Optional[np.ndarray]):
+        self.rows = slice(None) if rows is None else np.asarray(rows, dtype=np.intp)   # None: every row
+        self.angular = list(model.angular_components)
+        self.full_turn = model.full_turn
+
+    def record(self, stage: str, step: int, run) -> None:
+        trace, t = run.trace, step - 1
+        if stage == "prior":
+            trace.standard_deviations = np.full((run.trials, run.steps, run.state.shape[-1]), np.nan)
+        elif stage == "weighted":
+            with np.errstate(over="ignore", invalid="ignore"):    # a diverging cloud: infinite spread
+                centred = run.state[self.rows] - trace.estimates[self.rows, t, None, :]
+                if self.angular:
+                    centred[..., self.angular] = wrap_difference(centred[..., self.angular], self.full_turn)
+                variances = np.einsum("rn,rnd->rd", run.weights[self.rows], centred * centred)
+                trace.standard_deviations[self.rows, t] = np.sqrt(variances)
+
+
+class ConsistencyRecorder(Recorder):
+    """NEES and NIS for particle filters: the NIS of the predicted cloud, and the weighted
+    posterior covariance (before resampling)."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def record(self, stage: str, step: int, run) -> None:
+        trace, t = run.trace, step - 1
+        if stage == "prior":
+            dimension = run.state.shape[-1]
+            trace.covariances = np.empty((run.trials, run.steps, dimension, dimension))
+            trace.nis = np.empty((run.trials, run.steps))
+        elif stage == "predicted":
+            trace.nis[:, t] = _innovation_squared(self.model, run.measurements[:, t], run.state, run.weights)
+        elif stage == "weighted":
+            centred = run.state - trace.estimates[:, t, None, :]
+            trace.covariances[:, t] = np.einsum("rn,rnd,rne->rde", run.weights, centred, centred)
+
+
+class SnapshotRecorder(Recorder):
+    """Keeps the particle clouds a :class:`SnapshotRequest` asks for."""
+
+    def __init__(self, request: SnapshotRequest):
+        self.request = request
+
+    def record(self, stage: str, step: int, run) -> None:
+        self.request.keep(stage, step, run.state, run.weights)
+
+
+def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R; NaN where
+    S cannot be inverted reliably (:mod:`pfx.numerics.quadratic_forms`)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        predicted = model.measurement_mean(state)
+        mean = np.einsum("rn,rnm->rm", weights, predicted)
+        centred = predicted - mean[:, None, :]
+        innovation_covariance = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
+            + model.measurement_noise.covariance()
+        return normalised_squares(measurement - mean, innovation_covariance)
+
+
+def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Weighted RMS distance of the particles' positions from their weighted mean."""
+    centre = weighted_mean(weights, positions)[:, None, :]
+    squared = np.sum((positions - centre) ** 2, axis=-1)
+    return np.sqrt(np.einsum("rn,rn->r", weights, squared))
+
+
+def _share_within(weights: np.ndarray, positions: np.ndarray, criterion: SpreadCriterion,
+                  active: Optional[np.ndarray] = None) -> np.ndarray:
+    """Share of particles (by weight, or by count: of the active ones) within the radius of the
+    (matching) mean."""
+    if not criterion.weighted:
+        weights = np.full_like(weights, 1.0 / weights.shape[-1]) if active is None \
+            else active_uniform(active, weights.shape[-1])[1]
+    centre = weighted_mean(weights, positions)[:, None, :]
+    inside = np.sum((positions - centre) ** 2, axis=-1) <= criterion.radius ** 2
+    return np.sum(weights * inside, axis=-1)
+
+
+class GenealogyRecorder(Recorder):
+    """Each step's ancestor indices: ``trace.ancestors[r, k-1, i]`` is the particle of step k-1
+    (of its weighted cloud, before resampling) from which particle i of step k descends, -1 for
+    a particle injected from the prior. A step whose trial did not resample has i -> i.
+
+    The engine notes the ancestors whenever it resamples (at the end of step k-1, or in the
+    auxiliary filter's first stage at step k); this recorder copies them once step k's particles
+    are proposed, and starts the next step from i -> i. Memory: T N integers per trial, only when
+    asked for (``Recording.genealogy``).
+    """
+
+    def record(self, stage: str, step: int, run) -> None:
+        if stage == "prior":
+            dtype = np.int32 if run.particles < 2**31 else np.int64
+            run.trace.ancestors = np.empty((run.trials, run.steps, run.particles), dtype=dtype)
+        elif stage == "predicted":
+            run.trace.ancestors[:, step - 1] = run.ancestors
+            run.ancestors[:] = np.arange(run.particles)
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Which diagnostics a run records besides its estimates, ESS and log-likelihood.
+
+    ``spread_criterion``: the share of particles within a radius (the spread convergence
+    criterion), every trial. ``consistency``: the weighted posterior covariance and the NIS (NEES,
+    NIS). ``snapshot``: particle clouds to keep. ``trace_rows``: the rows of the batch whose
+    per-step spread and posterior standard deviations steps.csv shows (None: none, as in ``pfx
+    bench``, whose timings are the filter's). ``genealogy``: each step's ancestor indices
+    (``FilterTrace.ancestors``, (trials, T, N): memory T N per trial).
+    """
+
+    spread_criterion: Optional[SpreadCriterion] = None
+    consistency: bool = False
+    snapshot: Optional[SnapshotRequest] = None
+    trace_rows: Optional[np.ndarray] = None
+    genealogy: bool = False
+
+
+def recorders_for(model, recording: Recording) -> list[Recorder]:
+    """The recorders a :class:`~pfx.filters.particle.bound.Recording` asks for, in their order."""
+    recorders: list[Recorder] = []
+    rows = recording.trace_rows
+    traced = rows is not None and len(rows) > 0
+    if traced or recording.spread_criterion is not None:   # steps.csv's spread; the spread convergence criterion
+        recorders.append(SpreadRecorder(model, recording.spread_criterion,
+                                        None if recording.spread_criterion is not None else rows))
+    if traced:
+        recorders.append(StandardDeviationRecorder(model, rows))
+    if recording.consistency:
+        recorders.append(ConsistencyRecorder(model))
+    if recording.snapshot is not None:
+        recorders.append(SnapshotRecorder(recording.snapshot))
+    if recording.genealogy:
+        recorders.append(GenealogyRecorder())
+    return recorders
