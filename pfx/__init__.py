@@ -40,6 +40,9 @@ _LAZY_NAMES = {
     "register_resampler": "pfx.config.plugins",
     "register_weighting": "pfx.config.plugins",
     "register_filter_kind": "pfx.config.plugins",
+    "register_proposal": "pfx.config.plugins",
+    # a plugin's proposal subclasses this (filter.proposal; docs/plugins.md)
+    "Proposal": ("pfx.filters.particle.proposals", "ProposalBase"),
     # the laws a model's presets() and default_prior() return
     "Noise": "pfx.laws.noise",
     "PointLaw": "pfx.laws.initial",
@@ -69,7 +72,8 @@ def __getattr__(name: str):
     if name in _LAZY_NAMES:
         import importlib
 
-        value = getattr(importlib.import_module(_LAZY_NAMES[name]), name)
+        module, attribute = _LAZY_NAMES[name] if isinstance(_LAZY_NAMES[name], tuple) else (_LAZY_NAMES[name], name)
+        value = getattr(importlib.import_module(module), attribute)
         globals()[name] = value              # once imported, an ordinary attribute
         return value
     raise AttributeError(f"module 'pfx' has no attribute {name!r}")

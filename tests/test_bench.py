@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from pfx.bench import QUICK_CASES
-from pfx.bench.algorithms import ALGORITHMS, BASELINE, QUICK_CASE, algorithm_cells
+from pfx.bench.algorithms import ALGORITHMS, BASELINE, QUICK_CASE, algorithm_filters
 from pfx.bench.peers import ADAPTERS, PEERS
 from pfx.bench.problem import FallingBodyProblem, make_case
 from pfx.bench.report import ALGORITHM_WIDTH
-from pfx.bench.timing import run_cell, run_numpy, run_pfx
+from pfx.bench.timing import run_filter, run_numpy, run_pfx
 
 Z = 4.5        # two-sided P(|Z| > 4.5) = 7e-6 per comparison
 
@@ -93,8 +93,8 @@ def test_quick_bench_prints_the_algorithms_table(quick_output):
 def test_bench_model_is_pfx_model():
     """The NumPy functions the reference and the peers use are pfx's falling body (Euler, dt 0.1)."""
     case = make_case(50, 1)
-    model = case.cell.filter_model
-    problem = FallingBodyProblem.from_cell(case.cell)
+    model = case.filter.model
+    problem = FallingBodyProblem.from_filter(case.filter)
     x = problem.sample_prior(np.random.default_rng(0), 50)
     np.testing.assert_allclose(problem.propagate(x), model.propagate(x, None, np.zeros_like(x)), rtol=1e-12)
     z = case.measurements[0, 3, 0]
@@ -127,7 +127,7 @@ def accuracy_case():
 
 def test_reference_filter_is_as_accurate_as_pfx(accuracy_case):
     case, pfx_estimates = accuracy_case
-    problem = FallingBodyProblem.from_cell(case.cell)
+    problem = FallingBodyProblem.from_filter(case.filter)
     reference = run_numpy(problem, case)
     assert np.all(np.isfinite(reference)) and np.all(np.isfinite(pfx_estimates))
     _assert_same_accuracy(case, reference, pfx_estimates, "numpy reference")
@@ -137,7 +137,7 @@ def test_reference_filter_is_as_accurate_as_pfx(accuracy_case):
 def test_peer_is_as_accurate_as_pfx(accuracy_case, name):
     pytest.importorskip(name, reason=f"{name} is installed only in the benchmark's environment (make bench)")
     case, pfx_estimates = accuracy_case
-    estimates = ADAPTERS[name](FallingBodyProblem.from_cell(case.cell), case)
+    estimates = ADAPTERS[name](FallingBodyProblem.from_filter(case.filter), case)
     _assert_same_accuracy(case, estimates, pfx_estimates, name)
 
 
@@ -155,8 +155,8 @@ CONSISTENT = ["ekf proposal", "ukf proposal", "auxiliary (APF)", "mcmc move"]
 @pytest.fixture(scope="module")
 def algorithm_traces(accuracy_case):
     case, _ = accuracy_case
-    cells = algorithm_cells(case.particles, case.trials)
-    return {name: cell if isinstance(cell, str) else run_cell(cell, case) for name, cell in cells.items()}
+    filters = algorithm_filters(case.particles)
+    return {name: bound if isinstance(bound, str) else run_filter(bound, case) for name, bound in filters.items()}
 
 
 def test_every_algorithm_runs_or_says_why_not(accuracy_case, algorithm_traces):

@@ -911,6 +911,85 @@ NEW_COMPONENTS = [("models", "drift_walk"), ("resamplers", "antithetic"), ("resa
 
 # -- the tests ------------------------------------------------------------------------------------
 
+EXACT_PROPOSAL_PLUGIN = module(r'''
+    """The exact proposal of a linear-Gaussian model, p(x_k | x_k-1, z_k), from a plugin (tests/test_extending.py)."""
+
+    from typing import Literal
+
+    import numpy as np
+
+    import pfx
+
+
+    @pfx.register_proposal
+    class ExactLinear(pfx.Proposal):
+        """The exact p(x_k | x_k-1, z_k) of a linear-Gaussian model, from a plugin."""
+
+        kind: Literal["exact_linear"] = "exact_linear"
+
+        def check(self, model):
+            if getattr(model, "matrices", None) is None:
+                raise ValueError("@proposal: exact_linear needs a model with matrices (linear_gaussian)")
+
+        def propose(self, model, previous, step, measurement, observed, random):
+            H = model.matrices[1]
+            Q = model.process_noise.covariance()
+            R = model.measurement_noise.covariance()
+            predicted = model.propagate(previous, model.control(step), np.zeros(previous.shape[:-1] + (model.process_noise_dimension,)))
+            gain = np.linalg.solve(H @ Q @ H.T + R, H @ Q).T
+            covariance = (np.eye(len(Q)) - gain @ H) @ Q
+            if observed is not None:
+                measurement = np.where(observed[:, None], measurement, 0.0)
+            mean = predicted + (measurement[:, None, :] - predicted @ H.T) @ gain.T
+            factor = np.linalg.cholesky(covariance)
+            standard = random.standard_normal(previous.shape[1:])
+            state = mean + standard @ factor.T
+            log_proposal = (-0.5 * np.sum(standard * standard, axis=-1) - np.sum(np.log(np.diag(factor)))
+                            - 0.5 * len(Q) * np.log(2 * np.pi))
+            adjustment = model.transition_log_density(state, previous, step) - log_proposal
+            if observed is not None:       # a missing measurement: draw from the transition instead
+                noise = model.process_noise.sample(random, previous.shape[1:-1])
+                state = np.where(observed[:, None, None], state, predicted + noise)
+                adjustment = np.where(observed[:, None], adjustment, 0.0)
+            return state, adjustment
+''')
+
+
+@story
+def add_proposal_from_a_plugin(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
+    copy.root.joinpath("exact_proposal.py").write_text(EXACT_PROPOSAL_PLUGIN)      # a file beside the config
+    config = tiny("proposals", plugins=["exact_proposal.py"], filter={"particles": 50},
+                  arms={"bootstrap": {}, "exact": {"proposal": "exact_linear"}})
+    write_config_file(copy.root, config)
+    # The same filter seeds for the built-in locally optimal proposal and the plugin's: the same
+    # draws, so the same numbers (to rounding: the two compute the same Gaussian differently).
+    same_draws = textwrap.dedent("""
+        import numpy as np
+        import pfx
+        from pfx.config.plugins import load_plugin
+        load_plugin("exact_proposal.py")
+        model = pfx.model("linear_gaussian", steps=30, transition_matrix=[[0.9]], measurement_matrix=[[1.0]])
+        measurements = np.random.default_rng(3).normal(size=(30, 1))
+        runs = [pfx.filter(model, measurements, seeds=[11, 12], particles=200, proposal=name)
+                for name in ("locally_optimal", "exact_linear")]
+        print(float(np.max(np.abs(runs[0].estimates - runs[1].estimates))),
+              float(np.max(np.abs(runs[0].log_likelihood - runs[1].log_likelihood))))
+    """)
+    steps = drive(copy, {"list": cli("list", "proposals", "--plugin", "exact_proposal.py"),
+                         "run": cli("run", "config.yaml", "--out", "out"), "same": {"code": same_draws}})
+    story = Story(copy, steps, baseline())
+    story.assert_listed("proposals", "exact_linear",
+                        "The exact p(x_k | x_k-1, z_k) of a linear-Gaussian model, from a plugin. [plugin exact_proposal.py]")
+    steps.ok("run")
+    trials = pd.read_csv(story.result() / "trials.csv")
+    assert set(trials["arm"]) == {"bootstrap", "exact"} and np.isfinite(trials["log_likelihood"]).all()
+    recorded = yaml.safe_load((story.result() / "config.yaml").read_text())
+    assert recorded["arms"]["exact"]["proposal"] == {"kind": "exact_linear"}
+    estimate_gap, likelihood_gap = map(float, steps.ok("same").split())
+    assert estimate_gap < 1e-9 and likelihood_gap < 1e-9, (estimate_gap, likelihood_gap)
+    story.assert_touched({})                                                       # pfx itself unchanged
+
+
 def _baseline(copy: PackageCopy) -> Steps:
     """The unmodified copy: what it lists and the schema it prints."""
     steps = drive(copy, {"list": cli("list"), "schema": cli("schema")})
@@ -958,6 +1037,9 @@ PAGE_SAYS = {
     "A proposal": ["`propose(model, previous, step, measurement, observed, random)`", "`guided: ClassVar[bool] = True`",
                    "log p(x_k | x_{k-1}) - log q(x_k | x_{k-1}, z_k)", "`@PROPOSALS.register_kind`",
                    "`Proposal = PROPOSALS.kind_union()`"],
+    "A proposal from a plugin": ["`@pfx.register_proposal`", "`pfx.Proposal`",
+                                 "`model.transition_log_density(state, previous, step)`",
+                                 "`plugins: [my_proposal.py]`", "`filter.proposal: <name>`"],
     "A move": ["`apply(context, random)`", "`needs_parents = True`", "`reports_acceptance = True`",
                "`@MOVES.register_kind`", "`Move = MOVES.kind_union()`"],
     "A noise family": ["added to the dict the module registers into `NOISE_FAMILIES`",

@@ -65,9 +65,9 @@ mostly times the bookkeeping of the two averages; with N = 100 (``--quick``) tri
 body and injection fires. A line under the table counts the particles injected.
 
 **How it is timed.** Like the first table (:func:`pfx.bench.timing.time_case`): each variant
-is one cell built by :func:`pfx.bench.problem.bench_cell` with the setting added to
+is one filter bound by :func:`pfx.bench.problem.bench_filter` with the setting added to
 ``filter:`` (the bootstrap's cell is the same call without one) and run as
-:func:`pfx.bench.timing.run_pfx` runs it (``cell.planned_filter.run``); within each repeat
+:func:`pfx.bench.timing.run_pfx` runs it (the bound filter's call); within each repeat
 every variant runs once, in an order rotating from repeat to repeat, and the best time of
 ``repeats`` counts. Each variant first runs once on a tiny case, so that nothing it compiles
 or loads on first use is timed.
@@ -81,10 +81,10 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 
-from pfx.bench.problem import Case, FallingBodyProblem, bench_cell, make_case
-from pfx.bench.timing import Timing, run_cell, time_case
-from pfx.config.plan import Cell
+from pfx.bench.problem import Case, FallingBodyProblem, bench_filter, make_case
+from pfx.bench.timing import Timing, run_filter, time_case
 from pfx.errors import ConfigError
+from pfx.filtering import Filter
 from pfx.filters.trace import FilterTrace
 
 BASELINE = "bootstrap"
@@ -105,26 +105,26 @@ QUICK_CASE = (100, 4)
 WARM_UP_CASE = (20, 2)
 
 
-def algorithm_cells(particles: int, trials: int) -> dict[str, Union[Cell, str]]:
-    """Each algorithm's cell, or the one-line reason why pfx refuses it for this model."""
-    cells: dict[str, Union[Cell, str]] = {}
+def algorithm_filters(particles: int) -> dict[str, Union[Filter, str]]:
+    """Each algorithm's filter, bound once, or the one-line reason why pfx refuses it for this model."""
+    filters: dict[str, Union[Filter, str]] = {}
     for name, settings in ALGORITHMS.items():
         try:
-            cells[name] = bench_cell(particles, trials, settings)
+            filters[name] = bench_filter(particles, settings)
         except ConfigError as error:
-            cells[name] = " ".join(error.reason.split())
-    return cells
+            filters[name] = " ".join(error.reason.split())
+    return filters
 
 
 class _Variant:
-    """A runner for :func:`time_case`: ``cell``'s filter on the case, keeping the last trace."""
+    """A runner for :func:`time_case`: one algorithm's filter on the case, keeping the last trace."""
 
-    def __init__(self, cell: Cell):
-        self.cell = cell
+    def __init__(self, bound: Filter):
+        self.filter = bound
         self.trace: Optional[FilterTrace] = None
 
     def __call__(self, problem: FallingBodyProblem, case: Case) -> np.ndarray:
-        self.trace = run_cell(self.cell, case)
+        self.trace = run_filter(self.filter, case)
         return self.trace.estimates
 
 
@@ -144,15 +144,15 @@ def run_algorithms(*, quick: bool = False, repeats: int = 3, budget: float = 20.
     """Time every algorithm of :data:`ALGORITHMS` on one case (see the module docstring)."""
     particles, trials = QUICK_CASE if quick else FULL_CASE
     case = make_case(particles, trials)
-    cells = algorithm_cells(particles, trials)
-    runners = {name: _Variant(cell) for name, cell in cells.items() if isinstance(cell, Cell)}
+    filters = algorithm_filters(particles)
+    runners = {name: _Variant(bound) for name, bound in filters.items() if isinstance(bound, Filter)}
 
     progress(f"algorithms: each once at {WARM_UP_CASE[1]} x N={WARM_UP_CASE[0]} (warm-up)")
     small = make_case(*WARM_UP_CASE)
-    small_cells = algorithm_cells(*WARM_UP_CASE)
+    small_filters = algorithm_filters(WARM_UP_CASE[0])
     for name in runners:
         try:
-            run_cell(small_cells[name], small)
+            run_filter(small_filters[name], small)
         except Exception:        # reported by the timed run, not here
             pass
 
@@ -160,9 +160,9 @@ def run_algorithms(*, quick: bool = False, repeats: int = 3, budget: float = 20.
     timings = {timing.implementation: timing
                for timing in time_case(case, names, repeats, budget, progress, runners=runners)}
     results = []
-    for name, cell in cells.items():
-        if not isinstance(cell, Cell):
-            results.append(AlgorithmResult(name, not_applicable=cell))
+    for name, bound in filters.items():
+        if not isinstance(bound, Filter):
+            results.append(AlgorithmResult(name, not_applicable=bound))
             continue
         result = AlgorithmResult(name, timings[name])
         trace = runners[name].trace

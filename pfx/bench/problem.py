@@ -17,9 +17,10 @@ variance 10 for :math:`x_3 = 10^{-3}`, which gives half the particles a negative
 blows up; the Euler step over 0.5 s is unstable for fast, dense particles. This set-up keeps
 every implementation's particles finite, so that all of them do the same work.)
 
-pfx runs it from the config :data:`CONFIG` like any experiment; the reference filter and the
-peer adapters share :class:`FallingBodyProblem`, the same model written as plain NumPy
-functions of an (N, 3) particle array, with its constants taken from pfx's resolved model.
+pfx runs it through its Python entry point (:mod:`pfx.filtering`: the model and the filter's
+settings as a config gives them, bound once); the reference filter and the peer adapters share
+:class:`FallingBodyProblem`, the same model written as plain NumPy functions of an (N, 3)
+particle array, with its constants taken from pfx's resolved model.
 """
 
 from __future__ import annotations
@@ -30,36 +31,40 @@ from typing import Optional
 
 import numpy as np
 
-from pfx.config.plan import Cell, build_plan
+from pfx.filtering import Filter, model, particle_filter
 from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
 SEED = 20240611
 STEPS = 100
+# The model, the filter's prior and the filter, as a config would give them (the workers
+# benchmark, :mod:`pfx.bench.scaling`, runs them as a config: :data:`CONFIG`).
+MODEL = {"kind": "falling_body", "variant": "simon", "integrator": "euler", "substeps": 1, "dt": 0.1,
+         "steps": STEPS, "process_noise": {"family": "gaussian", "variance": [100.0, 100.0, 1.0e-12]}}
+PRIOR = {"kind": "gaussian", "mean": [3.0e5, -2.0e4, 1.0e-3], "covariance": [1.0e6, 4.0e6, 1.0e-7]}
+FILTER = {"kind": "particle", "resampler": "systematic", "ess_threshold": 1.0, "initial": PRIOR}
 CONFIG = {
     "name": "bench",
     "description": "pfx bench: falling body, bootstrap filter, systematic resampling every step",
     "seed": SEED,
-    "model": {"kind": "falling_body", "variant": "simon", "integrator": "euler", "substeps": 1,
-              "dt": 0.1, "steps": STEPS,
-              "process_noise": {"family": "gaussian", "variance": [100.0, 100.0, 1.0e-12]}},
-    "filter": {"kind": "particle", "resampler": "systematic", "ess_threshold": 1.0,
-               "initial": {"kind": "gaussian", "mean": [3.0e5, -2.0e4, 1.0e-3],
-                           "covariance": [1.0e6, 4.0e6, 1.0e-7]}},
+    "model": MODEL,
+    "filter": FILTER,
     "metrics": {"convergence": {"criterion": "truth"}},
     "outputs": {"trace_trials": 0, "figures": []},
 }
 
 
-def bench_cell(particles: int, trials: int, settings: Optional[dict] = None) -> Cell:
-    """pfx's resolved cell for N particles (the trial count only names the experiment size),
-    with ``settings`` added to ``filter:`` (:mod:`pfx.bench.algorithms`); raises ConfigError if
-    pfx's validation refuses them."""
-    raw = copy.deepcopy(CONFIG)
-    raw["trials"] = trials
-    raw["filter"]["particles"] = particles
-    raw["filter"].update(copy.deepcopy(settings or {}))
-    return build_plan(raw, "<pfx bench>").cells[0]
+def bench_model():
+    """The falling body of the benchmark (module docstring)."""
+    return model(**copy.deepcopy(MODEL))
+
+
+def bench_filter(particles: int, settings: Optional[dict] = None) -> Filter:
+    """pfx's filter bound once for N particles, with ``settings`` added to the filter's
+    (:mod:`pfx.bench.algorithms`), through the Python entry point (:mod:`pfx.filtering`); raises
+    ConfigError if pfx refuses them."""
+    return particle_filter(bench_model(), **{**copy.deepcopy(FILTER), "particles": particles,
+                                             **copy.deepcopy(settings or {})})
 
 
 @dataclass
@@ -68,7 +73,7 @@ class Case:
 
     particles: int
     trials: int
-    cell: Cell
+    filter: Filter
     truth: np.ndarray            # (R, T, 3) true states x_1..x_T
     measurements: np.ndarray     # (R, T, 1)
     filter_seeds: list[int]      # one per trial
@@ -87,11 +92,11 @@ class Case:
 
 
 def make_case(particles: int, trials: int) -> Case:
-    cell = bench_cell(particles, trials)
-    states, measurements = simulate_truth(cell.truth_model,
+    bound = bench_filter(particles)
+    states, measurements = simulate_truth(bound.model,
                                           TrialStreams.from_seeds([truth_seed(SEED, t) for t in range(trials)]))
-    seeds = [filter_seed(SEED, cell.stream_key, t) for t in range(trials)]
-    return Case(particles, trials, cell, states[:, 1:], measurements, seeds)
+    seeds = [filter_seed(SEED, 0, t) for t in range(trials)]
+    return Case(particles, trials, bound, states[:, 1:], measurements, seeds)
 
 
 @dataclass(frozen=True)
@@ -110,13 +115,13 @@ class FallingBodyProblem:
     prior_std: np.ndarray        # (3,)
 
     @classmethod
-    def from_cell(cls, cell: Cell) -> "FallingBodyProblem":
-        model = cell.filter_model
+    def from_filter(cls, bound: Filter) -> "FallingBodyProblem":
+        model, prior = bound.model, bound.prior
         return cls(dt=model.dt, radar_distance=model.radar_distance, radar_altitude=model.radar_altitude,
                    half_density=0.5 * model.air_density, scale_height=model.scale_height, gravity=model.gravity,
                    process_std=np.sqrt(np.diag(model.process_noise.covariance())),
                    measurement_std=float(np.sqrt(model.measurement_noise.covariance()[0, 0])),
-                   prior_mean=cell.prior.mean_vector(), prior_std=np.sqrt(np.diag(cell.prior.covariance_matrix())))
+                   prior_mean=prior.mean_vector(), prior_std=np.sqrt(np.diag(prior.covariance_matrix())))
 
     def sample_prior(self, random: np.random.Generator, n: int) -> np.ndarray:
         return self.prior_mean + self.prior_std * random.standard_normal((n, 3))

@@ -24,20 +24,18 @@ import numpy as np
 from pfx.bench.peers import ADAPTERS
 from pfx.bench.problem import Case, FallingBodyProblem
 from pfx.bench.reference import reference_filter
-from pfx.config.plan import Cell
+from pfx.filtering import Filter
 from pfx.filters.trace import FilterTrace
-from pfx.numerics.seeding import TrialStreams
 
 
-def run_cell(cell: Cell, case: Case) -> FilterTrace:
-    """pfx's engine with ``cell``'s filter on the case's measurements, one stream per trial
-    from the case's filter seeds, as ``pfx run`` calls it for a batch of trials."""
-    return cell.planned_filter.run(cell.filter_model, case.measurements, TrialStreams.from_seeds(case.filter_seeds),
-                                   settings=cell.filter, prior=cell.prior, spread_criterion=None)
+def run_filter(bound: Filter, case: Case) -> FilterTrace:
+    """pfx's filter, bound once, on the case's measurements, one stream per trial from the
+    case's filter seeds: the engine as ``pfx run`` calls it for a batch of trials."""
+    return bound(case.measurements, seeds=case.filter_seeds).trace
 
 
 def run_pfx(problem: FallingBodyProblem, case: Case) -> np.ndarray:
-    return run_cell(case.cell, case).estimates
+    return run_filter(case.filter, case).estimates
 
 
 def run_numpy(problem: FallingBodyProblem, case: Case) -> np.ndarray:
@@ -68,7 +66,7 @@ def time_case(case: Case, implementations: list[str], repeats: int, budget: floa
               progress: Callable[[str], None] = lambda message: None,
               runners: Mapping[str, Runner] = RUNNERS) -> list[Timing]:
     """Best-of-``repeats`` wall time of each implementation on ``case`` (see the module docstring)."""
-    problem = FallingBodyProblem.from_cell(case.cell)
+    problem = FallingBodyProblem.from_filter(case.filter)
     timings = {name: Timing(case, name) for name in implementations}
     for repeat in range(repeats):
         shift = repeat % len(implementations)

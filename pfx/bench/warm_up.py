@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from pfx.filters.particle import engine, resampling
+from pfx.filters.particle import cloud, resampling
 from pfx.numerics import pcg64, ziggurat
 from pfx.numerics.seeding import TrialStreams
 
@@ -27,10 +27,10 @@ def warm_up() -> dict:
     indices = resampling.systematic(weights, streams)
     # Particle arrays come both row-major and component by component (Noise.sample's layout).
     for state in (np.zeros((2, 4, 3)), np.moveaxis(streams.standard_normal((3, 4)), 1, -1)):
-        engine.resample_rows(state, np.arange(2), indices)
+        cloud.resample_rows(state, np.arange(2), indices)
     seconds = time.perf_counter() - started
     counts = {"compiled": 0, "loaded": 0}
-    lazy = [function.dispatcher() for function in (resampling.inverse_cdf_walk, engine.gather_particles)]
+    lazy = [function.dispatcher() for function in (resampling.inverse_cdf_walk, cloud.gather_particles)]
     for dispatcher in lazy + [ziggurat.normals, pcg64.uniforms]:
         stats = dispatcher.stats
         counts["loaded"] += sum(stats.cache_hits.values())

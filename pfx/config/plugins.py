@@ -1,8 +1,9 @@
-"""Plugins: components (models, resamplers, weightings, filter kinds) from outside pfx.
+"""Plugins: components (models, resamplers, weightings, proposals, filter kinds) from outside pfx.
 
 A plugin is Python code that registers components with the decorators of the public API
 (``pfx.register_model``, ``pfx.register_resampler``, ``pfx.register_weighting``,
-``pfx.register_filter_kind``; docs/plugins.md). It reaches pfx in one of three ways:
+``pfx.register_proposal``, ``pfx.register_filter_kind``; docs/plugins.md). It reaches pfx in
+one of three ways:
 
 * a config's ``plugins:`` list names it: a Python file (its name ends in ``.py`` or holds a
   ``/``; relative to the config's folder), or an importable module, or the name of an entry
@@ -147,6 +148,24 @@ def register_resampler(name: str, *, unbiased: bool, description: Optional[str] 
         return function
 
     return decorate
+
+
+def register_proposal(proposal_class):
+    """Class decorator: register a proposal (``filter.proposal: <kind>``): a subclass of
+    ``pfx.Proposal`` with a ``kind`` literal, its settings as fields, and
+    ``propose(model, previous, step, measurement, observed, random) -> (particles (R, N, d),
+    log p(x_k | x_k-1) - log q(x_k | x_k-1, z_k) (R, N))``; ``check(model)`` may refuse a model
+    (docs/plugins.md)."""
+    from pfx.filters.particle.proposals import PROPOSALS, ProposalBase
+
+    if not (isinstance(proposal_class, type) and issubclass(proposal_class, ProposalBase)):
+        raise PluginError(f"register_proposal: {getattr(proposal_class, '__name__', proposal_class)!r} "
+                          "is not a subclass of pfx.Proposal")
+    kind = _declared_kind(proposal_class, "register_proposal")
+    if proposal_class.propose is ProposalBase.propose and proposal_class.bind is ProposalBase.bind:
+        raise PluginError(f"proposal {kind} (class {proposal_class.__name__}) does not define propose(model, "
+                          "previous, step, measurement, observed, random)")
+    return PROPOSALS.register_kind(proposal_class)
 
 
 def register_filter_kind(kind_class):

@@ -73,7 +73,7 @@ from pfx.laws.transition_density import LOG_TWO_PI, AdditiveTransition
 from pfx.registry import Registry
 
 
-class _Proposal(BaseModel):
+class ProposalBase(BaseModel):
     """A proposal's settings (``filter.proposal``); :meth:`bind` makes the object the engine calls.
 
     A plugin's proposal (``pfx.register_proposal``, docs/plugins.md) subclasses this class (as
@@ -109,18 +109,18 @@ class _Proposal(BaseModel):
 class BoundProposal:
     """A proposal bound to a model: ``propose(previous, step, measurement, observed, random)``."""
 
-    def __init__(self, settings: _Proposal, model):
+    def __init__(self, settings: ProposalBase, model):
         self.settings, self.model = settings, model
 
     def propose(self, previous, step, measurement, observed, random):
         return self.settings.propose(self.model, previous, step, measurement, observed, random)
 
 
-PROPOSALS: Registry[type["_Proposal"]] = Registry("proposal")
+PROPOSALS: Registry[type["ProposalBase"]] = Registry("proposal")
 
 
 @PROPOSALS.register_kind
-class BootstrapProposal(_Proposal):
+class BootstrapProposal(ProposalBase):
     """The transition p(x_k | x_{k-1}, u_k) (the bootstrap filter)."""
 
     kind: Literal["bootstrap"] = "bootstrap"
@@ -144,7 +144,7 @@ def gaussian_transition(model) -> AdditiveTransition:
                      f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}")
 
 
-class _GaussianProposal(_Proposal):
+class _GaussianProposal(ProposalBase):
     """q = N(m_i, P_i) around each particle's prediction (module docstring)."""
 
     def check(self, model):
