@@ -1,9 +1,6 @@
-r"""The park-mpf report: Park, Lim & Yang (2021), a particle filter weighted by Mahalanobis distance.
-
-The document is described in docs/papers/park-mpf.md; the falling-body variants and the two
-readings of its eq. (6) in docs/reference-facts.md. The report reads ``results/park-mpf/``
-(made by ``pfx reproduce park-mpf`` from ``configs/papers/park-mpf/``) and the document's
-numbers (``paper.yaml``):
+r"""The park-mpf report: Park, Lim & Yang (2021), a particle filter weighted by Mahalanobis distance
+(docs/papers/park-mpf.md; the falling-body variants and the two readings of its eq. (6):
+docs/reference-facts.md). It reads ``results/park-mpf/`` and the document's numbers (``paper.yaml``):
 
 * ``table1`` (study ``mahalanobis_distances``): Table 1 and Fig. 1. The verdict compares the
   paper's eight printed values, and our seeded ones, with the sampling distribution of each
@@ -15,18 +12,17 @@ numbers (``paper.yaml``):
   filter's RMSE and its paired comparison with the PF (:func:`pfx.analysis.compare.paired_comparison`
   for the difference, :func:`pfx.analysis.compare.relative_change_interval` for the relative change).
 
-**Divergence.** A trial's RMSE counts as diverged when it is infinite or above 1000 times the
-PF's median RMSE of that state (:func:`pfx.analysis.compare.diverged`); diverged trials are counted,
-left out of means and paired comparisons (which say so), and decide a claim about mean RMSE
-on their own: a filter that diverges has no finite mean error.
+**Divergence.** A trial's RMSE counts as diverged when it is infinite or above 1000 times the PF's median RMSE
+of that state (:func:`pfx.analysis.compare.diverged`); diverged trials are counted, left out of means and
+paired comparisons (which say so), and decide a claim about mean RMSE on their own: a filter that diverges has
+no finite mean error.
 
-**Verdict on a relative claim** ("MPF's RMSE is 22% lower"), per MPF form, from the extended
-comparison's 95% interval [lo, hi] of the relative change of mean RMSE (MPF / PF - 1):
-*reproduced* when hi < 0 and the claimed change lies in [lo, hi]; *partly reproduced* when
-hi < 0 but the claimed size lies outside (or when the MPF diverged in some trials but is
-significantly lower in the others); otherwise *not reproduced* (no detectable change, an
-increase, or divergence in every trial). The paper's RMSEs carry no unit and are thousands of
-times smaller than the measurement noise: their absolute sizes are *not comparable*.
+**Verdict on a relative claim** ("MPF's RMSE is 22% lower"), per MPF form, from the extended comparison's 95%
+interval [lo, hi] of the relative change of mean RMSE (MPF / PF - 1): *reproduced* when hi < 0 and the claimed
+change lies in [lo, hi]; *partly reproduced* when hi < 0 but the claimed size lies outside (or when the MPF
+diverged in some trials but is significantly lower in the others); otherwise *not reproduced* (no detectable
+change, an increase, or divergence in every trial). The paper's RMSEs carry no unit and are thousands of times
+smaller than the measurement noise: their absolute sizes are *not comparable*.
 """
 
 from __future__ import annotations
@@ -132,16 +128,14 @@ def compare_with_pf(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFr
             kept = values[~bad[arm].to_numpy()]
             # the interval of summary.csv: an RMSE's t-interval cut at 0, none from too few trials
             statistics = describe(kept, metric_range(metric))
-            row = {"state": state, "arm": arm, "role": roles[arm], "trials": values.size,
-                   "diverged": int(bad[arm].sum()), "mean": statistics["mean"],
-                   "ci95_low": statistics["ci95_low"], "ci95_high": statistics["ci95_high"],
+            row = {"state": state, "arm": arm, "role": roles[arm], "trials": values.size, "diverged": int(bad[arm].sum()),
+                   **{key: statistics[key] for key in ("mean", "ci95_low", "ci95_high")},
                    "median": float(np.median(values)), "std": statistics["std"]}
             if arm != baseline:
                 usable = ~(bad[arm].to_numpy() | bad[baseline].to_numpy())
                 change, low, high = relative_change_interval(table[baseline].to_numpy(dtype=float)[usable],
                                                              values[usable], value_range=metric_range(metric))
-                row.update(relative_change=change, relative_low=low, relative_high=high,
-                           pairs=int(usable.sum()))
+                row.update(relative_change=change, relative_low=low, relative_high=high, pairs=int(usable.sum()))
                 if arm in comparison.index:
                     found = comparison.loc[arm]
                     row.update(mean_difference=found["mean_difference"], difference_low=found["ci95_low"],
