@@ -309,3 +309,31 @@ def test_entry_point_plugins(tmp_path, monkeypatch):
     with pytest.raises(ConfigError, match="unknown model kind 'installed_walk'"):
         build_plan(config, str(tmp_path / "config.yaml"))
     sys.modules.pop("pfx_test_installed_walk", None)
+
+
+PROPOSAL_PLUGIN = '''from typing import Literal
+import pfx
+
+@pfx.register_proposal
+class Mine(pfx.Proposal):
+    """The transition, as a plugin's proposal (version {version})."""
+    kind: Literal["mine"] = "mine"
+
+    def propose(self, model, previous, step, measurement, observed, random):
+        state = model.transition(previous, step, random)
+        return state, 0.0 * state[..., 0]
+'''
+
+
+def test_a_plugin_proposal_is_recorded_and_reloads_after_an_edit(tmp_path):
+    """What a plugin registered includes its proposal, and loading the edited file replaces it
+    (every registry is in the one list the plugins' bookkeeping reads)."""
+    from pfx.config.plugins import load_plugin
+    from pfx.filters.particle.proposals import PROPOSALS
+
+    path = tmp_path / "mine.py"
+    path.write_text(PROPOSAL_PLUGIN.format(version=1))
+    assert load_plugin("mine.py", tmp_path).registered == ("proposal mine",)
+    path.write_text(PROPOSAL_PLUGIN.format(version=2))
+    assert load_plugin("mine.py", tmp_path).registered == ("proposal mine",)
+    assert "version 2" in PROPOSALS["mine"].__doc__
