@@ -56,8 +56,26 @@ def test_quick_bench_prints_every_row(quick_output):
     assert any(line.startswith("workers, sweep of 8 cells") and "speed-up" in line for line in lines)
     goals = lines.index("goals (ratios of best wall times on this machine):")
     goal_lines = list(takewhile(lambda line: line.startswith("  "), lines[goals + 1:]))
-    assert len(goal_lines) == 7, goal_lines
+    assert len(goal_lines) == 9, goal_lines
     assert goal_lines[0].startswith("  N=1e3, 1 trial: pfx time / numpy reference time: goal ")
+    assert goal_lines[8].startswith("  one filter: Python entry point time / config path time: goal ")
+
+
+def test_quick_bench_prints_the_small_filters_table(quick_output):
+    """One trial of the plugin-style stochastic-volatility model: pfx and the NumPy loop (and
+    particles where installed) did the same work: their log-variance RMSEs agree."""
+    lines = quick_output.splitlines()
+    title = next(i for i, line in enumerate(lines) if line.startswith("small filters: stochastic volatility"))
+    rows = {line[16:].split()[0]: line[16:].split()[1:] for line in lines[title + 3:title + 7]
+            if line.strip() and not line.startswith("(")}
+    assert {"pfx", "numpy"} <= set(rows)
+    milliseconds, per_step, ratio, rmse, runs = rows["pfx"]
+    assert float(ratio) == 1.0 and float(milliseconds) > 0 and int(runs) == 1
+    # both filter the same 200 returns with N = 100: their RMSEs against the true log-variance
+    # differ by Monte Carlo error only (0.4 here; a filter doing less work would be far off)
+    assert abs(float(rows["numpy"][3]) - float(rmse)) < 0.1
+    assert any(line.startswith("one falling-body filter, N=100, 1 trial: through the Python entry point")
+               for line in lines)
 
 
 # Rows the falling body cannot have, each with a word of pfx's reason: the radar's range is

@@ -8,6 +8,9 @@ process, interleaved, best of several repeats, and reports nanoseconds per parti
 (wall time / (trials x N x T)) with the altitude RMSE that shows equal work;
 :mod:`pfx.bench.algorithms` times pfx's other particle algorithms (guided proposals, the
 auxiliary filter, moves, KLD-sampling, injection) against its bootstrap filter on one case;
+:mod:`pfx.bench.small_filters` times one trial of a plugin-style model (no compiled step), where
+the engine's fixed cost per step counts, against ``particles`` and a NumPy loop, and the Python
+entry point against the config path;
 :mod:`pfx.bench.scaling` measures ``--workers 2`` against 1 and the memory per particle;
 :mod:`pfx.bench.report` prints it all with the machine line and the goals as ratios.
 While it runs, one progress line per case and implementation (and per repeat) goes to
@@ -71,6 +74,15 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
                                                      progress=progress)))
         echo("")
 
+    from pfx.bench.small_filters import entry_point_overhead, time_small_filters
+
+    progress("small filters: a plugin-style model, one trial")
+    small = time_small_filters(quick=quick, repeats=repeats if quick else max(repeats, 5), peers=peers,
+                               progress=progress)
+    overhead = entry_point_overhead(particles=100 if quick else 1_000, repeats=3 if quick else 20)
+    echo(report.format_small_filters(small, overhead))
+    echo("")
+
     memory_result = None
     if memory:
         particles = 10_000 if quick else 1_000_000
@@ -90,6 +102,6 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
              f"{workers_result['two']:.2f} s ({workers_result['cpu_two']:.2f} s CPU), "
              f"speed-up {workers_result['speedup']:.2f}")
     echo("")
-    echo(report.format_goals(timings, workers_result, memory_result))
+    echo(report.format_goals(timings, workers_result, memory_result, small, overhead))
     echo("Wall times; on a machine shared with other work they vary from run to run (best of "
          f"up to {repeats} runs, interleaved).")

@@ -144,3 +144,14 @@ class FallingBodyProblem:
         """log p(z | x) up to a constant: -(z - h(x))^2 / (2 sigma^2)."""
         innovation = (z - self.range(x)) / self.measurement_std
         return -0.5 * innovation * innovation
+
+
+def plan_cell(particles: int):
+    """The benchmark's filter as a config's planned cell, one trial: what ``pfx run`` runs for a
+    batch (:func:`pfx.bench.small_filters.entry_point_overhead` times the Python entry point against it)."""
+    from pfx.config.plan import build_plan
+
+    raw = copy.deepcopy(CONFIG)
+    raw["trials"] = 1
+    raw["filter"]["particles"] = particles
+    return build_plan(raw, "<pfx bench>").cells[0]

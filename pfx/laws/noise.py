@@ -168,6 +168,8 @@ class Noise(BaseModel):
     _log_det_factor: float = PrivateAttr(0.0)
     _dimension: Optional[int] = PrivateAttr(None)
     _definite: bool = PrivateAttr(True)
+    _covariance: Optional[np.ndarray] = PrivateAttr(None)   # read-only, made by bind()
+    _zero: bool = PrivateAttr(False)                          # no noise at all: sample() draws nothing
 
     @model_validator(mode="after")
     def _check(self) -> "Noise":
@@ -217,6 +219,11 @@ class Noise(BaseModel):
         if need_density and not self._definite:
             raise ValueError("@variance: must be positive definite (its density is evaluated)")
         self._dimension = dimension
+        # Computed once: models and filters ask for it at every step (a likelihood's R).
+        covariance = np.diag(self._scale ** 2) if self._scale is not None else self._factor @ self._factor.T
+        covariance.setflags(write=False)
+        self._covariance = covariance
+        self._zero = not np.any(self._scale if self._scale is not None else self._factor)
         return self
 
     @property
@@ -226,10 +233,11 @@ class Noise(BaseModel):
         return self._dimension
 
     def covariance(self) -> np.ndarray:
-        """The covariance matrix, shape (k, k)."""
-        if self._scale is not None:
-            return np.diag(self._scale ** 2)
-        return self._factor @ self._factor.T
+        """The covariance matrix, shape (k, k), read-only (computed once, by :meth:`bind`)."""
+        covariance = self.__pydantic_private__["_covariance"]
+        if covariance is None:
+            raise RuntimeError("Noise.bind(dimension) must be called first")
+        return covariance
 
     # -- the two operations -------------------------------------------------------------------
 
@@ -242,7 +250,7 @@ class Noise(BaseModel):
             raise RuntimeError("Noise.bind(dimension) must be called first")
         full_shape = tuple(shape) + (private["_dimension"],)
         scale, factor = private["_scale"], private["_factor"]
-        if not np.any(scale if scale is not None else factor):
+        if private["_zero"]:
             return np.zeros((len(random),) + full_shape)
         # Drawn component-major, (trials, k, *shape), and returned as a (trials, *shape, k) view:
         # each component is then contiguous, which NumPy's element-wise operations on one state
