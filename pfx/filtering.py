@@ -53,8 +53,9 @@ class FilterResult:
     ``estimates`` (trials, T, d) the posterior mean at each step (before resampling); ``ess``
     (trials, T) the effective sample size (NaN for Kalman kinds); ``log_likelihood`` (trials,) the
     estimate of log p(z_1:T); ``ancestors`` (trials, T, N) the genealogy when asked for, else
-    None; ``seeds`` the filter seed of each trial; ``trace`` everything the filter recorded
-    (:class:`~pfx.filters.trace.FilterTrace`).
+    None; ``smoothed``: each smoother's result by kind (``settings`` ``smoothers=[...]``), with
+    ``means`` and ``standard_deviations`` (trials, T, d); ``seeds`` the filter seed of each trial;
+    ``trace`` everything the filter recorded (:class:`~pfx.filters.trace.FilterTrace`).
     """
 
     estimates: np.ndarray
@@ -63,6 +64,7 @@ class FilterResult:
     ancestors: Optional[np.ndarray]
     seeds: list[int]
     trace: FilterTrace
+    smoothed: dict
 
 
 def model(kind: str, **parameters: Any) -> Model:
@@ -110,7 +112,7 @@ class Filter:
         trace = self.planned.run(self.model, data, TrialStreams.from_seeds(seeds), settings=self.settings,
                                  prior=self.prior, **options)
         return FilterResult(estimates=trace.estimates, ess=trace.ess, log_likelihood=trace.log_likelihood,
-                            ancestors=trace.ancestors, seeds=seeds, trace=trace)
+                            ancestors=trace.ancestors, seeds=seeds, trace=trace, smoothed=trace.smoothed)
 
 
 def particle_filter(model: Model, *, kind: str = "particle", prior=None, **settings: Any) -> Filter:

@@ -265,6 +265,26 @@ def grid_lost_mass_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"grid_lost_mass": lost.max(axis=1) if lost is not None else inputs.empty()}
 
 
+@METRICS.register("smoothing")
+def smoothing_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """Each smoother's RMSE over time per state component and of the position (``rmse_<smoother>_<state>``,
+    ``rmse_<smoother>_position``), as the filter's ``rmse_*`` are computed (empty without the truth)."""
+    columns: dict[str, np.ndarray] = {}
+    model = inputs.model
+    for label, smoothed in inputs.trace.smoothed.items():
+        if inputs.truth is None:
+            empty = np.full(inputs.trials, np.nan)
+            columns.update({f"rmse_{label}_{name}": empty for name in model.state_names})
+            columns[f"rmse_{label}_position"] = empty
+            continue
+        with np.errstate(over="ignore", invalid="ignore"):
+            values = component_rmse(state_error(inputs.truth, smoothed.means, model))
+            columns.update({f"rmse_{label}_{name}": values[:, j] for j, name in enumerate(model.state_names)})
+            distance = error_distance(inputs.truth, smoothed.means, model)
+            columns[f"rmse_{label}_position"] = np.sqrt(np.mean(distance ** 2, axis=1))
+    return columns
+
+
 @METRICS.register("consistency")
 def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Mean NEES (expected d) and NIS (expected m), and the steps left out of them.

@@ -14,7 +14,8 @@ of them. For every cell and step, over the cell's :math:`n` trials, this table h
   few particles has none) and the truth; a NIS needs a measurement. ``trials - nees_n`` is the
   number of trials left out at that step;
 * ``rms_error_<state>`` for every state component:
-  :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped).
+  :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped); and
+  ``rms_error_<smoother>_<state>``, the same of each smoother's mean (``filter.smoothers``).
 
 Every statistic is one a run extended with more trials can update without the old trials'
 traces: counts add, and means and squared deviations merge exactly in exact arithmetic (Chan,
@@ -58,6 +59,10 @@ def step_values(truth, trace, model) -> dict[str, np.ndarray]:
                   "nis": np.asarray(trace.nis, dtype=float) if trace.nis is not None else missing}
         for j, name in enumerate(model.state_names):
             values[f"squared_error_{name}"] = errors[..., j] ** 2
+        for label, smoothed in trace.smoothed.items():          # each smoother's errors too
+            smoothed_errors = state_error(truth, smoothed.means, model)
+            for j, name in enumerate(model.state_names):
+                values[f"squared_error_{label}_{name}"] = smoothed_errors[..., j] ** 2
     return values
 
 
@@ -85,6 +90,10 @@ def summarize_steps(values: dict[str, np.ndarray], state_names, labels: dict, ti
             if quantity in COUNTED:
                 columns[f"{quantity}_n"] = n
         for name in state_names:
+            columns[f"rms_error_{name}"] = np.sqrt(values[f"squared_error_{name}"].mean(axis=0))
+        smoothed = [key.removeprefix("squared_error_") for key in values
+                    if key.startswith("squared_error_") and key.removeprefix("squared_error_") not in state_names]
+        for name in smoothed:                     # <smoother>_<state>, in the order the run made them
             columns[f"rms_error_{name}"] = np.sqrt(values[f"squared_error_{name}"].mean(axis=0))
     return pd.DataFrame(columns)
 

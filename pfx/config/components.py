@@ -41,6 +41,7 @@ REGISTRIES = (
     RegistrySource("diffusions", "pfx.filters.particle.diffusion", "DIFFUSIONS", "filter.diffusion"),
     RegistrySource("moves", "pfx.filters.particle.moves", "MOVES", "filter.move"),
     RegistrySource("proposals", "pfx.filters.particle.proposals", "PROPOSALS", "filter.proposal"),
+    RegistrySource("smoothers", "pfx.filters.smoothers", "SMOOTHERS", "filter.smoothers"),
     RegistrySource("metrics", "pfx.analysis.metrics", "METRICS"),
     RegistrySource("figures", "pfx.figures", "FIGURES", "outputs.figures"),
 )

@@ -93,6 +93,8 @@ class Plan:
                              "particles": outputs.particles.model_dump(mode="json")}
         if self.experiment.datasets is not None:     # absent, the hash of earlier results is unchanged
             numbers_depend_on["datasets"] = self.experiment.datasets
+        if outputs.genealogy:                        # likewise: genealogy.csv is a table of the results
+            numbers_depend_on["genealogy"] = outputs.genealogy
         return canonical_hash(with_plugin_code(numbers_depend_on, self.plugins))
 
     @property
@@ -379,6 +381,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                           file=file, key="datasets")
     if experiment.datasets is None:
         resolved.pop("datasets", None)     # nor is that of a config without datasets
+    if not experiment.outputs.genealogy:
+        resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
 
 

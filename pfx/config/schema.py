@@ -32,6 +32,7 @@ from pfx.filters.particle.moves import MOVES, NoMove
 from pfx.filters.particle.proposals import PROPOSALS, BootstrapProposal
 from pfx.filters.particle.resampling import RESAMPLERS
 from pfx.filters.particle.weighting import WEIGHTINGS, GaussianWeighting
+from pfx.filters.smoothers import SMOOTHERS
 from pfx.laws.initial import InitialLaw
 from pfx.models import MODELS
 from pfx.registry import changes
@@ -115,6 +116,7 @@ def _build(plugins: frozenset) -> ConfigSchema:
     Diffusion = DIFFUSIONS.kind_union(plugins)
     Move = MOVES.kind_union(plugins)
     Proposal = PROPOSALS.kind_union(plugins)
+    Smoother = SMOOTHERS.kind_union(plugins)
 
     class SharedFilterSettings(BaseModel):
         """The filter run on every cell (arms override any of these keys)."""
@@ -155,6 +157,11 @@ def _build(plugins: frozenset) -> ConfigSchema:
         auxiliary: StrictBool = Field(
             False, description="the auxiliary particle filter (Pitt & Shephard 1999): resample by the "
                                "look-ahead weights w p(z | f(x)) before proposing")
+        smoothers: list[Smoother] = Field(  # type: ignore[valid-type]
+            default_factory=list,
+            description="smoothers run after the filter on the whole record (`pfx list smoothers`): "
+                        "{kind: ffbs, trajectories}, {kind: ffbs_rejection, trajectories, rounds}, "
+                        "{kind: fixed_lag, lag}, genealogy; rts after kf, ekf, ukf; default none")
 
         # which kinds read each setting: the shared settings a kind declares in ``reads``, and each
         # kind's own settings blocks (every other setting applies to every kind)
@@ -177,6 +184,10 @@ def _build(plugins: frozenset) -> ConfigSchema:
                 if getattr(self, key) is not None and self.kind not in self.KIND_SPECIFIC.get(key, ()):
                     raise ValueError(f"@{key}: the {self.kind} filter has no resampling stage to apply it to "
                                      f"(use kind particle)")
+            # smoothers run only after the kinds that run them: never silently left out
+            if self.smoothers and self.kind not in self.KIND_SPECIFIC.get("smoothers", ()):
+                raise ValueError(f"@smoothers: no smoother runs after the {self.kind} filter (particle and sis "
+                                 "run the particle smoothers, kf, ekf and ukf the rts smoother)")
             return self
 
         @property
@@ -224,6 +235,10 @@ def _build(plugins: frozenset) -> ConfigSchema:
         trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
         particles: ParticleSnapshots = Field(default_factory=ParticleSnapshots,
                                              description="particle clouds to keep in particles.csv")
+        genealogy: StrictInt = Field(
+            0, ge=0, le=100, description="trials per cell (the first ones) whose genealogy goes to genealogy.csv: "
+                                         "each particle's ancestor, weight and state at every step (particle "
+                                         "filters; memory T N (d + 2) numbers per trial); default 0: none")
 
     class Experiment(ExperimentHeader):
         """One experiment: a model, a filter, its arms and sweep, trials and seed."""

@@ -7,7 +7,7 @@ at that step (empty in the CSV).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
@@ -45,6 +45,13 @@ class FilterTrace:
     # particle filters, when asked for (the genealogy): (trials, T, N) the index of each particle's
     # ancestor in the previous step's weighted cloud (-1: injected from the prior; step 1: the prior)
     ancestors: Optional[np.ndarray] = None
+    # particle filters, when asked for (the history the smoothers run on): (trials, T, N, d) each
+    # step's cloud and (trials, T, N) its normalised log-weights, both before resampling
+    particles: Optional[np.ndarray] = None
+    log_weights: Optional[np.ndarray] = None
+    # the smoothers' results, by label (``ffbs``, ``rts``, ...): each with ``means`` and
+    # ``standard_deviations``, (trials, T, d) (pfx.filters.smoothers)
+    smoothed: dict = field(default_factory=dict)
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -20,6 +20,7 @@ from typing import Optional
 import numpy as np
 import pandas as pd
 
+from pfx.analysis.genealogy import distinct_ancestor_counts
 from pfx.analysis.metrics import MetricInputs, compute_metrics, error_distance, normalised_squares, state_error
 from pfx.analysis.step_summary import step_values
 from pfx.config.plan import Cell
@@ -37,10 +38,12 @@ class BatchResult:
     wall_time: float
     particles: Optional[pd.DataFrame] = None
     step_values: Optional[dict] = None        # every trial's per-step values (pfx.analysis.step_summary)
+    genealogy: Optional[pd.DataFrame] = None  # genealogy.csv rows (outputs.genealogy)
 
 
 def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
-              snapshots: Optional[ParticleSnapshots] = None, datasets: Optional[int] = None) -> BatchResult:
+              snapshots: Optional[ParticleSnapshots] = None, datasets: Optional[int] = None,
+              genealogy_trials: int = 0) -> BatchResult:
     """Simulate the truth and run the filter for some trials of one cell; return table rows."""
     truth_seeds = [truth_seed(seed, t, datasets) for t in trials]
     filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
@@ -57,6 +60,9 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
     traced = [i for i, t in enumerate(trials) if t < trace_trials]
     if cell.planned_filter.takes_trace_rows:      # costly per-step diagnostics for these rows only
         options["trace_rows"] = np.array(traced, dtype=np.intp)
+    written = [i for i, t in enumerate(trials) if t < genealogy_trials] if cell.filter.uses_particles else []
+    if written:                                    # genealogy.csv: each particle's ancestor, state and weight
+        options.update(genealogy=True, history=True)
     started = time.perf_counter()
     trace = cell.planned_filter.run(
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
@@ -70,9 +76,26 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
                          "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
                          **metrics, "run_time_s": elapsed / len(trials)})
     with np.errstate(over="ignore", invalid="ignore"):
-        steps = _steps_frame(cell, trials, traced, truth, trace)
+        steps = _steps_frame(cell, trials, traced, truth, trace, genealogy_trials)
     particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
-    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model))
+    genealogy = _genealogy_frame(cell, trials, written, trace) if written else None
+    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model), genealogy)
+
+
+def _genealogy_frame(cell: Cell, trials: list[int], rows: list[int], trace) -> pd.DataFrame:
+    """genealogy.csv rows: one per (trial, step, particle): its ancestor at the step before, its
+    weight and state at this step (the weighted cloud, before resampling)."""
+    names = cell.filter_model.state_names
+    frames = []
+    for i in rows:
+        steps, count = trace.ancestors.shape[1:]
+        columns = {"cell": cell.key, **cell.labels, "trial": trials[i], "step": np.repeat(np.arange(1, steps + 1), count),
+                   "particle": np.tile(np.arange(count), steps), "ancestor": trace.ancestors[i].ravel(),
+                   "weight": np.exp(trace.log_weights[i]).ravel()}
+        for j, name in enumerate(names):
+            columns[name] = trace.particles[i, ..., j].ravel()
+        frames.append(pd.DataFrame(columns))
+    return pd.concat(frames, ignore_index=True)
 
 
 def _truth_and_measurements(cell: Cell, truth_seeds: list[int]):
@@ -105,18 +128,33 @@ def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -
     return pd.concat(frames, ignore_index=True)
 
 
-def steps_columns(cell: Cell) -> list[str]:
+def smoother_labels(cell: Cell) -> list[str]:
+    """The labels of the cell's smoothers (``filter.smoothers``), in their order."""
+    return [smoother.label for smoother in getattr(cell.filter, "smoothers", None) or ()]
+
+
+def records_genealogy(cell: Cell, genealogy_trials: int = 0) -> bool:
+    """Whether the cell's filter records each particle's ancestor: for a genealogy smoother, or for
+    genealogy.csv (``outputs.genealogy``)."""
+    smoothers = getattr(cell.filter, "smoothers", None) or ()
+    return cell.filter.uses_particles and (genealogy_trials > 0 or any(s.needs_genealogy for s in smoothers))
+
+
+def steps_columns(cell: Cell, genealogy_trials: int = 0) -> list[str]:
     """The columns of steps.csv for a cell (so that an empty table still has its header)."""
     states = cell.truth_model.state_names
     columns = ["cell", *cell.labels, "trial", "step", "time", *[f"{kind}_{name}" for name in states
                                                                for kind in ("truth", "estimate", "sd")],
                "error_distance", "ess", "resampled", "degenerate", "spread", "nees", "nis", "particles"]
-    return columns + (["within_radius"] if cell.metrics.convergence.criterion == "spread" else [])
+    columns += ["within_radius"] if cell.metrics.convergence.criterion == "spread" else []
+    for label in smoother_labels(cell):            # each smoother's mean and sd beside the filter's
+        columns += [f"smoothed_{label}_{name}" for name in states] + [f"smoothed_sd_{label}_{name}" for name in states]
+    return columns + (["distinct_ancestors"] if records_genealogy(cell, genealogy_trials) else [])
 
 
-def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
+def _steps_frame(cell: Cell, trials, traced, truth, trace, genealogy_trials: int = 0) -> pd.DataFrame:
     if not traced:
-        return pd.DataFrame(columns=steps_columns(cell))
+        return pd.DataFrame(columns=steps_columns(cell, genealogy_trials))
     model = cell.truth_model
     steps = model.steps
     deviations = trace.posterior_standard_deviations()
@@ -143,5 +181,11 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace) -> pd.DataFrame:
         columns["particles"] = counts[i] if counts is not None else np.nan
         if cell.metrics.convergence.criterion == "spread":
             columns["within_radius"] = trace.within_radius[i] if trace.within_radius is not None else np.nan
+        for label, smoothed in trace.smoothed.items():
+            for j, name in enumerate(model.state_names):
+                columns[f"smoothed_{label}_{name}"] = smoothed.means[i, :, j]
+                columns[f"smoothed_sd_{label}_{name}"] = smoothed.standard_deviations[i, :, j]
+        if trace.ancestors is not None:
+            columns["distinct_ancestors"] = distinct_ancestor_counts(trace.ancestors[i])
         frames.append(pd.DataFrame(columns))
-    return pd.concat(frames, ignore_index=True)[steps_columns(cell)]
+    return pd.concat(frames, ignore_index=True)[steps_columns(cell, genealogy_trials)]

@@ -71,22 +71,37 @@ def trial_bytes(particles: int, state_dimension: int, measurement_dimension: int
     return 8 * (particles * (8 * d + 4 * m + 12) + steps * (4 * d + m + 12))
 
 
-def cell_trial_bytes(cell) -> int:
+def cell_trial_bytes(cell, genealogy: bool = False) -> int:
+    """One trial's peak: the engine's, plus the recorded history the smoothers (or
+    genealogy.csv, ``genealogy``) need: T N (d + 1) numbers and T N ancestors, and the smoothers'
+    trajectories and temporaries (:func:`pfx.filters.particle.smoothing.history_bytes`)."""
     model = cell.filter_model
-    return trial_bytes(cell.filter.particles, model.state_dimension, model.measurement_dimension, model.steps)
+    particles = getattr(cell.filter, "particles", 1)
+    need = trial_bytes(particles, model.state_dimension, model.measurement_dimension, model.steps)
+    if cell.filter.uses_particles:
+        from pfx.filters.particle.smoothing import history_bytes
+
+        smoothers = list(getattr(cell.filter, "smoothers", None) or ())
+        extra = history_bytes(particles, model.state_dimension, model.steps, smoothers)
+        if genealogy and not extra:
+            extra = model.steps * particles * (8 * model.state_dimension + 8 + 4)
+        need += extra
+    return need
 
 
 def check_fits(plan, budget: int) -> None:
     """Refuse the plan if one trial of some cell does not fit the budget."""
+    genealogy = bool(getattr(plan.experiment.outputs, "genealogy", 0)) if plan.cells else False
     for cell in plan.cells:
-        need = cell_trial_bytes(cell)
+        need = cell_trial_bytes(cell, genealogy)
         if need > budget:
+            smoothing = " with its smoothers' history" if getattr(cell.filter, "smoothers", None) or genealogy else ""
             raise ConfigError(
                 f"one trial of cell '{cell.labels['arm']}' ({cell.filter.particles} particles x "
-                f"{cell.filter_model.state_dimension} state components) needs about {format_size(need)}, "
+                f"{cell.filter_model.state_dimension} state components{smoothing}) needs about {format_size(need)}, "
                 f"more than the memory limit of {format_size(budget)} (half the available memory "
                 "unless --max-memory says otherwise); use fewer particles",
-                file=plan.file, key="filter.particles")
+                file=plan.file, key="filter.smoothers" if smoothing else "filter.particles")
 
 
 # Particles per batch from which the engine's fixed cost per step (some 70 microseconds of
@@ -95,12 +110,12 @@ def check_fits(plan, budget: int) -> None:
 SPEED_PARTICLES = 65_536
 
 
-def trials_per_batch(cell, trials: int, budget: int, workers: int = 1) -> int:
+def trials_per_batch(cell, trials: int, budget: int, workers: int = 1, genealogy: bool = False) -> int:
     """Trials run together: as many as fit the budget (shared by the workers); ~10 batches for
     the progress bar, unless that makes batches of fewer than :data:`SPEED_PARTICLES`
     particles, where the per-step cost would dominate (but at least one batch per worker)."""
     workers = max(1, workers)
-    by_memory = max(1, budget // workers // cell_trial_bytes(cell))
+    by_memory = max(1, budget // workers // cell_trial_bytes(cell, genealogy))
     for_progress = -(-trials // 10) if trials >= 20 else trials
     for_speed = min(-(-SPEED_PARTICLES // max(1, cell.filter.particles)), -(-trials // workers))
     return int(max(1, min(trials, by_memory, max(for_progress, for_speed))))

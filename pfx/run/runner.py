@@ -63,9 +63,9 @@ from pfx.run.executors import Executor, make_executor
 from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
-OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "scene.csv",
-                "config.yaml", "manifest.json")
-CELL_TABLES = ("steps", "steps_summary", "particles", "trials")     # per cell in cells/; trials last
+OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "genealogy.csv",
+                "scene.csv", "config.yaml", "manifest.json")
+CELL_TABLES = ("steps", "steps_summary", "particles", "genealogy", "trials")     # per cell in cells/; trials last
 
 
 def _git_revision() -> Optional[str]:
@@ -271,7 +271,8 @@ def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
     The one place they are put together; with Dask, this tuple is what travels to a worker.
     """
     outputs = plan.experiment.outputs
-    return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles, plan.experiment.datasets)
+    return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles, plan.experiment.datasets,
+            outputs.genealogy)
 
 
 def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
@@ -283,7 +284,7 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     tasks, owner, sizes, work = [], [], [], []   # per task: arguments, its cell's number, trial count, particle-steps
     expected = []                             # per cell: its number of batches
     for number, cell in enumerate(cells):
-        size = trials_per_batch(cell, len(trials), budget, executor.slots)
+        size = trials_per_batch(cell, len(trials), budget, executor.slots, genealogy=experiment.outputs.genealogy > 0)
         batches = [trials[start:start + size] for start in range(0, len(trials), size)]
         for batch in batches:
             tasks.append(batch_arguments(plan, cell, batch))
@@ -364,9 +365,10 @@ def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: d
               "steps_summary": summarize_steps(values, cell.truth_model.state_names, {"cell": cell.key, **cell.labels},
                                                cell.truth_model.times()),
               "trials": trials}
-    particles = [r.particles for r in results if r.particles is not None]
-    if particles:
-        tables["particles"] = pd.concat(particles, ignore_index=True)
+    for name in ("particles", "genealogy"):
+        kept = [getattr(r, name) for r in results if getattr(r, name) is not None]
+        if kept:
+            tables[name] = pd.concat(kept, ignore_index=True)
     for name in CELL_TABLES:
         if name in tables:
             write_csv(tables[name], out / CELLS / f"{cell.key}.{name}.csv")
@@ -443,15 +445,15 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     summary, the scene, the finished manifest and the figures; remove cells/."""
     order = [cell.key for cell in plan.cells]
     kept = {name: ResultFolder(out).optional_table(name) if state.kept_trials else None
-            for name in ("trials", "steps", "steps_summary", "particles")}
+            for name in ("trials", "steps", "steps_summary", "particles", "genealogy")}
     tables = {name: _combined([frame for key in order for frame in _cell_tables(out, key, name, kept[name])])
-              for name in ("trials", "steps", "particles")}
+              for name in ("trials", "steps", "particles", "genealogy")}
     summaries = []
     for key in order:
         parts = _cell_tables(out, key, "steps_summary", kept["steps_summary"])
         summaries.append(merge_step_summaries(*parts) if len(parts) == 2 else parts[0])
     tables["steps_summary"] = pd.concat(summaries, ignore_index=True)
-    for name in ("trials", "steps", "steps_summary", "particles"):
+    for name in ("trials", "steps", "steps_summary", "particles", "genealogy"):
         if tables[name] is not None:
             write_csv(tables[name], out / f"{name}.csv")
     write_csv(summarize(tables["trials"], plan.label_columns), out / "summary.csv")

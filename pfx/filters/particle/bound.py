@@ -29,7 +29,7 @@ diagnostics to record (they cost nothing unless asked for).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Optional
 
 import numpy as np
@@ -38,6 +38,8 @@ from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.engine import ParticleFilter
 from pfx.filters.particle.recorders import Recording
 from pfx.filters.particle.resampling import RESAMPLERS, Resampling
+from pfx.filters.particle.smoothing import FilterHistory
+from pfx.filters.smoothers import check_smoothers
 from pfx.filters.trace import FilterTrace
 
 
@@ -57,6 +59,7 @@ class BoundParticleFilter:
     move: Any = None                    # a bound move after resampling; None: no move
     adaptive: Any = None                # KLD-sampling settings; None: N fixed
     injection: Any = None               # augmented MCL settings; None: no injection
+    smoothers: tuple = ()               # run after the filter on its recorded clouds (pfx.filters.smoothers)
 
     @property
     def uses_compiled_step(self) -> bool:
@@ -67,7 +70,15 @@ class BoundParticleFilter:
     def run(self, measurements: np.ndarray, random, recording: Recording = Recording()) -> FilterTrace:
         """Filter measurements (trials, T, m), one random stream per trial
         (:class:`~pfx.numerics.seeding.TrialStreams`); see :mod:`pfx.filters.particle.engine`."""
-        return ParticleFilter(self, measurements, random, recording).run()
+        if self.smoothers:          # what they run on is recorded too
+            recording = replace(recording, history=recording.history or any(s.needs_history for s in self.smoothers),
+                                genealogy=recording.genealogy or any(s.needs_genealogy for s in self.smoothers))
+        trace = ParticleFilter(self, measurements, random, recording).run()
+        if self.smoothers:
+            history = FilterHistory(trace.particles, trace.log_weights, trace.ancestors)
+            for smoother in self.smoothers:     # after the filter's draws, from the same streams
+                trace.smoothed[smoother.label] = smoother.smooth(history, self.model, random)
+        return trace
 
 
 def bind_particle_filter(kind: str, model, settings, prior) -> BoundParticleFilter:
@@ -94,12 +105,13 @@ def bind_particle_filter(kind: str, model, settings, prior) -> BoundParticleFilt
         bound_proposal = proposal.bind(model)
     if settings.auxiliary:
         _check_auxiliary(kind, settings)
+    check_smoothers(kind, model, settings)
     return BoundParticleFilter(
         kind=kind, model=model, prior=prior, particles=settings.particles,
         resampling=Resampling(RESAMPLERS[settings.resampler], 0.0 if never_resamples else settings.ess_threshold),
         weighting=weighting, diffusion=settings.diffusion, proposal=bound_proposal,
         auxiliary=AuxiliaryFirstStage() if settings.auxiliary else None, move=bound_move,
-        adaptive=adaptive, injection=injection)
+        adaptive=adaptive, injection=injection, smoothers=tuple(getattr(settings, "smoothers", ()) or ()))
 
 
 def _check_auxiliary(kind: str, settings) -> None:

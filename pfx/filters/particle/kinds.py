@@ -21,7 +21,7 @@ class SampleImportanceResampling(FilterKind):
 
     kind = "particle"
     reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "move", "adaptive",
-                       "injection", "proposal", "auxiliary"})
+                       "injection", "proposal", "auxiliary", "smoothers"})
     carries_particles = True
     takes_trace_rows = True
 
@@ -39,12 +39,13 @@ class SampleImportanceResampling(FilterKind):
         return settings.ess_threshold
 
     def run(self, model, measurements, random, *, settings=None, prior=None, spread_criterion=None,
-            consistency=False, snapshot=None, trace_rows: Optional[np.ndarray] = None, genealogy: bool = False):
+            consistency=False, snapshot=None, trace_rows: Optional[np.ndarray] = None, genealogy: bool = False,
+            history: bool = False):
         """Run the bound filter (its model, settings and prior are the plan's; ``model``,
         ``settings`` and ``prior``, the generic interface's, are the same objects)."""
         return self.bound.run(measurements, random, Recording(
             spread_criterion=spread_criterion, consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
-            genealogy=genealogy))
+            genealogy=genealogy, history=history))
 
 
 @FILTERS.register_kind
@@ -52,7 +53,7 @@ class SequentialImportanceSampling(SampleImportanceResampling):
     """Sequential importance sampling: a particle filter that never resamples."""
 
     kind = "sis"
-    reads = frozenset({"particles", "weighting", "proposal", "auxiliary"})
+    reads = frozenset({"particles", "weighting", "proposal", "auxiliary", "smoothers"})
 
     @classmethod
     def ess_threshold(cls, settings) -> float:

@@ -211,6 +211,21 @@ class Recording:
     snapshot: Optional[SnapshotRequest] = None
     trace_rows: Optional[np.ndarray] = None
     genealogy: bool = False
+    history: bool = False
+
+
+class HistoryRecorder(Recorder):
+    """Each step's weighted cloud before resampling: the states and normalised log-weights the
+    particle smoothers (:mod:`pfx.filters.particle.smoothing`) run on. Memory: T N (d + 1)
+    numbers per trial, only when asked for (``Recording.history``)."""
+
+    def record(self, stage: str, step: int, run) -> None:
+        if stage == "prior":
+            run.trace.particles = np.empty((run.trials, run.steps) + run.state.shape[1:])
+            run.trace.log_weights = np.empty((run.trials, run.steps, run.particles))
+        elif stage == "weighted":
+            run.trace.particles[:, step - 1] = run.state
+            run.trace.log_weights[:, step - 1] = run.log_weights
 
 
 def recorders_for(model, recording: Recording) -> list[Recorder]:
@@ -229,4 +244,6 @@ def recorders_for(model, recording: Recording) -> list[Recorder]:
         recorders.append(SnapshotRecorder(recording.snapshot))
     if recording.genealogy:
         recorders.append(GenealogyRecorder())
+    if recording.history:
+        recorders.append(HistoryRecorder())
     return recorders
