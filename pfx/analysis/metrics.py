@@ -285,6 +285,18 @@ def smoothing_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return columns
 
 
+@METRICS.register("genealogy")
+def genealogy_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """The size of the last particles' ancestral tree (``ancestral_tree_size``: its distinct
+    nodes over every step, pfx.analysis.genealogy), where the genealogy was recorded."""
+    ancestors = getattr(inputs.trace, "ancestors", None)
+    if ancestors is None:
+        return {}
+    from pfx.analysis.genealogy import distinct_ancestor_counts
+
+    return {"ancestral_tree_size": np.array([distinct_ancestor_counts(row).sum() for row in ancestors], dtype=float)}
+
+
 @METRICS.register("consistency")
 def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Mean NEES (expected d) and NIS (expected m), and the steps left out of them.
@@ -361,6 +373,7 @@ METRIC_RANGES: dict[str, ValueRange] = {
     "error_at_convergence": NONNEGATIVE,
     "ess_mean": NONNEGATIVE,
     "resample_count": NONNEGATIVE,
+    "ancestral_tree_size": NONNEGATIVE,
     "degenerate_steps": NONNEGATIVE,
     "lost_particles": NONNEGATIVE,
     "particles_mean": NONNEGATIVE,

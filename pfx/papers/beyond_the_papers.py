@@ -20,6 +20,8 @@ the auxiliary particle filter, KLD-sampling and augmented MCL, each tested on pf
 * ``kidnapped-robot``: a trial *recovers* when its final error is within the convergence radius;
   its *time to recover* is the number of actions from the kidnapping to the first step from which
   the error stays within that radius to the end (steps.csv holds every trial).
+* ``smoothing-<model>`` and ``ancestral-tree``: smoothers against the filter, and the size of the
+  ancestral tree (:mod:`pfx.papers.beyond_smoothing`).
 
 Verdicts use the words of the papers' sections: *reproduced* when every check of the claim
 passes, *partly reproduced* when some do, *not reproduced* when none does
@@ -53,6 +55,7 @@ from pfx.papers.base import (
     percent,
     verdict_from_checks,
 )
+from pfx.papers.beyond_smoothing import SMOOTHING_PARTS
 
 PAPER = "beyond-the-papers"
 BASELINE = "bootstrap"
@@ -408,14 +411,15 @@ def kidnapped_part(results: PaperResults) -> Part:
 
 
 PARTS = (proposals_intro, *(_model_part(model, title) for model, title in MODELS), proposal_verdicts,
-         kld_part, kidnapped_part)
+         kld_part, kidnapped_part, *SMOOTHING_PARTS)
 
 SUMMARY = """
 Filter algorithms the five documents do not compare, run by `make reproduce-papers` like the
 reproductions: guided proposals (locally optimal, EKF, UKF) and the auxiliary particle filter
-on four models, KLD-sampling and augmented MCL in the kim-mcl arena. Each claim is the
-literature's as commonly stated; each verdict is computed from our runs. What is run and why:
-docs/papers/beyond-the-papers.md.
+on four models, KLD-sampling and augmented MCL in the kim-mcl arena, smoothers after the
+filter on two nonlinear models, and the size of the particles' ancestral tree. Each claim is
+the literature's as commonly stated; each verdict is computed from our runs. What is run and
+why: docs/papers/beyond-the-papers.md.
 """
 
 
