@@ -206,6 +206,13 @@ class ResultFolder:
         return self.optional_table("particles")
 
     @cached_property
+    def genealogy(self) -> pd.DataFrame:
+        """genealogy.csv: one row per (cell, trial, step, particle) of the first few trials of
+        each cell, with its parent's index among the step before's particles (empty if the
+        config recorded none; :mod:`pfx.analysis.genealogy` turns a trial's rows into arrays)."""
+        return self.optional_table("genealogy")
+
+    @cached_property
     def scene(self) -> pd.DataFrame:
         """scene.csv: the model's fixed world (beacons, walls, path; empty if it has none)."""
         return self.optional_table("scene")

@@ -19,6 +19,7 @@ from pfx.figures import (
     particle_count,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
+    smoothing,  # noqa: F401
     state_errors,  # noqa: F401
     sweeps,  # noqa: F401
     textbook,  # noqa: F401

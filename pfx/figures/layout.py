@@ -13,6 +13,8 @@ Three things every figure of a quantity over time needs, decided here once:
   N = 1000). A line value keeps its colour in every panel, the panels share their axes, and a
   single legend below the panels lists the line values. One legend column with many values
   gets one panel per value.
+* **A panel per cell** (:func:`panel_per_cell`) for figures whose lines in a panel are
+  something else (a filter and its smoothers): the cells' panels share their axes.
 * **Legends outside the axes.** :func:`legend_outside` puts one figure legend below every
   panel (constrained layout makes room for it), so no legend ever hides data.
 
@@ -206,11 +208,30 @@ def _grid_columns(panels: int) -> int:
 def small_multiples(result: ResultFolder, table, single_size=(7.5, 4.3), panel_size=(4.0, 2.7),
                     log_y: bool = False) -> SmallMultiples:
     """The panels for the cells of ``table`` (any table with ``cell`` and the legend columns)."""
-    import matplotlib.pyplot as plt
-
     cells = table.drop_duplicates("cell")
     titles, lines = plan_panels(cells, legend_columns_of(result, table))
-    count = len(titles)
+    figure, panels = _panel_grid(len(titles), single_size, panel_size, log_y)
+    return SmallMultiples(figure, panels, titles, {line.cell: line for line in lines})
+
+
+def panel_per_cell(result: ResultFolder, table, single_size=(7.5, 4.3), panel_size=(4.0, 2.7),
+                   log_y: bool = False) -> SmallMultiples:
+    """One panel per cell of ``table``, titled by its label (a single cell's panel untitled:
+    the figure's title names the run), for figures whose lines within a panel are something
+    other than cells (e.g. a filter and its smoothers). Every cell's line colour is "C0"."""
+    cells = table.drop_duplicates("cell")
+    labels = cell_labels(cells, legend_columns_of(result, table))
+    titles = labels if len(labels) > 1 else [""]
+    figure, panels = _panel_grid(len(titles), single_size, panel_size, log_y)
+    lines = {key: CellLine(key, index if len(labels) > 1 else 0, label, "C0")
+             for index, (key, label) in enumerate(zip(cells["cell"], labels))}
+    return SmallMultiples(figure, panels, titles, lines)
+
+
+def _panel_grid(count: int, single_size, panel_size, log_y: bool):
+    """A figure of ``count`` panels sharing their axes, in rows as full as possible."""
+    import matplotlib.pyplot as plt
+
     columns = _grid_columns(count)
     rows = math.ceil(count / columns)
     size = single_size if count == 1 else (panel_size[0] * columns + 1.0, panel_size[1] * rows + 1.4)
@@ -222,7 +243,7 @@ def small_multiples(result: ResultFolder, table, single_size=(7.5, 4.3), panel_s
     panels = panels[:count]
     if log_y:
         panels[0].set_yscale("log")     # shared with every other panel
-    return SmallMultiples(figure, panels, titles, {line.cell: line for line in lines})
+    return figure, panels
 
 
 def legend_outside(figure, extra_handles=()) -> object:
