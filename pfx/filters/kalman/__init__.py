@@ -51,7 +51,8 @@ Durrant-Whyte, IEEE TAC 45(3), 2000 (the falling-body comparison of EKF and UKF)
 The package: :mod:`~pfx.filters.kalman.recursion` (the predict/update recursion and the linear
 update every kind shares), :mod:`~pfx.filters.kalman.linearisation` (the EKF's Jacobians),
 :mod:`~pfx.filters.kalman.unscented` (the unscented transform and its covariance repair),
-:mod:`~pfx.filters.kalman.kinds` (the three registered kinds).
+:mod:`~pfx.filters.kalman.kinds` (the three registered kinds and their predict steps),
+:mod:`~pfx.filters.kalman.smoothing` (the Rauch-Tung-Striebel smoother of each kind's run, after filtering).
 
 May import :mod:`pfx.filters.base`, :mod:`pfx.filters.trace` and :mod:`pfx.errors`.
 """

@@ -10,6 +10,22 @@ from pfx.filters.kalman.recursion import gaussian_recursion, linear_update, tran
 from pfx.filters.kalman.unscented import UnscentedParameters, run_unscented
 
 
+def linear_prediction(A: np.ndarray, Q: np.ndarray, control, mean: np.ndarray, covariance: np.ndarray):
+    """The Kalman filter's predict, x^-_k = A x_{k-1} + B u_k, P^-_k = A P_{k-1} A' + Q
+    (``control`` = B u_k or None); mean (trials, d), covariance (trials, d, d)."""
+    mean = mean @ A.T if control is None else mean @ A.T + control
+    return mean, A @ covariance @ A.T + Q
+
+
+def extended_prediction(model, control, mean: np.ndarray, covariance: np.ndarray):
+    """The extended Kalman filter's predict, x^-_k = f(x_{k-1}, u_k, 0),
+    P^-_k = F P_{k-1} F' + L Q L', with F = df/dx at the mean (the model's, or central
+    differences scaled by the covariance): (x^-_k, P^-_k, F)."""
+    F = transition_jacobian(model, mean, control, covariance)
+    predicted = model.propagate(mean, control, np.zeros(mean.shape[:-1] + (model.process_noise_dimension,)))
+    return predicted, F @ covariance @ transpose(F) + process_noise_in_state(model, mean, control), F
+
+
 @FILTERS.register_kind
 class KalmanFilter(FilterKind):
     """Kalman filter: the exact posterior of a linear_gaussian model."""
@@ -31,9 +47,7 @@ class KalmanFilter(FilterKind):
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
-            control = model.control(k)
-            mean = mean @ A.T if control is None else mean @ A.T + control
-            return mean, A @ covariance @ A.T + Q
+            return linear_prediction(A, Q, model.control(k), mean, covariance)
 
         def update(mean, covariance, z, k):
             H_batch = np.broadcast_to(H, mean.shape[:-1] + H.shape)
@@ -53,10 +67,8 @@ class ExtendedKalmanFilter(FilterKind):
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
-            control = model.control(k)
-            F = transition_jacobian(model, mean, control, covariance)
-            predicted = model.propagate(mean, control, np.zeros(mean.shape[:-1] + (model.process_noise_dimension,)))
-            return predicted, F @ covariance @ transpose(F) + process_noise_in_state(model, mean, control)
+            predicted, predicted_covariance, _ = extended_prediction(model, model.control(k), mean, covariance)
+            return predicted, predicted_covariance
 
         def update(mean, covariance, z, k):
             H = measurement_jacobian(model, mean, covariance)

@@ -140,12 +140,9 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     def predict(mean, covariance, k):
         if "S" not in factor:          # the first step, or one whose update some trials skipped
             factor["S"], covariance = robust_square_root(covariance, repairs)
-        control = model.control(k)
-        points = sigma_points(mean, factor["S"])
-        noise = np.zeros(points.shape[:-1] + (model.process_noise_dimension,))
-        propagated = model.propagate(points, control, noise)
-        predicted, spread = moments(propagated, propagated)
-        return predicted, spread + process_noise_in_state(model, mean, control)
+        _, _, predicted, predicted_covariance = unscented_prediction(model, model.control(k), mean, factor["S"],
+                                                                     parameters)
+        return predicted, predicted_covariance
 
     def update(mean, covariance, z, k):
         square_root, covariance = robust_square_root(covariance, repairs)
@@ -169,6 +166,20 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     if diagnostics is not None:
         diagnostics.update(repairs)
     return trace
+
+
+def unscented_prediction(model, control, mean: np.ndarray, square_root: np.ndarray,
+                         parameters: UnscentedParameters):
+    """The UKF's predict from N(mean, S S') (S = ``square_root``, the posterior's factor):
+    the sigma points X_i, their images Y_i = f(X_i, u_k, 0), the predicted mean
+    x^-_k = sum_i W^m_i Y_i and covariance P^-_k = sum_i W^c_i (Y_i - x^-_k)(Y_i - x^-_k)' + L Q L'
+    (L at the mean): (X, Y, x^-_k, P^-_k), X and Y of shape (trials, 2d + 1, d)."""
+    c, _, _, weight = parameters.weights(mean.shape[-1])
+    points = unscented_sigma_points(mean, square_root, c)
+    noise = np.zeros(points.shape[:-1] + (model.process_noise_dimension,))
+    images = model.propagate(points, control, noise)
+    predicted, spread = unscented_moments(images, images, weight, parameters.beta - parameters.alpha ** 2)
+    return points, images, predicted, spread + process_noise_in_state(model, mean, control)
 
 
 def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, curvature: float):
