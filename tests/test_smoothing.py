@@ -125,3 +125,83 @@ def test_a_model_without_a_transition_density_is_refused_for_backward_sampling()
     robot = pfx.model("planar_robot", steps=5)
     with pytest.raises(pfx.ConfigError, match="ffbs smoother weighs the backward step by the transition density"):
         pfx.particle_filter(robot, smoothers=["ffbs"])
+
+
+# -- against the exact smoother ------------------------------------------------------------------------
+
+TRIALS, STEPS, PARTICLES = 60, 15, 400
+Z_LIMIT = 4.5        # |z| of a mean over trials; 15 steps x 2 moments: P(any |z| > 4.5 | exact) ~ 2e-4
+
+
+def _rts(model, measurements):
+    """The exact smoothed means and variances (R, T, 1): the Kalman filter and its RTS smoother."""
+    result = pfx.filter(model, measurements, kind="kf", smoothers=["rts"])
+    smoothed = result.smoothed["rts"]
+    return smoothed.means, smoothed.standard_deviations ** 2
+
+
+def _z_scores(estimates: np.ndarray, exact: np.ndarray) -> np.ndarray:
+    """Per step: the mean over trials of estimate - exact, in standard errors of that mean."""
+    difference = (estimates - exact)[..., 0]
+    return difference.mean(axis=0) / (difference.std(axis=0, ddof=1) / np.sqrt(len(difference)))
+
+
+@pytest.fixture(scope="module")
+def linear_runs():
+    model = _walk(steps=STEPS)
+    truth, measurements = simulate_truth(model, TrialStreams.from_seeds(range(100, 100 + TRIALS)))
+    smoothers = [{"kind": "ffbs", "trajectories": 200}, {"kind": "ffbs_rejection", "trajectories": 200},
+                 {"kind": "fixed_lag", "lag": 3}, "genealogy"]
+    result = pfx.filter(model, measurements, seeds=range(500, 500 + TRIALS), particles=PARTICLES, smoothers=smoothers)
+    return model, measurements, result
+
+
+@pytest.mark.parametrize("kind", ["ffbs", "ffbs_rejection"])
+def test_backward_sampling_matches_the_rts_smoother(linear_runs, kind):
+    """Means and variances, every step, within their Monte Carlo error over the trials (each trial
+    its own data, its own filter and smoother; the exact smoother on the same data)."""
+    model, measurements, result = linear_runs
+    means, variances = _rts(model, measurements)
+    smoothed = result.smoothed[kind]
+    assert np.abs(_z_scores(smoothed.means, means)).max() < Z_LIMIT
+    assert np.abs(_z_scores(smoothed.standard_deviations ** 2, variances)).max() < Z_LIMIT
+
+
+def test_the_fixed_lag_smoother_matches_the_exact_fixed_lag_posterior(linear_runs):
+    """A lag of L estimates p(x_k | z_1:k+L): the RTS smoother of the record cut at k + L, exactly."""
+    model, measurements, result = linear_runs
+    lag, smoothed = 3, result.smoothed["fixed_lag"]
+    means, variances = np.empty_like(smoothed.means), np.empty_like(smoothed.means)
+    for k in range(1, STEPS + 1):
+        end = min(k + lag, STEPS)
+        cut = model.model_copy(update={"steps": end})
+        cut_means, cut_variances = _rts(cut, measurements[:, :end])
+        means[:, k - 1], variances[:, k - 1] = cut_means[:, k - 1], cut_variances[:, k - 1]
+    assert np.abs(_z_scores(smoothed.means, means)).max() < Z_LIMIT
+    assert np.abs(_z_scores(smoothed.standard_deviations ** 2, variances)).max() < Z_LIMIT
+
+
+def test_the_genealogy_smoothers_means_match_the_exact_smoother(linear_runs):
+    """On a short record (few coalesced lineages) the ancestral paths estimate the smoothed means
+    within their Monte Carlo error."""
+    model, measurements, result = linear_runs
+    means, _ = _rts(model, measurements)
+    assert np.abs(_z_scores(result.smoothed["genealogy"].means, means)).max() < Z_LIMIT
+
+
+def test_on_a_long_record_the_genealogy_collapses_and_backward_sampling_does_not():
+    """Path degeneracy: after 150 steps of 100 particles the last particles descend from one or a
+    few particles of step 1, so the genealogy smoother's variance there is nearly zero, while
+    backward sampling still matches the exact smoothed variance within its Monte Carlo error."""
+    model = _walk(steps=150)
+    _, measurements = simulate_truth(model, TrialStreams.from_seeds(range(30)))
+    result = pfx.filter(model, measurements, seeds=range(900, 930), particles=100,
+                        smoothers=["genealogy", {"kind": "ffbs", "trajectories": 200}], genealogy=True)
+    _, variances = _rts(model, measurements)
+    from pfx.analysis.genealogy import distinct_ancestor_counts
+
+    assert max(distinct_ancestor_counts(row)[0] for row in result.ancestors) <= 5
+    genealogy = (result.smoothed["genealogy"].standard_deviations[:, 0, 0] ** 2).mean()
+    assert genealogy < 0.2 * variances[0, 0, 0], (genealogy, variances[0, 0, 0])
+    ffbs = result.smoothed["ffbs"].standard_deviations[:, :1] ** 2
+    assert abs(_z_scores(ffbs, variances[:, :1])[0]) < Z_LIMIT

@@ -35,11 +35,21 @@ particles whose ancestry is the filter's, which a move, a diffusion or an inject
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from pfx.registry import Registry
+
+
+@dataclass
+class Smoothed:
+    """A smoother's result: the smoothed mean and standard deviation of each component, (R, T, d)."""
+
+    means: np.ndarray
+    standard_deviations: np.ndarray
 
 
 class Smoother(BaseModel):

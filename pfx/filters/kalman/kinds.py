@@ -5,25 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.filters.base import FILTERS, FilterKind
-from pfx.filters.kalman.linearisation import measurement_jacobian, process_noise_in_state, transition_jacobian
-from pfx.filters.kalman.recursion import gaussian_recursion, linear_update, transpose
+from pfx.filters.kalman.linearisation import measurement_jacobian
+from pfx.filters.kalman.prediction import extended_prediction, linear_prediction
+from pfx.filters.kalman.recursion import gaussian_recursion, linear_update
+from pfx.filters.kalman.smoothing import smooth_after
 from pfx.filters.kalman.unscented import UnscentedParameters, run_unscented
-
-
-def linear_prediction(A: np.ndarray, Q: np.ndarray, control, mean: np.ndarray, covariance: np.ndarray):
-    """The Kalman filter's predict, x^-_k = A x_{k-1} + B u_k, P^-_k = A P_{k-1} A' + Q
-    (``control`` = B u_k or None); mean (trials, d), covariance (trials, d, d)."""
-    mean = mean @ A.T if control is None else mean @ A.T + control
-    return mean, A @ covariance @ A.T + Q
-
-
-def extended_prediction(model, control, mean: np.ndarray, covariance: np.ndarray):
-    """The extended Kalman filter's predict, x^-_k = f(x_{k-1}, u_k, 0),
-    P^-_k = F P_{k-1} F' + L Q L', with F = df/dx at the mean (the model's, or central
-    differences scaled by the covariance): (x^-_k, P^-_k, F)."""
-    F = transition_jacobian(model, mean, control, covariance)
-    predicted = model.propagate(mean, control, np.zeros(mean.shape[:-1] + (model.process_noise_dimension,)))
-    return predicted, F @ covariance @ transpose(F) + process_noise_in_state(model, mean, control), F
+from pfx.filters.smoothers import check_smoothers
 
 
 @FILTERS.register_kind
@@ -32,12 +19,14 @@ class KalmanFilter(FilterKind):
 
     kind = "kf"
     model_needs = ("matrices",)
+    reads = frozenset({"smoothers"})
 
     @classmethod
     def plan(cls, model, settings, prior) -> "KalmanFilter":
         if getattr(model, "matrices", None) is None:
             raise ValueError(f"@kind: the Kalman filter (kf) needs a linear_gaussian model, not {model.kind}; "
                              "use ekf or ukf for nonlinear models")
+        check_smoothers(cls.kind, model, settings)
         return cls()
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
@@ -53,7 +42,7 @@ class KalmanFilter(FilterKind):
             H_batch = np.broadcast_to(H, mean.shape[:-1] + H.shape)
             return linear_update("kf", model, k, mean, covariance, z, mean @ H.T, H_batch, noise_r)
 
-        return gaussian_recursion("kf", model, measurements, prior, predict, update)
+        return smooth_after(gaussian_recursion("kf", model, measurements, prior, predict, update), model, settings, "kf")
 
 
 @FILTERS.register_kind
@@ -61,6 +50,12 @@ class ExtendedKalmanFilter(FilterKind):
     """Extended Kalman filter: linearise the model at the current mean (analytic or numerical Jacobians)."""
 
     kind = "ekf"
+    reads = frozenset({"smoothers"})
+
+    @classmethod
+    def plan(cls, model, settings, prior) -> "ExtendedKalmanFilter":
+        check_smoothers(cls.kind, model, settings)
+        return super().plan(model, settings, prior)
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
             snapshot=None):
@@ -74,7 +69,8 @@ class ExtendedKalmanFilter(FilterKind):
             H = measurement_jacobian(model, mean, covariance)
             return linear_update("ekf", model, k, mean, covariance, z, model.measurement_mean(mean), H, noise_r)
 
-        return gaussian_recursion("ekf", model, measurements, prior, predict, update)
+        return smooth_after(gaussian_recursion("ekf", model, measurements, prior, predict, update), model, settings,
+                            "ekf")
 
 
 @FILTERS.register_kind
@@ -82,6 +78,7 @@ class UnscentedKalmanFilter(FilterKind):
     """Unscented Kalman filter: propagate 2d+1 sigma points (settings.unscented: alpha, beta, kappa)."""
 
     kind = "ukf"
+    reads = frozenset({"smoothers"})
     settings = {"unscented": (UnscentedParameters, "kind ukf: sigma-point parameters alpha, beta, kappa")}
 
     def __init__(self, parameters: UnscentedParameters = UnscentedParameters()):
@@ -94,8 +91,10 @@ class UnscentedKalmanFilter(FilterKind):
             parameters.check(model.state_dimension)
         except ValueError as error:
             raise ValueError(f"@unscented.{str(error)[1:]}") from None
+        check_smoothers(cls.kind, model, settings)
         return cls(parameters)
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
             snapshot=None):
-        return run_unscented(model, measurements, prior, self.parameters)
+        return smooth_after(run_unscented(model, measurements, prior, self.parameters), model, settings, "ukf",
+                            self.parameters)

@@ -63,12 +63,12 @@ IEEE TAC 53(3), 2008; S. Särkkä, *Bayesian Filtering and Smoothing*, 2013, cha
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import ClassVar, Literal, Optional
 
 import numpy as np
 
 from pfx.errors import ModelNumericalError, note_step
-from pfx.filters.kalman.kinds import extended_prediction, linear_prediction
+from pfx.filters.kalman.prediction import extended_prediction, linear_prediction
 from pfx.filters.kalman.recursion import check_finite, symmetric, transpose
 from pfx.filters.kalman.unscented import (
     UnscentedParameters,
@@ -76,6 +76,7 @@ from pfx.filters.kalman.unscented import (
     unscented_moments,
     unscented_prediction,
 )
+from pfx.filters.smoothers import SMOOTHERS, Smoothed, Smoother
 from pfx.filters.trace import FilterTrace
 
 SMOOTHED_KINDS = ("kf", "ekf", "ukf")
@@ -168,3 +169,27 @@ def _prediction(model, kind: str, parameters: Optional[UnscentedParameters]):
         return covariance, predicted, predicted_covariance, cross
 
     return unscented
+
+
+@SMOOTHERS.register_kind
+class RauchTungStriebel(Smoother):
+    """The Rauch-Tung-Striebel smoother (extended, unscented after ekf, ukf): exact for a linear-Gaussian model."""
+
+    kind: Literal["rts"] = "rts"
+    filter_kinds: ClassVar[frozenset[str]] = frozenset({"kf", "ekf", "ukf"})
+    needs_history: ClassVar[bool] = False
+
+    def smooth_trace(self, model, trace: FilterTrace, kind: str,
+                     parameters: Optional[UnscentedParameters] = None) -> Smoothed:
+        """The smoothed means and standard deviations of a kf, ekf or ukf run (:func:`rts_smooth`)."""
+        means, covariances = rts_smooth(model, trace, kind, parameters)
+        deviations = np.sqrt(np.clip(np.diagonal(covariances, axis1=-2, axis2=-1), 0.0, None))
+        return Smoothed(means, deviations)
+
+
+def smooth_after(trace: FilterTrace, model, settings, kind: str,
+                 parameters: Optional[UnscentedParameters] = None) -> FilterTrace:
+    """The trace with the smoothers its settings ask for (``filter.smoothers``: rts) run on it."""
+    for smoother in getattr(settings, "smoothers", None) or ():
+        trace.smoothed[smoother.label] = smoother.smooth_trace(model, trace, kind, parameters)
+    return trace

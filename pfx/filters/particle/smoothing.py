@@ -53,7 +53,7 @@ from pydantic import Field, StrictInt
 
 from pfx.filters.particle.cloud import posterior_mean
 from pfx.filters.particle.resampling import inverse_cdf
-from pfx.filters.smoothers import SMOOTHERS, Smoother
+from pfx.filters.smoothers import SMOOTHERS, Smoothed, Smoother
 from pfx.numerics.angles import wrap_difference
 from pfx.numerics.log_weights import normalise_rows
 from pfx.numerics.seeding import TrialStreams
@@ -71,14 +71,6 @@ class FilterHistory:
     particles: np.ndarray
     log_weights: np.ndarray
     ancestors: Optional[np.ndarray]
-
-
-@dataclass
-class Smoothed:
-    """A smoother's result: the smoothed mean and standard deviation of each component, (R, T, d)."""
-
-    means: np.ndarray
-    standard_deviations: np.ndarray
 
 
 def weighted_moments(model, weights: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
