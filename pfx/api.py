@@ -43,7 +43,7 @@ import sys
 from collections.abc import Mapping, Sequence
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Optional, Union
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Optional, Union
 
 from pfx.errors import ConfigError, UsageError
 
@@ -210,11 +210,12 @@ class Result:
         return sorted({*super().__dir__(), *self.table_names})
 
     def compare(self, metric: str, by: str = "arm", baseline: Any = None, higher_is_better: bool = False,
-                bootstrap: Optional[int] = None) -> pd.DataFrame:
+                bootstrap: Optional[int] = None, versus: Iterable[str] = ()) -> pd.DataFrame:
         """``pfx compare FOLDER --metric METRIC --by BY ...``: paired differences trial by trial.
 
         Returns the table the command prints and writes (see docs/comparing.md), without writing
         it. ``baseline`` may be the value itself (``50``) or its text (``"50"``), as on the command line.
+        ``versus`` (``--versus``): other metric columns compared with ``metric`` within each cell.
         """
         from pfx.analysis.compare import paired_comparison
         from pfx.result_folder import finished_manifest
@@ -227,7 +228,8 @@ class Result:
             raise ConfigError(f"unreadable trials.csv: {error}", file=str(self.folder)) from None
         try:
             return paired_comparison(trials, metric, by, baseline, self._reader.label_columns,
-                                     higher_is_better=higher_is_better, bootstrap=bootstrap)
+                                     higher_is_better=higher_is_better, bootstrap=bootstrap,
+                                     versus=[versus] if isinstance(versus, str) else versus)
         except ConfigError as error:
             raise error.located(file=str(self.folder / "trials.csv")) from None
 

@@ -340,9 +340,13 @@ def compare(
     bootstrap: Optional[int] = typer.Option(None, "--bootstrap", min=100, metavar="B",
                                             help="percentile-bootstrap interval from B resamples "
                                                  "(default: t-interval)"),
+    versus: Optional[list[str]] = typer.Option(None, "--versus", metavar="COLUMN",
+                                               help="compare --metric with this other metric of the same "
+                                                    "trials, within each cell (repeatable; e.g. a smoother's "
+                                                    "rmse_ffbs_position against the filter's rmse_position)"),
 ):
     """Paired differences between arms (or any label column), trial by trial, with 95% intervals."""
-    from pfx.analysis.compare import format_table, output_name, paired_comparison
+    from pfx.analysis.compare import VERSUS, format_table, output_name, paired_comparison
     from pfx.result_folder import ResultFolder, check_writable, finished_manifest, write_csv
 
     finished_manifest(result_dir, needs=("trials.csv",))
@@ -354,15 +358,15 @@ def compare(
         raise ConfigError(f"unreadable trials.csv: {error}", file=str(result_dir)) from None
     try:
         table = paired_comparison(trials, metric, by, baseline, folder.label_columns,
-                                  higher_is_better=higher_is_better, bootstrap=bootstrap)
+                                  higher_is_better=higher_is_better, bootstrap=bootstrap, versus=versus or ())
     except ConfigError as error:
         raise error.located(file=str(result_dir / "trials.csv")) from None
-    target = result_dir / output_name(metric, by)
+    target = result_dir / output_name(metric, by, versus or ())
     try:
         write_csv(table, target)
     except OSError as error:
         raise ConfigError(f"cannot write {target.name}: {error.strerror or error}", file=str(result_dir)) from None
-    typer.echo(format_table(table, by))
+    typer.echo(format_table(table, VERSUS if versus else by))
     typer.echo(f"wrote {target}", err=True)
 
 

@@ -210,6 +210,29 @@ def test_settings_a_value_does_not_use_match_every_value_of_the_other_side():
     assert "vs baseline '(empty)'" in format_table(by_count, "n_particles")
 
 
+def test_versus_compares_columns_of_the_same_trials_within_each_arm():
+    """``versus``: a smoother's error beside the filter's, in the same trials; each arm is its
+    own group, and the first column is the baseline."""
+    frame = two_arms()
+    shifts = np.where(frame["arm"] == "A", -1.0, -2.0) + np.tile(DIFFERENCES, 2)
+    frame["rmse_smoothed"] = frame["rmse"] + shifts
+    result = paired_comparison(frame, "rmse", "arm", None, ["arm"], versus=["rmse_smoothed"])
+    assert result[["arm", "estimate", "baseline", "n_pairs"]].values.tolist() == [
+        ["A", "rmse_smoothed", "rmse", 6], ["B", "rmse_smoothed", "rmse", 6]]
+    assert result["mean_difference"].tolist() == pytest.approx([-1 + DIFFERENCES.mean(), -2 + DIFFERENCES.mean()])
+    low, high = t_interval(DIFFERENCES - 1)
+    assert (result["ci95_low"].iloc[0], result["ci95_high"].iloc[0]) == (pytest.approx(low), pytest.approx(high))
+    swapped = paired_comparison(frame, "rmse", "arm", "rmse_smoothed", ["arm"], versus=["rmse_smoothed"])
+    assert swapped["estimate"].tolist() == ["rmse", "rmse"]
+    assert swapped["mean_difference"].tolist() == pytest.approx([1 - DIFFERENCES.mean(), 2 - DIFFERENCES.mean()])
+    assert output_name("rmse", "arm", ["rmse_smoothed"]) == "compare_rmse_versus_rmse_smoothed.csv"
+    with pytest.raises(ConfigError, match="did you mean 'rmse_smoothed'") as error:
+        paired_comparison(frame, "rmse", "arm", None, ["arm"], versus=["rmse_smothed"])
+    assert error.value.key == "--versus"
+    with pytest.raises(ConfigError, match="cannot be combined"):
+        paired_comparison(frame, "rmse", "trial", None, ["arm"], versus=["rmse_smoothed"])
+
+
 # -- the command line, on real runs ------------------------------------------------------------
 
 AA_TRIALS = 30
@@ -229,6 +252,9 @@ ERRORS = {
     "single-value": (["errors", "--metric", "rmse_position", "--by", "model"], "single value"),
     "no-pairs": (["errors", "--metric", "nees_mean"], "no pairs"),
     "few-resamples": (["errors", "--metric", "rmse_position", "--bootstrap", "5"], "--bootstrap"),
+    "unknown-versus": (["errors", "--metric", "rmse_position", "--versus", "rmse_postion"], "--versus"),
+    "versus-by": (["errors", "--metric", "rmse_position", "--versus", "error_distance_mean", "--by", "resampler"],
+                  "cannot be combined"),
 }
 
 
@@ -253,6 +279,7 @@ def cli(tmp_path_factory, run_pfx):
     jobs["bootstrap"] = (["compare", "bootstrap", "--metric", "rmse_position", "--baseline", "many",
                           "--bootstrap", "1000"], root)
     jobs["a-a"] = (["compare", "a-a", "--metric", "rmse_position"], root)
+    jobs["versus"] = (["compare", "two-arms", "--metric", "error_distance_final", "--versus", "rmse_position"], root)
     results = run_pfx.many(jobs)
     results["root"] = root
     return results
@@ -296,6 +323,20 @@ def test_compare_by_another_label_column_matches_pairs_within_each_arm(cli):
     table = pd.read_csv(folder / output_name("rmse_position", "resampler"))
     assert table[["arm", "n_particles", "resampler", "baseline"]].values.tolist() == [
         ["few", 5, "systematic", "multinomial"], ["many", 50, "systematic", "multinomial"]]
+
+
+def test_compare_versus_pairs_two_metrics_of_each_trial(cli):
+    result, folder = cli["versus"], cli["root"] / "two-arms"
+    assert result.returncode == 0, result.output
+    table = pd.read_csv(folder / output_name("error_distance_final", "arm", ["rmse_position"]))
+    assert len(table) == 4 and set(table["estimate"]) == {"rmse_position"}
+    assert set(table["baseline"]) == {"error_distance_final"} and (table["n_pairs"] == 6).all()
+    trials = pd.read_csv(folder / "trials.csv")
+    for _, row in table.iterrows():
+        cell = trials[(trials["arm"] == row["arm"]) & (trials["resampler"] == row["resampler"])]
+        differences = (cell["rmse_position"] - cell["error_distance_final"]).to_numpy()
+        assert row["mean_difference"] == pytest.approx(differences.mean())
+    assert "estimate" in result.stdout.splitlines()[1].split()
 
 
 def test_compare_with_bootstrap_says_so(cli):

@@ -4,7 +4,10 @@
 compares every value of the column ``FIELD`` (default ``arm``) with a baseline value. It
 prints the table on stdout and writes it atomically (:func:`pfx.result_folder.write_csv`) to
 ``RESULT_DIR/compare_<M>_by_<FIELD>.csv``, named on stderr. Options: ``--baseline VALUE``,
-``--higher-is-better``, ``--bootstrap B`` (B >= 100).
+``--higher-is-better``, ``--bootstrap B`` (B >= 100), ``--versus COLUMN`` (other metric columns of
+the same trials compared with M within each cell, a smoother's error beside the filter's: the
+rows are stacked by :func:`metrics_as_rows` under a label column ``estimate``, compared
+``--by estimate`` with M as the baseline, and written to ``compare_<M>_versus_<COLUMNS>.csv``).
 
 **Pairing.** Trial t of every cell sees the same true trajectory and measurements (the truth
 stream depends only on the root seed and t), so the metric of trial t under value v and under
@@ -97,24 +100,60 @@ def metric_columns(trials: pd.DataFrame, label_columns: Iterable[str]) -> list[s
             and (pd.api.types.is_numeric_dtype(trials[c]) or pd.api.types.is_bool_dtype(trials[c]))]
 
 
-def output_name(metric: str, by: str) -> str:
+VERSUS = "estimate"            # the label column of metrics compared with --versus
+
+
+def metrics_as_rows(trials: pd.DataFrame, metric: str, versus: list[str]) -> pd.DataFrame:
+    """trials.csv with ``metric`` and each ``versus`` column (another estimate of the same trial:
+    a smoother's ``rmse_ffbs_position`` beside the filter's ``rmse_position``) stacked into the
+    one column ``metric``, and a label column ``estimate`` naming which: so that
+    :func:`paired_comparison` ``by="estimate"`` compares them trial by trial, within each cell."""
+    import pandas as pd
+
+    frames = []
+    for column in dict.fromkeys([metric, *versus]):
+        frame = trials.drop(columns=[c for c in (metric, *versus) if c in trials]).copy()
+        frame[VERSUS] = column
+        frame[metric] = trials[column].to_numpy()
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def output_name(metric: str, by: str, versus: Iterable[str] = ()) -> str:
     """The file the command writes into the result folder."""
+    versus = list(versus)
+    if versus:
+        return f"compare_{metric}_versus_{'_'.join(versus)}.csv"
     return f"compare_{metric}_by_{by}.csv"
 
 
 def paired_comparison(trials: pd.DataFrame, metric: str, by: str = "arm", baseline: Optional[str] = None,
                       label_columns: Optional[list[str]] = None, *, higher_is_better: bool = False,
-                      bootstrap: Optional[int] = None, bootstrap_seed: int = BOOTSTRAP_SEED) -> pd.DataFrame:
+                      bootstrap: Optional[int] = None, bootstrap_seed: int = BOOTSTRAP_SEED,
+                      versus: Iterable[str] = ()) -> pd.DataFrame:
     """Compare each value of ``by`` with ``baseline`` on ``metric``, pairing trials (module docstring).
 
     ``label_columns`` are the manifest's (default: ``[by]``); ``baseline`` may be given as
     text (``"50"`` names the ``n_particles`` value 50); ``bootstrap`` = B resamples for a
-    percentile-bootstrap interval instead of the t-interval.
+    percentile-bootstrap interval instead of the t-interval. ``versus`` names other columns of
+    the same trials to compare ``metric`` with (a smoother's error beside the filter's): the
+    comparison is then ``by="estimate"`` over :func:`metrics_as_rows`, ``metric`` the baseline.
     """
     import pandas as pd
 
     if trials.empty:
         raise ConfigError("trials.csv has no rows", key="--metric")
+    versus = list(versus)
+    if versus:
+        if by != "arm":
+            raise ConfigError("--by and --versus cannot be combined: --versus compares columns of the "
+                              "same trials, within each cell", key="--by")
+        _check_metric(trials, metric, list(label_columns or []))
+        for column in versus:
+            _check_metric(trials, column, list(label_columns or []), key="--versus")
+        trials = metrics_as_rows(trials, metric, versus)
+        by, baseline = VERSUS, metric if baseline is None else baseline
+        label_columns = [*(label_columns or []), VERSUS]
     label_columns = list(label_columns) if label_columns is not None else [by]
     if by not in label_columns:
         label_columns.append(by)
@@ -310,17 +349,17 @@ def diverged(values: np.ndarray, reference: np.ndarray, factor: float = 1000.0) 
         return ~np.isfinite(values) | (values > bound)
 
 
-def _check_metric(trials: pd.DataFrame, metric: str, label_columns: list[str]) -> None:
+def _check_metric(trials: pd.DataFrame, metric: str, label_columns: list[str], key: str = "--metric") -> None:
     metrics = metric_columns(trials, label_columns)
     if metric in metrics:
         return
     if metric in trials.columns:
         raise ConfigError(f"column {metric!r} of trials.csv is not a metric (choose from {', '.join(metrics)})",
-                          key="--metric")
+                          key=key)
     hint = closest_name(metric, metrics)
     raise ConfigError(f"no metric {metric!r} in trials.csv"
                       + (f" (did you mean {hint!r}?)" if hint else f"; choose from {', '.join(metrics)}"),
-                      key="--metric")
+                      key=key)
 
 
 def _check_by(trials: pd.DataFrame, by: str, label_columns: list[str]) -> None:
