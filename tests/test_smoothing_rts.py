@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_kalman import NumericalLinearGaussian  # the linear model without its analytic Jacobians
 
 import pfx
 from pfx.errors import ModelNumericalError
@@ -157,19 +158,6 @@ def test_smoother_starts_at_the_filter_and_never_increases_a_variance(missing):
 
 
 # -- 2. ekf and ukf on a linear model ----------------------------------------------------------------
-
-class NumericalLinearGaussian(LinearGaussian):
-    """The linear model without its analytic Jacobians: the EKF must use finite differences."""
-
-    def transition_jacobian(self, state, control):
-        return None
-
-    def process_noise_jacobian(self, state, control):
-        return None
-
-    def measurement_jacobian(self, state):
-        return None
-
 
 def test_ekf_and_ukf_smoothers_reduce_to_kf_on_linear_model():
     """The tolerances of tests/test_kalman.py's filter comparison, for the same reasons: the
