@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install test reproduce-papers bench clean
+.PHONY: install test reproduce-papers reproduce-benchmarks bench clean
 
 $(INSTALLED): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,11 @@ test: $(INSTALLED)
 
 reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce
+
+# The field's published benchmarks (DAPPER's Lorenz tables, stochastic volatility on GBP/USD,
+# King et al.'s cholera): longer runs than the papers', in their own gallery.
+reproduce-benchmarks: $(INSTALLED)
+	$(BIN)/pfx reproduce --configs configs/benchmarks --out results/benchmarks
 
 # The benchmark runs in its own environment: the peer libraries (`particles` needs numpy < 2)
 # would not fit the main one. pfx is installed editable, so `make bench` measures this tree;

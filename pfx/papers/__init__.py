@@ -6,6 +6,9 @@ functions put together by :func:`pfx.papers.base.assemble` (see :mod:`pfx.papers
 add one: write ``pfx/papers/<name>.py`` in that shape, importing :mod:`pfx.papers.base` only,
 with its report function decorated ``@REPORTS.register("<short-name>")``; import it here; put
 its short name in :data:`GALLERY_ORDER`; describe the document in ``docs/papers/<short-name>.md``.
+A benchmark of the field (:data:`BENCHMARK_ORDER`) is a report of the same shape, whose configs
+live in ``configs/benchmarks/<short-name>/`` and whose setup is described in
+``docs/benchmarks/<short-name>.md``.
 """
 
 from pfx.papers import (  # noqa: F401  (register the reports)
@@ -22,4 +25,8 @@ from pfx.papers.base import REPORTS
 # the section beyond them (filter algorithms none of the documents compares).
 GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics", "beyond-the-papers")
 
-__all__ = ["GALLERY_ORDER", "REPORTS"]
+# The field's published benchmarks (configs/benchmarks/<name>/ -> results/benchmarks/<name>/,
+# `make reproduce-benchmarks`): their own gallery, results/benchmarks/README.md, in this order.
+BENCHMARK_ORDER = ("dapper-lorenz", "sv-gbp-usd", "dacca-cholera")
+
+__all__ = ["BENCHMARK_ORDER", "GALLERY_ORDER", "REPORTS"]
