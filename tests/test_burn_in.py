@@ -307,3 +307,39 @@ def test_a_config_without_burn_in_keeps_its_cell_keys():
     assert [cell.filter_key for cell in burnt.cells] == [cell.filter_key for cell in plan.cells]
     assert MetricsConfig().identity() == {key: value for key, value in MetricsConfig().model_dump(mode="json").items()
                                           if key != "burn_in"}
+
+
+# -- the figure --------------------------------------------------------------------------------
+
+def test_the_increment_figure_finds_a_miscoded_measurement(tmp_path):
+    """A random walk recorded at times 1901..1940 with one value miscoded (x10): the figure rings
+    that year in every cell and names it in its title; a folder without the increments draws nothing."""
+    from pfx.figures.log_likelihood import log_likelihood_increment_over_time
+    from pfx.result_folder import ResultFolder
+
+    random = np.random.default_rng(5)
+    level = 100.0 + np.cumsum(random.normal(0.0, 3.0, 40))
+    flow = level + random.normal(0.0, 5.0, 40)
+    flow[22] *= 10                                          # 1923
+    data = tmp_path / "record.csv"
+    pd.DataFrame({"time": np.arange(1901, 1941), "z1": flow}).to_csv(data, index=False)
+    config = tiny_config_dict(
+        name="miscoded", trials=6, data={"measurements": str(data)},
+        model={"kind": "linear_gaussian", "transition_matrix": [[1.0]], "measurement_matrix": [[1.0]],
+               "process_noise": {"variance": 9.0}, "measurement_noise": {"variance": 25.0},
+               "initial": {"kind": "gaussian", "mean": [100.0], "covariance": [400.0]}},
+        filter={"particles": 300}, arms={"KF": {"kind": "kf"}, "PF": {}},
+        outputs={"figures": ["log_likelihood_increment_over_time"], "trace_trials": 0})
+    folder = run_plan(build_plan(config, str(tmp_path / "miscoded.yaml")), tmp_path / "run")
+    assert (folder / "figures" / "log_likelihood_increment_over_time.png").exists()
+    summary = pd.read_csv(folder / "steps_summary.csv")
+    lowest = summary.loc[summary.groupby("cell")["log_likelihood_increment_mean"].idxmin(), "time"]
+    assert set(lowest) == {1923.0}
+    figure = log_likelihood_increment_over_time(ResultFolder(folder))
+    assert "lowest: t = 1923" in figure._suptitle.get_text()
+    rings = [line for axes in figure.axes for line in axes.lines if line.get_marker() == "o"]
+    assert sorted(float(ring.get_xdata()[0]) for ring in rings) == [1923.0, 1923.0]
+    # A folder written before the increments: nothing to draw.
+    summary.drop(columns=[c for c in summary.columns if c.startswith("log_likelihood_increment")]).to_csv(
+        folder / "steps_summary.csv", index=False)
+    assert log_likelihood_increment_over_time(ResultFolder(folder)) is None
