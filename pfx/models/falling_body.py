@@ -39,7 +39,7 @@ at most 4 ft at the printed times (Euler's O(h) error reaches 7.4 ft elsewhere o
 from __future__ import annotations
 
 import math
-from typing import Literal, Optional
+from typing import ClassVar, Literal, Optional
 
 import numpy as np
 from pydantic import Field, StrictFloat, StrictInt
@@ -85,6 +85,9 @@ class FallingBody(Model):
     gravity: Optional[StrictFloat] = Field(None, ge=0, description="g (0 for jud)")
     integrator: Literal["rk4", "euler"] = Field("rk4", description="integration scheme between measurements")
     substeps: Optional[StrictInt] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
+    # propagate integrates the whole interval in `substeps` RK4 or Euler steps and adds the
+    # process noise once, after it (the published setups): one propagate call per step.
+    substeps_inside_propagate: ClassVar[bool] = True
 
     def presets(self):
         if (self.variant, self.units) not in _PRESETS:
