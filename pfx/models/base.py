@@ -95,7 +95,8 @@ class Model(BaseModel):
     initial: Optional[InitialLaw] = Field(None, description="initial law of the true state x_0")
     substeps: StrictInt = Field(1, ge=1, le=100_000,
                                 description="propagate calls between two measurements, each advancing dt / substeps "
-                                            "with its own process noise (a model that declares integrates_substeps)")
+                                            "with its own process noise draw; above 1 only for a model that declares "
+                                            "integrates_substeps (docs/plugins.md)")
 
     # -- what a subclass provides --------------------------------------------------------------
 
