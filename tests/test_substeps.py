@@ -292,11 +292,23 @@ def test_accumulators_reset_at_each_step_and_accumulate_within_it():
     np.testing.assert_allclose(states[0, 1:, 0], x_before + 2.0, rtol=1e-14)
     np.testing.assert_allclose(states[0, 1:, 1], x_before + 0.75, rtol=1e-14)
     np.testing.assert_allclose(model.mean_transition(states[:, :1], 1)[0, 0], [3.0, 1.75], rtol=1e-14)
+
+    # The EKF from N([1, 100], diag(1, 50)): the reset gives N([1, 0], diag(1, 0)); four
+    # substeps of F = [[1, 0], [h, 1]] give the prediction N([3, 1.75], [[1, 1], [1, 1]]), and
+    # z_1 = 0 (R = 1: S = 2, K = [1/2, 1/2]) the posterior N([2.125, 0.875], [[.5, .5], [.5, .5]]).
+    # Without the reset c's mean would stay near 100 and its variance near 50.
     ekf = run_filter("ekf", model, np.zeros((1, 3, 1)), None, settings=types.SimpleNamespace(),
                      prior=bind_law(GaussianLaw(mean=[1.0, 100.0], covariance=[1.0, 50.0]), 2, "initial"))
-    # the EKF's prediction resets c's mean and its covariance row: c_1 = x_0 + 0.75 predicted exactly,
-    # so only x's prior variance (1) and the increments reach the measurement
-    assert np.isfinite(ekf.estimates).all() and abs(ekf.estimates[0, 0, 1]) < 3.0
+    np.testing.assert_allclose(ekf.estimates[0, 0], [2.125, 0.875], rtol=1e-8)     # F by finite differences
+    np.testing.assert_allclose(ekf.covariances[0, 0], np.full((2, 2), 0.5), rtol=1e-8)
+    # the UKF (exact for these linear maps) the same, from the reset rows of its square root;
+    # the rank-one predicted covariances between substeps take a relative jitter of 1e-12, which
+    # moves the moments by about that (measured 4e-13): 1e-10
+    unscented = types.SimpleNamespace(unscented=UnscentedParameters(alpha=1.0, beta=0.0, kappa=1.0))
+    ukf = run_filter("ukf", model, np.zeros((1, 3, 1)), None, settings=unscented,
+                     prior=bind_law(GaussianLaw(mean=[1.0, 100.0], covariance=[1.0, 50.0]), 2, "initial"))
+    np.testing.assert_allclose(ukf.estimates[0, 0], [2.125, 0.875], rtol=1e-10)
+    np.testing.assert_allclose(ukf.covariances[0, 0], np.full((2, 2), 0.5), rtol=1e-10)
 
 
 def test_accumulating_components_are_checked():
