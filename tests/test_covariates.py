@@ -106,7 +106,7 @@ def test_a_run_reads_the_covariate_at_each_step_start(run_pfx, tmp_path):
     truth = steps[steps["trial"] == 0].sort_values("step")
     k = truth["step"].to_numpy()
     assert truth["time"].to_numpy() == pytest.approx(k * 1.0)
-    assert truth["true_x"].to_numpy() == pytest.approx(k * (k - 1) / 2.0, abs=1e-12)
+    assert truth["truth_x"].to_numpy() == pytest.approx(k * (k - 1) / 2.0, abs=1e-12)
 
 
 def test_the_table_is_part_of_the_cell_key(tmp_path):
@@ -142,7 +142,7 @@ def test_a_model_that_reads_covariates_needs_them_and_others_refuse_them(tmp_pat
     assert missing.value.key == "model.covariates"
     write_table(tmp_path, LINEAR_DRIFT)
     builtin = {"name": "walk", "seed": 1, "trials": 1, "data": {"covariates": "drift.csv"},
-               "model": {"kind": "linear_gaussian", "steps": 3}, "filter": {"particles": 10}}
+               "model": {"kind": "growth", "steps": 3}, "filter": {"particles": 10}}
     with pytest.raises(ConfigError, match="reads no covariates") as refused:
         build_plan(write_config_file(tmp_path, builtin, "walk.yaml"))
     assert refused.value.file.endswith("drift.csv")

@@ -478,7 +478,10 @@ class Model(BaseModel):
         cloud = np.asarray(self.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
         truth = cloud[:, 0, :].copy()
         noise = np.zeros((trials, particles, self.process_noise_dimension))
-        _check_result("propagate", self.propagate_at(cloud, self.control(1), noise, self.substep_time(1, 0)),
+        time = self.substep_time(1, 0)
+        if self._covariate_table is not None:   # shapes only: a time the table has (its span is checked
+            time = float(np.clip(time, self._covariate_table[0][0], self._covariate_table[0][-1]))   # with the run's times)
+        _check_result("propagate", self.propagate_at(cloud, self.control(1), noise, time),
                       (trials, particles, d))
         _check_result("measurement_mean", self.measurement_mean(cloud), (trials, particles, m))
         measurement = _check_result("simulate_measurement", self.simulate_measurement(truth, random), (trials, m))
