@@ -6,6 +6,7 @@ A config names its files under ``data:``, each path relative to the config's fol
       measurements: ../../examples/data/nile.csv   # required
       truth: truth.csv                             # optional: the true states, for the error metrics
       controls: controls.csv                       # optional: the control input of every step
+      covariates: covariates.csv                   # optional: covariates over time (alone: simulate)
 
 **The format.** A CSV file with a header row. The first column is ``step`` (the integers
 1..T, in order: the step of each row) or ``time`` (increasing numbers: the time of each step);
@@ -21,7 +22,13 @@ then one column per component, in any order:
   model's ``controls`` (one vector per step): only models with a ``controls`` setting take
   them (``linear_gaussian``, with its ``control_matrix``), and the config must not give both.
 
-Every file must have the same first column as the measurements (``step`` or ``time``) with the
+* covariates: a ``time`` column (any increasing grid, not tied to the steps), then one column
+  per covariate the model reads (``Model.covariate_names``); no blanks. It fills the model's
+  ``covariates`` (so the table is part of the cell key), read by ``Model.covariates_at(time)``
+  with linear interpolation; :func:`check_covariate_spans` checks that it covers the times the
+  transition reads. It is the one file allowed without measurements (then they are simulated).
+
+Every other file must have the same first column as the measurements (``step`` or ``time``) with the
 same values row by row.
 
 **Steps and times.** T is the number of rows; a ``steps`` given in the model must equal it. A
@@ -60,7 +67,7 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from pfx.config.validation import validate
 from pfx.errors import ConfigError
@@ -78,16 +85,31 @@ class DataConfig(BaseModel):
     """Recorded data to filter instead of simulated measurements (see docs/recorded-data.md)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    measurements: str = Field(
-        description="CSV file (relative to the config's folder): a `step` (1..T) or `time` column, then one "
-                    "column per measurement component (z1..zm or the model's names); a blank row is a "
-                    "missing measurement")
+    measurements: Optional[str] = Field(
+        None, description="CSV file (relative to the config's folder): a `step` (1..T) or `time` column, then one "
+                          "column per measurement component (z1..zm or the model's names); a blank row is a "
+                          "missing measurement. Without it (covariates only) the measurements are simulated")
     truth: Optional[str] = Field(
         None, description="CSV file of the true states: `step`/`time`, then the state components by name "
                           "(without it the metrics that need the truth are empty)")
     controls: Optional[str] = Field(
         None, description="CSV file of the control inputs: `step`/`time`, then one column per control "
                           "component (fills the model's `controls`)")
+    covariates: Optional[str] = Field(
+        None, description="CSV file of covariates over time, for a model that reads them (its covariate_names): a "
+                          "`time` column (increasing; any grid, interpolated linearly), then one column per "
+                          "covariate (fills the model's `covariates`); allowed without measurements")
+
+    @model_validator(mode="after")
+    def _needs_measurements(self) -> "DataConfig":
+        if self.measurements is None:
+            for key in ("truth", "controls"):
+                if getattr(self, key) is not None:
+                    raise ValueError(f"@{key}: a {key} file goes with recorded measurements: give "
+                                     "data.measurements too")
+            if self.covariates is None:
+                raise ValueError("@measurements: required (or data.covariates alone, to simulate with covariates)")
+        return self
 
 
 @dataclass
@@ -319,6 +341,15 @@ def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedDa
     if not isinstance(raw, dict) or raw.get("data") is None:
         return None
     config = validate(DataConfig, raw["data"], file=file, prefix="data")
+    model = raw.get("model")
+    if config.covariates is not None:
+        covariates = read_table(config.covariates, config_file=file, key="data.covariates", blanks=False)
+        if isinstance(model, dict):
+            _fill_covariates(model, covariates, file)
+    raw["data"] = {key: os.path.abspath(_display_path(value, file)[1])
+                   for key, value in config.model_dump().items() if value is not None}
+    if config.measurements is None:
+        return None                  # covariates only: the measurements are simulated as usual
     measurements = read_table(config.measurements, config_file=file, key="data.measurements", blanks=True)
     truth = controls = None
     if config.truth is not None:
@@ -329,7 +360,6 @@ def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedDa
         _check_alignment(controls, measurements)
     data = RecordedData(measurements, truth, controls)
 
-    model = raw.get("model")
     if isinstance(model, dict):
         _fix_steps_and_dt(model, data, file)
         if controls is not None:
@@ -339,8 +369,6 @@ def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedDa
         raw["outputs"] = outputs = {}
     if isinstance(outputs, dict) and "trace_trials" not in outputs:
         outputs["trace_trials"] = TRACE_ALL_TRIALS
-    raw["data"] = {key: os.path.abspath(_display_path(value, file)[1])
-                   for key, value in config.model_dump().items() if value is not None}
     return data
 
 
@@ -381,6 +409,42 @@ def _fill_controls(model: dict, controls: DataTable, file: Optional[str]) -> Non
         if error.key and error.key.startswith("model.controls"):
             raise controls.column_error(f"{len(controls.columns)} control column(s) for model {kind}: "
                                         f"{error.reason}") from None
+
+
+def _fill_covariates(model: dict, covariates: DataTable, file: Optional[str]) -> None:
+    """The model's ``covariates`` from the table: ``time`` and one list per column (the model
+    checks the names against its ``covariate_names`` when it is validated)."""
+    if covariates.index_name != "time":
+        raise ConfigError("the first column of a covariates file must be `time` (covariates are read by time, "
+                          "between the steps too)", file=covariates.file, line=covariates.header_line, key="column 1")
+    if model.get("covariates") is not None:
+        raise ConfigError("covariates are given twice: in model.covariates and in data.covariates; keep one",
+                          file=file, key="data.covariates")
+    table = {"time": covariates.index.tolist()}
+    table.update({name: covariates.values[:, c].tolist() for c, name in enumerate(covariates.columns)})
+    model["covariates"] = table
+    kind = model.get("kind")
+    if kind not in MODELS:
+        return                       # the config's validation names the unknown kind
+    try:                             # the model's own check of the columns, located in the file
+        validate(MODELS[kind], model, file=file, prefix="model")
+    except ConfigError as error:
+        if error.key and error.key.startswith("model.covariates"):
+            raise ConfigError(error.reason, file=covariates.file, line=covariates.header_line) from None
+
+
+def check_covariate_spans(cells: list, raw: dict, file: Optional[str]) -> None:
+    """Every cell's models have covariates for all the times their transitions read (once the
+    recorded times, if any, are known); ``raw`` is the config (where the table came from)."""
+    from_data = isinstance(raw.get("data"), dict) and raw["data"].get("covariates") is not None
+    for cell in cells:
+        for where, model in (("model", cell.truth_model), ("filter.model", cell.filter_model)):
+            try:
+                model.check_covariate_span()
+            except ValueError as error:
+                reason = str(error).split(": ", 1)[-1]
+                raise ConfigError(reason, file=file, key="data.covariates" if from_data
+                                  else f"{where}.covariates") from None
 
 
 # -- after the cells exist: columns against the models, and each cell's arrays ---------------------

@@ -22,7 +22,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from pfx.analysis.metrics import MetricsConfig
-from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
+from pfx.config.data import CellData, attach_recorded_data, check_covariate_spans, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.plugin_faults import locate, plan_time_fault
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, recorded_names, unknown_name_hint
@@ -364,6 +364,7 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                                        prefix=where if (arm_raw is not None or keys) else "",
                                        schema=schema, plugins=plugins))
     attach_recorded_data(cells, data, file)
+    check_covariate_spans(cells, raw, file)
     seen: dict[str, int] = {}
     for index, cell in enumerate(cells):
         if cell.key in seen:

@@ -73,6 +73,9 @@ class Model(BaseModel):
     process_noise: Optional[Noise] = Field(None, description="process noise w_k (family, variance)")
     measurement_noise: Optional[Noise] = Field(None, description="measurement noise v_k (family, variance)")
     initial: Optional[InitialLaw] = Field(None, description="initial law of the true state x_0")
+    covariates: Optional[dict[str, list[StrictFloat]]] = Field(
+        None, description="covariates over time, for a model that reads them (covariate_names): `time` (increasing) "
+                          "and one list of values per covariate; filled from the file `data.covariates` names")
 
     # -- what a subclass provides --------------------------------------------------------------
 
@@ -135,12 +138,18 @@ class Model(BaseModel):
         """One full turn in the unit of the angular components (2 pi: radians)."""
         return 2.0 * math.pi
 
+    @property
+    def covariate_names(self) -> tuple[str, ...]:
+        """The covariates the model reads (:meth:`covariates_at`), in order; default none."""
+        return ()
+
     time_unit: ClassVar[str] = "s"
     # Whether the model reads :meth:`step_duration` (the time between steps may vary), so that
     # recorded data with irregular times can be filtered with it; no built-in model does.
     variable_dt: ClassVar[bool] = False
     _recorded_times: Optional[np.ndarray] = PrivateAttr(None)    # set by use_recorded_times
     _transition_density: Any = PrivateAttr(None)                   # derived on first use (transition_density)
+    _covariate_table: Optional[tuple[np.ndarray, np.ndarray]] = PrivateAttr(None)   # (times, values (n, c))
 
     def control(self, step: int) -> Optional[np.ndarray]:
         """The control input u_k applied between step k-1 and step k (k = 1..T)."""
@@ -289,6 +298,38 @@ class Model(BaseModel):
             return self.dt
         return float(self._recorded_times[step - 1] - self._recorded_times[step - 2])
 
+    def covariates_at(self, time: float) -> np.ndarray:
+        r"""The covariates at ``time``, one per :attr:`covariate_names`, linearly interpolated
+        between the two rows of the table around it:
+        :math:`c(t) = c_j + (t - t_j) (c_{j+1} - c_j) / (t_{j+1} - t_j)` for
+        :math:`t_j \le t \le t_{j+1}`. ValueError outside the table's times (pfx checks before a
+        run that the table covers the model's times, :meth:`check_covariate_span`)."""
+        if self._covariate_table is None:
+            raise ValueError(f"model {self.kind} reads no covariates (its covariate_names is empty)")
+        times, values = self._covariate_table
+        if not times[0] <= time <= times[-1]:
+            raise ValueError(f"model {self.kind}: covariates asked at time {time:g}, outside their table "
+                             f"({times[0]:g} to {times[-1]:g})")
+        row = min(int(np.searchsorted(times, time, side="right")) - 1, len(times) - 2)
+        if row < 0:          # a table of one row: constant covariates
+            return values[0].copy()
+        share = (time - times[row]) / (times[row + 1] - times[row])
+        return values[row] + share * (values[row + 1] - values[row])
+
+    def check_covariate_span(self) -> None:
+        """ValueError('@covariates: ...') unless the covariate table covers the times the
+        transition reads: from the start of step 1 (its time minus the step's duration) to the
+        last step's time."""
+        if self._covariate_table is None:
+            return
+        times = self.times()
+        start, end = float(times[0] - self.step_duration(1)), float(times[-1])
+        table = self._covariate_table[0]
+        if start < table[0] or end > table[-1]:
+            raise ValueError(f"@covariates: the table's times run from {table[0]:g} to {table[-1]:g}; the model "
+                             f"reads covariates from {start:g} (the start of step 1) to {end:g} (step {self.steps}): "
+                             "give rows that cover them")
+
     def use_recorded_times(self, times: np.ndarray) -> None:
         """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`)."""
         self._recorded_times = np.asarray(times, dtype=float).copy()
@@ -349,6 +390,7 @@ class Model(BaseModel):
 
     @model_validator(mode="after")
     def _resolve(self) -> "Model":
+        self._covariate_table = _covariate_table(self)     # first: presets may read the covariates
         for name, value in self.presets().items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -378,6 +420,34 @@ class Model(BaseModel):
         fresh = type(self).model_validate(parameters)
         fresh._recorded_times = self._recorded_times
         return fresh
+
+
+def _covariate_table(model: Model) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """The model's ``covariates`` as (times (n,), values (n, c)) in ``covariate_names`` order,
+    checked against the names the model reads; None for a model that reads none."""
+    names, table = tuple(model.covariate_names), model.covariates
+    if not names:
+        if table is not None:
+            raise ValueError(f"@covariates: model {model.kind} reads no covariates; drop them")
+        return None
+    if table is None:
+        raise ValueError(f"@covariates: model {model.kind} reads the covariates {', '.join(names)} over time: "
+                         "give a table of them (data.covariates: a CSV file with `time` and those columns)")
+    if "time" not in table:
+        raise ValueError("@covariates: the table has no `time`")
+    unknown = [name for name in table if name != "time" and name not in names]
+    missing = [name for name in names if name not in table]
+    if missing or unknown:
+        what = f"has no {missing[0]!r}" if missing else f"has {unknown[0]!r}, which the model does not read"
+        raise ValueError(f"@covariates: the table {what}; model {model.kind} reads {', '.join(names)}")
+    times = np.asarray(table["time"], dtype=float)
+    if times.size == 0 or not np.all(np.diff(times) > 0):
+        raise ValueError("@covariates.time: the times must increase strictly (and there must be at least one)")
+    lengths = {name: len(table[name]) for name in names if len(table[name]) != times.size}
+    if lengths:
+        name, length = next(iter(lengths.items()))
+        raise ValueError(f"@covariates.{name}: {length} values for {times.size} times")
+    return times, np.column_stack([np.asarray(table[name], dtype=float) for name in names])
 
 
 def _check_result(method: str, value, shape: tuple) -> np.ndarray:

@@ -18,14 +18,21 @@ would draw one by one: :class:`TrialStreams` hands each trial's slice of a batch
 trial's own generator. Normal and uniform draws are exactly ``Generator.standard_normal``'s and
 ``Generator.random``'s, made by compiled loops that step each generator in place
 (:mod:`pfx.numerics.pcg64`, :mod:`pfx.numerics.ziggurat`), for a whole batch in one call.
+
+Draws of other laws (binomial, Poisson, gamma; exponential and normal with parameters) take
+parameter arrays whose **leading axis is the trial axis**, so that a count-valued model can draw
+``random.binomial(state, probability)`` for its ``(R, N)`` particles in one call: trial ``r``'s
+slice is one vectorised call of generator ``r``'s own NumPy method on trial ``r``'s parameters,
+hence exactly NumPy's numbers, whatever the batching.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 TRUTH_ROLE = 0
 FILTER_ROLE = 1
@@ -67,6 +74,17 @@ class TrialStreams:
     step every trial's generator in place, in one call for the batch
     (:mod:`pfx.numerics.pcg64`, :mod:`pfx.numerics.ziggurat`); other draws, and other
     generators, by NumPy trial by trial. Either way the numbers are NumPy's.
+
+    The laws with parameters (:meth:`binomial`, :meth:`poisson`, :meth:`gamma`,
+    :meth:`exponential`, :meth:`normal`) read each parameter as a scalar, shared by every trial,
+    or as an array whose leading axis is the trial axis, of length ``len(self)`` (or 1: shared);
+    its other axes broadcast with the other parameters' as NumPy's do, after the parameters with
+    fewer axes are given trailing axes of length 1: a ``(R,)`` count and a ``(R, N)``
+    probability mean one count per trial, one probability per particle. A parameter that varies
+    per particle but not per trial is therefore written ``(1, N)``, never ``(N,)``. The draws
+    have shape ``(R, *shape)``: ``shape`` is the shape of each trial's draws, like NumPy's
+    ``size`` without the trial axis; by default it is the parameters' broadcast shape (without
+    the trial axis), so scalar parameters and no ``shape`` give one draw per trial, ``(R,)``.
     """
 
     def __init__(self, generators: Sequence[np.random.Generator], *, addresses=None):
@@ -144,3 +162,128 @@ class TrialStreams:
         shape = tuple(shape)
         return np.stack([g.standard_t(degrees_of_freedom, size=shape) for g in self.generators]) \
             if self.generators else np.empty((0,) + shape)
+
+    def binomial(self, count: ArrayLike, probability: ArrayLike, *,
+                 shape: Optional[Sequence[int]] = None) -> np.ndarray:
+        """Binomial draws, ``P(k) = C(n, k) p^k (1 - p)^(n - k)`` for k = 0..n, as floats.
+
+        ``count`` is n (non-negative integers; integer-valued floats welcome, as a count-valued
+        model keeps them), ``probability`` is p in [0, 1]; each trial's ``generator.binomial``.
+        """
+        count = _checked("binomial", "count", count, _is_count, "a non-negative integer")
+        probability = _checked("binomial", "probability", probability,
+                               lambda values: (values >= 0) & (values <= 1), "in [0, 1]")
+        return self._draw("binomial", [count.astype(np.int64), probability], shape)
+
+    def poisson(self, rate: ArrayLike, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
+        """Poisson draws, ``P(k) = λ^k e^{-λ} / k!`` for k = 0, 1, ..., as floats.
+
+        ``rate`` is λ >= 0 (at most NumPy's bound, about 9.2e18); each trial's ``generator.poisson``.
+        """
+        rate = _checked("poisson", "rate", rate, lambda values: _is_non_negative(values)
+                        & (values <= _LARGEST_POISSON_RATE), f"non-negative and at most {_LARGEST_POISSON_RATE:.4g}")
+        return self._draw("poisson", [rate], shape)
+
+    def gamma(self, shape_parameter: ArrayLike, scale: ArrayLike = 1.0, *,
+              shape: Optional[Sequence[int]] = None) -> np.ndarray:
+        """Gamma draws, density ``x^(k-1) e^(-x/θ) / (Γ(k) θ^k)`` for x > 0.
+
+        ``shape_parameter`` is the law's shape k >= 0 (named so, as ``shape`` is the draws'
+        shape), ``scale`` is θ >= 0: mean kθ, variance kθ²; each trial's ``generator.gamma``.
+        """
+        shape_parameter = _checked("gamma", "shape_parameter", shape_parameter, _is_non_negative,
+                                   "finite and non-negative")
+        scale = _checked("gamma", "scale", scale, _is_non_negative, "finite and non-negative")
+        return self._draw("gamma", [shape_parameter, scale], shape)
+
+    def exponential(self, scale: ArrayLike = 1.0, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
+        """Exponential draws, density ``e^(-x/θ) / θ`` for x >= 0 (mean θ = ``scale``).
+
+        θ E with E from :meth:`standard_exponential`: exactly ``generator.exponential(scale)``,
+        which is that product.
+        """
+        scale = _checked("exponential", "scale", scale, _is_non_negative, "finite and non-negative")
+        (scale,), trial_shape = self._aligned("exponential", [scale], shape)
+        return scale * self.standard_exponential(trial_shape)
+
+    def normal(self, mean: ArrayLike = 0.0, sd: ArrayLike = 1.0, *,
+               shape: Optional[Sequence[int]] = None) -> np.ndarray:
+        """Normal draws, ``mean + sd Z`` with Z from :meth:`standard_normal` (compiled).
+
+        Exactly ``generator.normal(mean, sd)``, which is that sum; ``sd`` >= 0 (finite).
+        """
+        mean = np.asarray(mean, dtype=float)
+        sd = _checked("normal", "sd", sd, _is_non_negative, "finite and non-negative")
+        (mean, sd), trial_shape = self._aligned("normal", [mean, sd], shape)
+        return mean + sd * self.standard_normal(trial_shape)
+
+    def _aligned(self, law: str, parameters: list[np.ndarray],
+                 shape: Optional[Sequence[int]]) -> tuple[list[np.ndarray], tuple]:
+        """The parameters with the trial axis first and equally many axes, and each trial's shape.
+
+        A scalar stays a scalar; an array's leading axis must be the trial axis (length R or 1),
+        and it gets trailing axes of length 1 up to the others' (or ``shape``'s) number of axes.
+        """
+        trials = len(self.generators)
+        arrays = [parameter for parameter in parameters if parameter.ndim > 0]
+        for parameter in arrays:
+            if parameter.shape[0] not in (trials, 1):
+                raise ValueError(f"{law}: a parameter of shape {parameter.shape} must have the trial "
+                                 f"axis first, of length {trials} (or 1)")
+        axes = 1 + (len(shape) if shape is not None else max((a.ndim - 1 for a in arrays), default=0))
+        if any(a.ndim > axes for a in arrays):
+            raise ValueError(f"{law}: parameters of shapes {[a.shape for a in arrays]} have more axes "
+                             f"than draws of shape {(trials,) + tuple(shape)}")
+        padded = [parameter if parameter.ndim == 0 else
+                  parameter.reshape(parameter.shape + (1,) * (axes - parameter.ndim))
+                  for parameter in parameters]
+        try:
+            broadcast = np.broadcast_shapes(*(p.shape[1:] for p in padded if p.ndim > 0))
+            if shape is not None:
+                trial_shape = tuple(int(length) for length in shape)
+                if np.broadcast_shapes(broadcast, trial_shape) != trial_shape:
+                    raise ValueError
+            else:
+                trial_shape = broadcast
+        except ValueError:
+            wanted = f"draws of shape {(trials,) + tuple(shape)}" if shape is not None else "one shape"
+            raise ValueError(f"{law}: parameters of shapes {[p.shape for p in parameters]} do not "
+                             f"broadcast to {wanted}") from None
+        return padded, trial_shape
+
+    def _draw(self, law: str, parameters: list[np.ndarray], shape) -> np.ndarray:
+        """Trial r's slice: one call of generator r's NumPy method ``law`` on trial r's parameters."""
+        parameters, trial_shape = self._aligned(law, parameters, shape)
+        out = np.empty((len(self.generators),) + trial_shape)
+        for row, generator in enumerate(self.generators):
+            own = [parameter if parameter.ndim == 0 else parameter[row if len(parameter) > 1 else 0]
+                   for parameter in parameters]
+            try:
+                out[row] = getattr(generator, law)(*own, size=trial_shape)
+            except ValueError as error:             # what the checks above do not foresee
+                raise ValueError(f"{law}: {error}") from error
+        return out
+
+
+# NumPy's own bound on a Poisson rate (POISSON_LAM_MAX), beyond which the draws overflow int64.
+_LARGEST_POISSON_RATE = float(np.iinfo(np.int64).max) - 10 * math.sqrt(np.iinfo(np.int64).max)
+
+
+def _is_non_negative(values: np.ndarray) -> np.ndarray:
+    return np.isfinite(values) & (values >= 0)
+
+
+def _is_count(values: np.ndarray) -> np.ndarray:
+    return _is_non_negative(values) & (values == np.floor(values)) & (values < 2.0**63)
+
+
+def _checked(law: str, name: str, values: ArrayLike, valid, meaning: str) -> np.ndarray:
+    """``values`` as a float array, or a ValueError naming the law, the parameter and a bad value.
+
+    Checked before any draw, so that a refused call leaves every generator where it was.
+    """
+    values = np.asarray(values, dtype=float)
+    bad = ~valid(values)
+    if np.any(bad):
+        raise ValueError(f"{law}: {name} must be {meaning}, got {float(values[bad].flat[0])!r}")
+    return values

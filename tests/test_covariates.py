@@ -1,0 +1,168 @@
+"""Covariates: a table over time that a model reads at each (sub)step (``data.covariates``,
+``Model.covariate_names``, ``Model.covariates_at``; docs/recorded-data.md, docs/plugins.md).
+
+* interpolation: the table's own values at its times, linear in between, constant for one row,
+  an error outside;
+* a run: the model sees the covariate at the start of each step (a drift integrated exactly);
+* the table is part of the cell key (a changed value is a changed cell);
+* bad tables: one line naming the file (and column, or the key), exit status 2, nothing written.
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from conftest import write_config_file
+
+from pfx.config.plan import build_plan as build_plan_from
+from pfx.errors import ConfigError
+
+
+def build_plan(path):
+    return build_plan_from(yaml.safe_load(path.read_text()), str(path))
+
+DRIFT_PLUGIN = textwrap.dedent('''
+    """x_k = x_(k-1) + c(t) dt + w_k: a walk whose drift c is a covariate read at the step's start."""
+    from typing import Literal
+
+    import pfx
+
+
+    @pfx.register_model
+    class Drift(pfx.Model):
+        kind: Literal["drift"] = "drift"
+
+        def presets(self):
+            return {"steps": 6, "dt": 1.0, "process_noise": pfx.Noise(variance=0.0),
+                    "measurement_noise": pfx.Noise(variance=0.1), "initial": pfx.PointLaw(state=[0.0])}
+
+        @property
+        def state_names(self):
+            return ("x",)
+
+        @property
+        def measurement_dimension(self):
+            return 1
+
+        @property
+        def covariate_names(self):
+            return ("drift",)
+
+        def propagate(self, state, control, noise, time=None):
+            return state + self.covariates_at(time)[0] * self.dt + noise
+
+        def measurement_mean(self, state):
+            return state
+''')
+
+
+def drift_config(folder, covariates: str | None = "drift.csv", **changes) -> dict:
+    (folder / "drift.py").write_text(DRIFT_PLUGIN)
+    config = {"name": "drift", "plugins": ["drift.py"], "seed": 1, "trials": 2,
+              "model": {"kind": "drift"}, "filter": {"particles": 20},
+              "outputs": {"trace_trials": 2, "figures": []}}
+    if covariates is not None:
+        config["data"] = {"covariates": covariates}
+    config.update(changes)
+    return config
+
+
+def write_table(folder, text: str, name: str = "drift.csv"):
+    (folder / name).write_text(textwrap.dedent(text).lstrip())
+
+
+# drift(t) = t on t in [0, 6]: x_k = sum_{j < k} j = k (k - 1) / 2 at the step starts t = k - 1
+LINEAR_DRIFT = """
+    time,drift
+    0,0
+    2,2
+    6,6
+"""
+
+
+def test_covariates_are_interpolated_linearly(tmp_path):
+    write_table(tmp_path, LINEAR_DRIFT)
+    plan = build_plan(write_config_file(tmp_path, drift_config(tmp_path)))
+    model = plan.cells[0].truth_model
+    assert model.covariates == {"time": [0.0, 2.0, 6.0], "drift": [0.0, 2.0, 6.0]}
+    for time in (0.0, 0.5, 2.0, 3.7, 6.0):
+        assert model.covariates_at(time) == pytest.approx([time], abs=1e-15)
+    with pytest.raises(ValueError, match="outside their table"):
+        model.covariates_at(6.5)
+    one_row = model.model_copy(update={"covariates": {"time": [0.0], "drift": [3.0]}})
+    assert one_row.covariates_at(0.0) == pytest.approx([3.0])
+
+
+def test_a_run_reads_the_covariate_at_each_step_start(run_pfx, tmp_path):
+    write_table(tmp_path, LINEAR_DRIFT)
+    config = write_config_file(tmp_path, drift_config(tmp_path))
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 0, result.output
+    steps = pd.read_csv(tmp_path / "out" / "steps.csv")
+    truth = steps[steps["trial"] == 0].sort_values("step")
+    k = truth["step"].to_numpy()
+    assert truth["time"].to_numpy() == pytest.approx(k * 1.0)
+    assert truth["true_x"].to_numpy() == pytest.approx(k * (k - 1) / 2.0, abs=1e-12)
+
+
+def test_the_table_is_part_of_the_cell_key(tmp_path):
+    write_table(tmp_path, LINEAR_DRIFT)
+    first = build_plan(write_config_file(tmp_path, drift_config(tmp_path))).cells[0]
+    write_table(tmp_path, LINEAR_DRIFT.replace("2,2", "2,2.5"))
+    second = build_plan(write_config_file(tmp_path, drift_config(tmp_path))).cells[0]
+    assert first.key != second.key and first.filter_key != second.filter_key
+
+
+@pytest.mark.parametrize("table, where, reason", [
+    ("step,drift\n1,0\n2,1\n", "drift.csv:1: column 1", "must be `time`"),
+    ("time,slope\n0,0\n6,6\n", "drift.csv:1", "has no 'drift'"),
+    ("time,drift,wind\n0,0,1\n6,6,1\n", "drift.csv:1", "has 'wind', which the model does not read"),
+    ("time,drift\n0,0\n6,\n", "drift.csv:3: column drift", "blank cell"),
+    ("time,drift\n0,0\n0,1\n", "drift.csv:3: column time", "appears twice"),
+    ("time,drift\n1,0\n6,6\n", "data.covariates", "from 0 (the start of step 1)"),
+    ("time,drift\n0,0\n5,5\n", "data.covariates", "to 6 (step 6)"),
+])
+def test_bad_covariate_tables_are_one_line_errors(run_pfx, tmp_path, table, where, reason):
+    (tmp_path / "drift.csv").write_text(table)
+    config = write_config_file(tmp_path, drift_config(tmp_path))
+    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 2, result.output
+    assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert where in result.stderr and reason in result.stderr, result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_model_that_reads_covariates_needs_them_and_others_refuse_them(tmp_path):
+    with pytest.raises(ConfigError, match="reads the covariates drift over time") as missing:
+        build_plan(write_config_file(tmp_path, drift_config(tmp_path, covariates=None)))
+    assert missing.value.key == "model.covariates"
+    write_table(tmp_path, LINEAR_DRIFT)
+    builtin = {"name": "walk", "seed": 1, "trials": 1, "data": {"covariates": "drift.csv"},
+               "model": {"kind": "linear_gaussian", "steps": 3}, "filter": {"particles": 10}}
+    with pytest.raises(ConfigError, match="reads no covariates") as refused:
+        build_plan(write_config_file(tmp_path, builtin, "walk.yaml"))
+    assert refused.value.file.endswith("drift.csv")
+
+
+def test_covariates_given_twice_and_truth_without_measurements_are_refused(tmp_path):
+    write_table(tmp_path, LINEAR_DRIFT)
+    twice = drift_config(tmp_path, model={"kind": "drift", "covariates": {"time": [0.0, 6.0], "drift": [0.0, 6.0]}})
+    with pytest.raises(ConfigError, match="given twice") as error:
+        build_plan(write_config_file(tmp_path, twice))
+    assert error.value.key == "data.covariates"
+    lonely = drift_config(tmp_path)
+    lonely["data"]["truth"] = "truth.csv"
+    with pytest.raises(ConfigError, match="give data.measurements too") as error:
+        build_plan(write_config_file(tmp_path, lonely))
+    assert error.value.key == "data.truth"
+
+
+def test_covariates_inline_in_the_model_work_too(tmp_path):
+    inline = drift_config(tmp_path, covariates=None,
+                          model={"kind": "drift", "covariates": {"time": [0.0, 6.0], "drift": [1.0, 1.0]}})
+    model = build_plan(write_config_file(tmp_path, inline)).cells[0].truth_model
+    assert np.array_equal(model.covariates_at(3.0), [1.0])
