@@ -79,7 +79,7 @@ Run it: ``pfx run configs/benchmarks/dacca-cholera/dacca.yaml``.
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, StrictInt
 
 import pfx
 
@@ -121,7 +121,7 @@ class DaccaCholera(pfx.Model):
     R1_0: float = Field(0.000843, ge=0.0, description="initial fraction in immunity stage 1")
     R2_0: float = Field(0.000972, ge=0.0, description="initial fraction in immunity stage 2")
     R3_0: float = Field(1.16e-07, ge=0.0, description="initial fraction in immunity stage 3")
-    substeps: int = Field(20, ge=1, le=100_000, description="Euler-Maruyama substeps between two observations "
+    substeps: StrictInt = Field(20, ge=1, le=100_000, description="Euler-Maruyama substeps between two observations "
                                                            "(20: pomp's delta.t = 1/240 year for monthly data)")
     initial_time: float = Field(1891.0, description="t0, the time of the initial state (pomp's: one month "
                                                     "before the first observation)")
@@ -179,17 +179,10 @@ class DaccaCholera(pfx.Model):
 
     def initial_state(self) -> np.ndarray:
         """x_0: the fractions S_0..R3_0 (normalised) of P(t0), rounded to whole people; C = W = count = 0."""
-        if not self.covariate_names_given():
-            raise ValueError("@data.covariates: the dacca model reads the population and the seasonal basis "
-                             f"from a covariates table ({', '.join(COVARIATES)}); give data: {{covariates: ...}}")
         fractions = np.asarray(self.initial_fractions())
         population = self.covariates_at(self.initial_time)[POP]
         compartments = np.rint(population * fractions / fractions.sum())     # round half to even, as C's nearbyint
         return np.concatenate([compartments, [0.0, 0.0, 0.0]])
-
-    def covariate_names_given(self) -> bool:
-        """Whether the model holds a covariates table to read (``data: {covariates: ...}``)."""
-        return getattr(self, "covariates", None) is not None
 
     def propagate(self, state, control, noise, time):
         step = self.substep_duration
