@@ -171,7 +171,7 @@ class ResultFolder:
         import numpy as np
         import pandas as pd
 
-        from pfx.analysis.step_summary import QUANTITIES, summarize_steps
+        from pfx.analysis.step_summary import QUANTITIES, SIGNED_QUANTITIES, summarize_steps
 
         steps = self.steps
         if steps.empty:
@@ -182,7 +182,7 @@ class ResultFolder:
         summaries = []
         for _, rows in steps.groupby("cell", sort=False):
             values = {quantity: self._by_trial(rows, rows.get(quantity, np.nan))
-                      for quantity in QUANTITIES}
+                      for quantity in (*QUANTITIES, *SIGNED_QUANTITIES)}
             for state in states:
                 values[f"squared_error_{state}"] = self._by_trial(rows, self.state_error(rows, state) ** 2)
             first = rows.iloc[0]

@@ -4,7 +4,8 @@ All arrays carry the trial axis first; steps are numbered k = 1..T (step k is th
 transition + measurement, i.e. the k-th action in kim-mcl's counting).
 
 * **RMSE** of component :math:`j`: :math:`\sqrt{\tfrac1T \sum_k (\hat x_{k,j} - x_{k,j})^2}`;
-  of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below. The error
+  of position: :math:`\sqrt{\tfrac1T \sum_k e_k^2}` with the error distance below (every
+  mean over steps is over the scored steps only when a burn-in is set: below). The error
   of an angular component (a heading) is wrapped into half a turn either side (:mod:`pfx.numerics.angles`).
 * **Error distance** :math:`e_k = \lVert \hat p_k - p_k \rVert_2` over the model's position
   components; reported time-averaged (:math:`\tfrac1T\sum_k e_k`) and final (:math:`e_T`).
@@ -36,6 +37,24 @@ needs it (RMSE, error distance, the truth convergence criterion and the error at
 NEES) is NaN, an empty field, and the others (log-likelihood, ESS, NIS, the spread criterion)
 are computed as usual. Steps whose measurement is missing have no NIS: the mean NIS is taken
 over the other steps.
+
+**RMS error over the components** (``rms_error_mean``, the score of DAPPER's benchmark tables,
+its ``rmse.a``): at each step the root mean square over the d state components of the
+posterior mean's error, averaged over the scored steps,
+:math:`\tfrac{1}{|S|} \sum_{k \in S} \sqrt{\tfrac1d \sum_j (\hat x_{k,j} - x_{k,j})^2}`. Unlike
+``rmse_position`` (the root of a mean over time of a Euclidean distance, :math:`\sqrt d` larger
+for errors spread evenly), it is a mean over time of an RMS over components.
+
+**Burn-in** (``metrics.burn_in``, in the model's time unit): the steps whose time
+(``model.times()``, steps.csv's ``time``) is at most ``burn_in`` are not scored. Every metric
+that aggregates over the steps (RMSEs, mean error distance, RMS error, mean ESS, resample and
+degenerate counts, NEES and NIS means and their invalid steps, the mean particle and injected
+counts, the smoothers' RMSEs) is taken over the scored steps :math:`S = \{k : t_k >
+\text{burn\_in}\}` only; the others keep their meaning over the whole run: the final error,
+the convergence step and the error there, the log-likelihood of the whole record, the lost
+particles, the largest grid mass lost in one step (a check of the grid, not a score), the
+move's acceptance rate and the ancestral tree. ``burn_in: 0`` (the default) scores every step,
+whatever the times. The plan refuses a burn-in that leaves no step to score.
 """
 
 from __future__ import annotations
@@ -74,6 +93,17 @@ class MetricsConfig(BaseModel):
     consistency: bool = Field(
         False, description="NEES and NIS for particle filters too (records a weighted covariance "
                            "per step; Gaussian filters always report them)")
+    burn_in: StrictFloat = Field(
+        0.0, ge=0, description="steps at times <= burn_in (the model's time unit) are not scored by the "
+                               "metrics that average or count over steps; 0: every step is scored")
+
+    def identity(self) -> dict:
+        """The settings as they enter a cell's key: ``burn_in`` only when set, so that the keys
+        of configs without it are what they were before it existed."""
+        dump = self.model_dump(mode="json")
+        if self.burn_in == 0:
+            dump.pop("burn_in")
+        return dump
 
 
 # -- pure functions ---------------------------------------------------------------------------
@@ -109,6 +139,20 @@ class _PositionOf:
         position = list(model.position_components)
         self.angular_components = [position.index(c) for c in model.angular_components if c in position]
         self.full_turn = model.full_turn
+
+
+def scored_steps(times: np.ndarray, burn_in: float):
+    """The steps :math:`k` with :math:`t_k >` ``burn_in``, as an index of the step axis: a
+    whole slice when ``burn_in`` is 0 (every step, whatever the times), else a boolean mask."""
+    if burn_in == 0:
+        return slice(None)
+    return np.asarray(times, dtype=float) > burn_in
+
+
+def rms_over_components(error: np.ndarray) -> np.ndarray:
+    r"""The RMS over the state components at each step, :math:`\sqrt{\tfrac1d \sum_j e_{k,j}^2}`:
+    (trials, T, d) -> (trials, T)."""
+    return np.sqrt(np.mean(error ** 2, axis=-1))
 
 
 def first_step(condition: np.ndarray) -> np.ndarray:
@@ -157,6 +201,15 @@ class MetricInputs:
     def trials(self) -> int:
         return self.trace.estimates.shape[0]
 
+    @property
+    def scored(self):
+        """The steps the step-aggregating metrics score (module docstring, burn-in): an index of
+        the step axis, every step (a whole slice, so that the numbers without a burn-in are
+        computed exactly as before it existed) or a boolean mask of the steps after the burn-in."""
+        if self.config.burn_in == 0:          # nothing to exclude: the times are not needed
+            return slice(None)
+        return scored_steps(self.model.times(), self.config.burn_in)
+
     def empty(self) -> np.ndarray:
         """A metric column with nothing in it (NaN per trial): what needs the truth, without it."""
         return np.full(self.trials, np.nan)
@@ -175,9 +228,10 @@ def rmse_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """RMSE over time per state component (rmse_<name>) and of position (rmse_position)."""
     if inputs.truth is None:
         return {f"rmse_{name}": inputs.empty() for name in (*inputs.model.state_names, "position")}
-    values = component_rmse(state_error(inputs.truth, inputs.trace.estimates, inputs.model))
+    scored = inputs.scored
+    values = component_rmse(state_error(inputs.truth, inputs.trace.estimates, inputs.model)[:, scored])
     columns = {f"rmse_{name}": values[:, j] for j, name in enumerate(inputs.model.state_names)}
-    columns["rmse_position"] = np.sqrt(np.mean(_distance(inputs) ** 2, axis=1))
+    columns["rmse_position"] = np.sqrt(np.mean(_distance(inputs)[:, scored] ** 2, axis=1))
     return columns
 
 
@@ -187,7 +241,7 @@ def error_distance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     if inputs.truth is None:
         return {"error_distance_mean": inputs.empty(), "error_distance_final": inputs.empty()}
     distance = _distance(inputs)
-    return {"error_distance_mean": distance.mean(axis=1), "error_distance_final": distance[:, -1]}
+    return {"error_distance_mean": distance[:, inputs.scored].mean(axis=1), "error_distance_final": distance[:, -1]}
 
 
 @METRICS.register("convergence")
@@ -220,19 +274,19 @@ def convergence_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 @METRICS.register("ess")
 def ess_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Mean effective sample size over the steps (before resampling), in particles."""
-    return {"ess_mean": inputs.trace.ess.mean(axis=1)}
+    return {"ess_mean": inputs.trace.ess[:, inputs.scored].mean(axis=1)}
 
 
 @METRICS.register("resampling")
 def resampling_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Number of steps at which the trial resampled."""
-    return {"resample_count": inputs.trace.resampled.sum(axis=1)}
+    return {"resample_count": inputs.trace.resampled[:, inputs.scored].sum(axis=1)}
 
 
 @METRICS.register("degeneracy")
 def degeneracy_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Number of degenerate steps (every weight underflowed; weights reset to uniform)."""
-    return {"degenerate_steps": inputs.trace.degenerate.sum(axis=1)}
+    return {"degenerate_steps": inputs.trace.degenerate[:, inputs.scored].sum(axis=1)}
 
 
 @METRICS.register("lost_particles")
@@ -252,8 +306,9 @@ def particle_count_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     if counts is None:
         return {"particles_mean": inputs.empty(), "injected_mean": inputs.empty()}
     injected = getattr(trace, "injected", None)
-    return {"particles_mean": counts.mean(axis=1),
-            "injected_mean": injected.mean(axis=1) if injected is not None else np.zeros(inputs.trials)}
+    scored = inputs.scored
+    return {"particles_mean": counts[:, scored].mean(axis=1),
+            "injected_mean": injected[:, scored].mean(axis=1) if injected is not None else np.zeros(inputs.trials)}
 
 
 @METRICS.register("grid_lost_mass")
@@ -270,7 +325,7 @@ def smoothing_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     """Each smoother's RMSE over time per state component and of the position (``rmse_<smoother>_<state>``,
     ``rmse_<smoother>_position``), as the filter's ``rmse_*`` are computed (empty without the truth)."""
     columns: dict[str, np.ndarray] = {}
-    model = inputs.model
+    model, scored = inputs.model, inputs.scored
     for label, smoothed in inputs.trace.smoothed.items():
         if inputs.truth is None:
             empty = np.full(inputs.trials, np.nan)
@@ -278,9 +333,9 @@ def smoothing_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
             columns[f"rmse_{label}_position"] = empty
             continue
         with np.errstate(over="ignore", invalid="ignore"):
-            values = component_rmse(state_error(inputs.truth, smoothed.means, model))
+            values = component_rmse(state_error(inputs.truth, smoothed.means, model)[:, scored])
             columns.update({f"rmse_{label}_{name}": values[:, j] for j, name in enumerate(model.state_names)})
-            distance = error_distance(inputs.truth, smoothed.means, model)
+            distance = error_distance(inputs.truth, smoothed.means, model)[:, scored]
             columns[f"rmse_{label}_position"] = np.sqrt(np.mean(distance ** 2, axis=1))
     return columns
 
@@ -303,16 +358,17 @@ def consistency_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
 
     NEES e' P^-1 e and NIS nu' S^-1 nu, averaged over the steps that have one; a step whose
     covariance cannot be inverted reliably is left out and counted (module docstring)."""
-    trace = inputs.trace
+    trace, scored = inputs.trace, inputs.scored
     columns = {name: inputs.empty() for name in
                ("nees_mean", "nees_invalid_steps", "nis_mean", "nis_invalid_steps")}
     if trace.covariances is not None and inputs.truth is not None:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             errors = state_error(inputs.truth, trace.estimates, inputs.model)
             nees = normalised_squares(errors, trace.covariances)
-        columns["nees_mean"], columns["nees_invalid_steps"] = _mean_over_valid_steps(nees, None)
+        columns["nees_mean"], columns["nees_invalid_steps"] = _mean_over_valid_steps(nees[:, scored], None)
     if trace.nis is not None:
-        columns["nis_mean"], columns["nis_invalid_steps"] = _mean_over_valid_steps(trace.nis, inputs.observed)
+        observed = None if inputs.observed is None else inputs.observed[:, scored]
+        columns["nis_mean"], columns["nis_invalid_steps"] = _mean_over_valid_steps(trace.nis[:, scored], observed)
     return columns
 
 
@@ -345,6 +401,24 @@ def move_acceptance_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
     return {"move_acceptance": acceptance if acceptance is not None else inputs.empty()}
 
 
+@METRICS.register("rms_error")
+def rms_error_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """The RMS over the state components of the mean's error, averaged over the scored steps
+    (``rms_error_mean``, DAPPER's rmse.a; in the state's unit), and each smoother's
+    (``rms_error_<smoother>_mean``); empty without the truth."""
+    labels = list(inputs.trace.smoothed)
+    if inputs.truth is None:
+        return {f"rms_error_{prefix}mean": inputs.empty() for prefix in ("", *(f"{label}_" for label in labels))}
+    scored = inputs.scored
+    columns = {"rms_error_mean": rms_over_components(
+        state_error(inputs.truth, inputs.trace.estimates, inputs.model))[:, scored].mean(axis=1)}
+    with np.errstate(over="ignore", invalid="ignore"):
+        for label in labels:
+            error = state_error(inputs.truth, inputs.trace.smoothed[label].means, inputs.model)
+            columns[f"rms_error_{label}_mean"] = rms_over_components(error)[:, scored].mean(axis=1)
+    return columns
+
+
 # -- the range of each column's values: the intervals of summary.csv respect it ---------------
 
 @dataclass(frozen=True)
@@ -367,6 +441,7 @@ SHARE = ValueRange(low=0.0, high=1.0, share=True)
 # that matches none may take any real value (log_likelihood). A new metric adds its columns here.
 METRIC_RANGES: dict[str, ValueRange] = {
     "rmse_*": NONNEGATIVE,
+    "rms_error_*": NONNEGATIVE,
     "error_distance_*": NONNEGATIVE,
     "convergence_step": ValueRange(low=1.0),
     "converged": SHARE,

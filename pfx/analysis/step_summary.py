@@ -15,7 +15,11 @@ of them. For every cell and step, over the cell's :math:`n` trials, this table h
   number of trials left out at that step;
 * ``rms_error_<state>`` for every state component:
   :math:`\sqrt{\tfrac1n \sum_r (\hat x_{k,r} - x_{k,r})^2}` (angles wrapped); and
-  ``rms_error_<smoother>_<state>``, the same of each smoother's mean (``filter.smoothers``).
+  ``rms_error_<smoother>_<state>``, the same of each smoother's mean (``filter.smoothers``);
+* last, for the log-likelihood increment :math:`L_k = \log \hat p(z_k \mid z_{1:k-1})`
+  (:mod:`pfx.filters.trace`), ``log_likelihood_increment_mean``, ``_std``, ``_ci95_low`` and
+  ``_ci95_high`` as above, not cut (an increment takes any sign); empty for a filter kind that
+  does not record it.
 
 Every statistic is one a run extended with more trials can update without the old trials'
 traces: counts add, and means and squared deviations merge exactly in exact arithmetic (Chan,
@@ -29,10 +33,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.analysis.metrics import NONNEGATIVE
+from pfx.analysis.metrics import ANY_VALUE, NONNEGATIVE, ValueRange
 from pfx.analysis.summary import MINIMUM_VALUES, cut_to_range
 
 QUANTITIES = ("error_distance", "ess", "nees", "nis")
+# quantities of any sign, summarised like the others but after the rms_error_* columns (a
+# column added later goes last) and with intervals that are not cut at zero
+SIGNED_QUANTITIES = ("log_likelihood_increment",)
 # the quantities a trial may have no value of at a step: counted in <q>_n (module docstring)
 COUNTED = ("nees", "nis")
 STATISTICS = ("mean", "std", "ci95_low", "ci95_high")
@@ -56,7 +63,9 @@ def step_values(truth, trace, model) -> dict[str, np.ndarray]:
                   "ess": np.asarray(trace.ess, dtype=float),
                   "nees": (normalised_squares(errors, trace.covariances)
                            if trace.covariances is not None else missing),
-                  "nis": np.asarray(trace.nis, dtype=float) if trace.nis is not None else missing}
+                  "nis": np.asarray(trace.nis, dtype=float) if trace.nis is not None else missing,
+                  "log_likelihood_increment": (np.asarray(trace.log_likelihood_increments, dtype=float)
+                                               if trace.log_likelihood_increments is not None else missing)}
         for j, name in enumerate(model.state_names):
             values[f"squared_error_{name}"] = errors[..., j] ** 2
         for label, smoothed in trace.smoothed.items():          # each smoother's errors too
@@ -95,17 +104,23 @@ def summarize_steps(values: dict[str, np.ndarray], state_names, labels: dict, ti
                     if key.startswith("squared_error_") and key.removeprefix("squared_error_") not in state_names]
         for name in smoothed:                     # <smoother>_<state>, in the order the run made them
             columns[f"rms_error_{name}"] = np.sqrt(values[f"squared_error_{name}"].mean(axis=0))
+        for quantity in SIGNED_QUANTITIES:
+            data = values.get(quantity, np.full((trials, steps), np.nan))   # a table from older traces
+            std = data.std(axis=0, ddof=1) if trials >= 2 else np.full(steps, np.nan)
+            columns.update(_interval(quantity, data.mean(axis=0), std, trials, ANY_VALUE))
     return pd.DataFrame(columns)
 
 
-def _interval(quantity: str, mean: np.ndarray, std: np.ndarray, trials) -> dict[str, np.ndarray]:
-    """mean, std and the 95% t-interval of the mean (cut at zero; empty below MINIMUM_VALUES)."""
+def _interval(quantity: str, mean: np.ndarray, std: np.ndarray, trials,
+              value_range: ValueRange = NONNEGATIVE) -> dict[str, np.ndarray]:
+    """mean, std and the 95% t-interval of the mean (cut to ``value_range``, by default at zero;
+    empty below MINIMUM_VALUES)."""
     from scipy import stats
 
     enough = np.asarray(trials) >= MINIMUM_VALUES
     quantile = np.where(enough, stats.t.ppf(0.975, np.maximum(trials, 2) - 1), np.nan)
     half = quantile * std / np.sqrt(trials)
-    low, high = cut_to_range(mean - half, mean + half, NONNEGATIVE)
+    low, high = cut_to_range(mean - half, mean + half, value_range)
     return {f"{quantity}_mean": mean, f"{quantity}_std": std,
             f"{quantity}_ci95_low": low, f"{quantity}_ci95_high": high}
 
@@ -119,12 +134,17 @@ def merge_step_summaries(first, second):
     """
     first = first.reset_index(drop=True)
     second = second.reset_index(drop=True)
+    for quantity in SIGNED_QUANTITIES:       # a table written before the quantity existed: unknown there
+        for table in (first, second):
+            for statistic in STATISTICS:
+                if f"{quantity}_{statistic}" not in table:
+                    table[f"{quantity}_{statistic}"] = np.nan
     merged = first.copy()
     n_a, n_b = int(first["trials"].iloc[0]), int(second["trials"].iloc[0])
     n = n_a + n_b
     merged["trials"] = n
     with np.errstate(over="ignore", invalid="ignore"):
-        for quantity in QUANTITIES:
+        for quantity in (*QUANTITIES, *SIGNED_QUANTITIES):
             mean_a = first[f"{quantity}_mean"].to_numpy(dtype=float)
             mean_b = second[f"{quantity}_mean"].to_numpy(dtype=float)
             if quantity in COUNTED:
@@ -139,7 +159,9 @@ def merge_step_summaries(first, second):
                        + _squared_deviations(second[f"{quantity}_std"], count_b)
                        + np.where(both, delta ** 2 * count_a * count_b / count, 0.0))
             std = np.where(count >= 2, np.sqrt(squares / (count - 1)), np.nan)
-            for name, column in _interval(quantity, mean, std, count if quantity in COUNTED else n).items():
+            value_range = ANY_VALUE if quantity in SIGNED_QUANTITIES else NONNEGATIVE
+            for name, column in _interval(quantity, mean, std, count if quantity in COUNTED else n,
+                                          value_range).items():
                 merged[name] = column
             if quantity in COUNTED:
                 merged[f"{quantity}_n"] = count
@@ -162,10 +184,11 @@ def _values_counted(summary, quantity: str) -> np.ndarray:
 def _column_order(summary) -> list[str]:
     """``<q>_n`` after ``<q>_ci95_high``, as :func:`summarize_steps` writes it (a table written
     before that column existed gets it there)."""
-    columns = [c for c in summary.columns if not (c.endswith("_n") and c[:-2] in COUNTED)]
+    signed = [f"{quantity}_{statistic}" for quantity in SIGNED_QUANTITIES for statistic in STATISTICS]
+    columns = [c for c in summary.columns if not (c.endswith("_n") and c[:-2] in COUNTED) and c not in signed]
     for quantity in COUNTED:
         columns.insert(columns.index(f"{quantity}_ci95_high") + 1, f"{quantity}_n")
-    return columns
+    return columns + signed
 
 
 def _squared_deviations(std, counts: np.ndarray) -> np.ndarray:

@@ -266,7 +266,7 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         column = sweep_column(dotted)
         if column not in labels:
             labels[column] = value if isinstance(value, (int, float, str, bool)) else json.dumps(value)
-    metrics = experiment.metrics.model_dump(mode="json")
+    metrics = experiment.metrics.identity()
     return Cell(key=canonical_hash({**identity, "metrics": metrics}, 12),
                 filter_key=canonical_hash(identity, 12), labels=labels, truth_model=truth,
                 filter_model=filter_model, filter=settings, prior=prior, metrics=experiment.metrics,
@@ -365,6 +365,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                                        schema=schema, plugins=plugins))
     attach_recorded_data(cells, data, file)
     check_covariate_spans(cells, raw, file)
+    for cell in cells:                           # with the recorded data's times, if any
+        _check_burn_in(cell, file, swept="metrics.burn_in" in sweep)
     seen: dict[str, int] = {}
     for index, cell in enumerate(cells):
         if cell.key in seen:
@@ -385,6 +387,17 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
+
+
+def _check_burn_in(cell: Cell, file: str, swept: bool) -> None:
+    """A burn-in (``metrics.burn_in``) must leave at least one step to score: a step at a time
+    after it (:mod:`pfx.analysis.metrics`)."""
+    burn_in = cell.metrics.burn_in
+    times = cell.truth_model.times()
+    if burn_in > 0 and not (times > burn_in).any():
+        raise ConfigError(f"{burn_in:g} leaves no step to score: the steps at times <= burn_in are not scored, "
+                          f"and the last step is at time {times[-1]:g}",
+                          file=file, key="sweep.metrics.burn_in" if swept else "metrics.burn_in")
 
 
 def _sweeps_particle_count(sweep: dict) -> bool:

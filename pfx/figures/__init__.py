@@ -13,6 +13,7 @@ from pfx.figures import (
     concept,  # noqa: F401
     degeneracy,  # noqa: F401
     estimator_spread,  # noqa: F401
+    log_likelihood,  # noqa: F401
     mahalanobis,  # noqa: F401
     maps,  # noqa: F401
     motion,  # noqa: F401

@@ -1,8 +1,14 @@
-"""What every filter kind returns: per-trial, per-step estimates and diagnostics.
+r"""What every filter kind returns: per-trial, per-step estimates and diagnostics.
 
 A step whose measurement is missing (recorded data with a blank row, :mod:`pfx.config.data`)
 is predict-only in every kind: no weight update, a log-likelihood increment of 0, and NIS NaN
 at that step (empty in the CSV).
+
+The log-likelihood estimate is a sum over the steps, :math:`\log \hat p(z_{1:T}) = \sum_k L_k`
+with :math:`L_k = \log \hat p(z_k \mid z_{1:k-1})`; every kind also keeps the increments
+:math:`L_k` themselves (``log_likelihood_increments``: steps.csv's ``log_likelihood_increment``),
+where a user finds the step at which the model and the data disagree. The total is the kind's
+own running sum, as it always was; the increments add up to it to rounding.
 """
 
 from __future__ import annotations
@@ -52,6 +58,9 @@ class FilterTrace:
     # the smoothers' results, by label (``ffbs``, ``rts``, ...): each with ``means`` and
     # ``standard_deviations``, (trials, T, d) (pfx.filters.smoothers)
     smoothed: dict = field(default_factory=dict)
+    # (trials, T) each step's log-likelihood increment L_k = log p^(z_k | z_1:k-1) (module
+    # docstring): 0 at a step without a measurement; None from a kind that does not record it
+    log_likelihood_increments: Optional[np.ndarray] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the
@@ -65,7 +74,8 @@ class FilterTrace:
         return None
 
     @classmethod
-    def for_gaussian_filter(cls, estimates, covariances, nis, log_likelihood, position) -> "FilterTrace":
+    def for_gaussian_filter(cls, estimates, covariances, nis, log_likelihood, position,
+                            log_likelihood_increments=None) -> "FilterTrace":
         """A trace for filters that carry a mean and a covariance (KF, EKF, UKF, grid)."""
         trials, steps = estimates.shape[:2]
         position_covariance = covariances[..., position, :][..., :, position]
@@ -74,4 +84,4 @@ class FilterTrace:
                    degenerate=np.zeros((trials, steps), dtype=bool),
                    spread=np.sqrt(np.trace(position_covariance, axis1=-2, axis2=-1)),
                    log_likelihood=log_likelihood, lost_particles=np.zeros(trials, dtype=np.int64),
-                   covariances=covariances, nis=nis)
+                   covariances=covariances, nis=nis, log_likelihood_increments=log_likelihood_increments)

@@ -149,7 +149,8 @@ def steps_columns(cell: Cell, genealogy_trials: int = 0) -> list[str]:
     columns += ["within_radius"] if cell.metrics.convergence.criterion == "spread" else []
     for label in smoother_labels(cell):            # each smoother's mean and sd beside the filter's
         columns += [f"smoothed_{label}_{name}" for name in states] + [f"smoothed_sd_{label}_{name}" for name in states]
-    return columns + (["distinct_ancestors"] if records_genealogy(cell, genealogy_trials) else [])
+    columns += ["distinct_ancestors"] if records_genealogy(cell, genealogy_trials) else []
+    return columns + ["log_likelihood_increment"]       # added after the others: appended
 
 
 def _steps_frame(cell: Cell, trials, traced, truth, trace, genealogy_trials: int = 0) -> pd.DataFrame:
@@ -187,5 +188,7 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace, genealogy_trials: int
                 columns[f"smoothed_sd_{label}_{name}"] = smoothed.standard_deviations[i, :, j]
         if trace.ancestors is not None:
             columns["distinct_ancestors"] = distinct_ancestor_counts(trace.ancestors[i])
+        increments = trace.log_likelihood_increments
+        columns["log_likelihood_increment"] = increments[i] if increments is not None else np.nan
         frames.append(pd.DataFrame(columns))
     return pd.concat(frames, ignore_index=True)[steps_columns(cell, genealogy_trials)]

@@ -57,6 +57,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
     covariances = np.empty((trials, steps, d, d))
     nis = np.empty((trials, steps))
     log_likelihood = np.zeros(trials)
+    increments = np.zeros((trials, steps))      # each step's normaliser: log p(z_k | z_1:k-1) on the grid
     degenerate = np.zeros((trials, steps), dtype=bool)
     lost = np.zeros((trials, steps))
     within = np.empty((trials, steps)) if spread_criterion is not None else None
@@ -116,6 +117,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
                 # increment 0, not the mass left on the grid (that is grid_lost_mass's business)
                 normaliser = np.where(missing[:, t], 0.0, normaliser)
             log_likelihood += normaliser
+            increments[:, t] = normaliser
 
             weights = np.exp(posterior)
             mean = weights @ points
@@ -134,7 +136,8 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
     except Exception as error:        # where it happened, for the one-line report
         note_step(error, k, "filter")
         raise
-    trace = FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood, position)
+    trace = FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood, position,
+                                            log_likelihood_increments=increments)
     trace.degenerate = degenerate
     trace.within_radius = within
     trace.grid_lost_mass = lost

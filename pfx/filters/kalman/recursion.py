@@ -32,6 +32,7 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
     covariances = np.empty((trials, steps, d, d))
     nis = np.empty((trials, steps))
     log_likelihood = np.zeros(trials)
+    increments = np.zeros((trials, steps))          # log N(nu_k; 0, S_k) per step (0: no measurement)
     k = 0
     try:
         for k in range(1, steps + 1):
@@ -48,13 +49,15 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
                     update_skipped()
             check_finite(kind, model, k, "update", mean, covariance)
             log_likelihood += increment
+            increments[:, k - 1] = increment
             estimates[:, k - 1] = mean
             covariances[:, k - 1] = covariance
     except Exception as error:        # where it happened, for the one-line report
         note_step(error, k, "filter")
         raise
     return FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
-                                           position=list(model.position_components))
+                                           position=list(model.position_components),
+                                           log_likelihood_increments=increments)
 
 
 def _update_observed(update, mean, covariance, z, k, observed):

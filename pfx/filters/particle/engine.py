@@ -102,7 +102,8 @@ class ParticleFilter:
             estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
             ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
             degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.full((self.trials, self.steps), np.nan),
-            log_likelihood=np.zeros(self.trials), lost_particles=np.zeros(self.trials, dtype=np.int64),
+            log_likelihood=np.zeros(self.trials), log_likelihood_increments=np.zeros((self.trials, self.steps)),
+            lost_particles=np.zeros(self.trials, dtype=np.int64),
             particle_counts=np.full((self.trials, self.steps), particles),
             injected=None if bound.injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
         # each particle's ancestor at the previous step (the genealogy), only when recorded
@@ -162,6 +163,7 @@ class ParticleFilter:
         log_first, first, increment, look_ahead = self.filter.auxiliary.weights(
             self.model, self.log_weights, self.state, k, self.measurements[:, k - 1], self.observed(k))
         self.trace.log_likelihood += increment
+        self.trace.log_likelihood_increments[:, k - 1] += increment      # L1_k; update_weights adds L2_k
         self.log_weights, self.weights = log_first, first
         rows = self.filter.resampling.rows(effective_sample_size(first), self.particles, self.active)
         if rows.size:
@@ -257,6 +259,7 @@ class ParticleFilter:
             # lost to the model's domain (they were renormalised away above).
             normaliser = np.where(skipped, 0.0, normaliser)
         self.trace.log_likelihood += normaliser
+        self.trace.log_likelihood_increments[:, t] += normaliser     # after the auxiliary filter's L1_k, if any
         if self.injection is not None:              # w_avg = exp(L_k), the weighted mean likelihood
             self.injection.observe(normaliser, None if skipped is None else ~skipped)
         self.weights = new_weights
