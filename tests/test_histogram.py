@@ -168,7 +168,7 @@ def test_grid_filter_equals_kalman_in_2d(name):
     grid = plan_grid(model, model.initial, GridParameters(cells=[140, 70]))
     assert grid.widths.max() < 0.35
     transition = Transition(model, grid, axis_noises(model))
-    assert transition.kernel(grid.points, None, on_grid=True).own_axis == own_axis
+    assert transition.kernel(grid.points, 1, on_grid=True).own_axis == own_axis
     trace = run_histogram_filter(model, measurements, prior=model.initial, grid=grid)
     means, covariances, nis, log_likelihood = kalman_filter(
         measurements, A, H, np.diag([0.5, 0.3]), np.eye(2), [1.0, -1.0], np.diag([2.0, 1.0]))
@@ -216,7 +216,7 @@ def test_predict_equals_the_log_domain_sum(name):
         model = linear_model(A, [[1.0, 0.0]], [0.5, 0.3], 1.0, [0.0, 0.0], 1.0, steps=3)
         grid = plan_grid(model, model.initial, GridParameters(low=[-14.0, -10.0], high=[14.0, 10.0], cells=[56, 40]))
     transition = Transition(model, grid, axis_noises(model))
-    kernel = transition.kernel(grid.points, None, on_grid=True)
+    kernel = transition.kernel(grid.points, 1, on_grid=True)
     assert kernel.own_axis == own_axis
     size = grid.size
     centres = rng.uniform(-5.0, 5.0, (3, 1, dimension))

@@ -25,6 +25,13 @@ noise is additive, in this order:
    both signs and several sizes (a declared Jacobian may belong to a parent class whose
    ``propagate`` a subclass changed).
 
+A model that takes several noisy substeps between two measurements (``substeps`` > 1 with a
+process noise that is not zero) has none either: its step is a composition
+:math:`f(\cdots f(f(x_{k-1}, w^{(1)}), w^{(2)}) \cdots, w^{(s)})` whose law has, in general, no
+closed form (for a linear model it is Gaussian with covariance :math:`\sum_j A^j Q A^{j\top}`,
+but pfx does not single linear models out). The mean :math:`f(x_{k-1}, u_k, 0)` is always the
+noise-free transition over the whole step (:meth:`~pfx.models.base.Model.mean_transition`).
+
 Otherwise the model has no derived density, and the algorithms that need one refuse it in one
 line, with the reason (:attr:`TransitionDensityUnavailable.reason`); a model whose transition
 has a density of another form may override ``transition_log_density`` (and then declares
@@ -93,9 +100,14 @@ class TransitionDensityUnavailable(ValueError):
 def derive_transition_density(model) -> AdditiveTransition | TransitionDensityUnavailable:
     """The model's additive transition (module docstring), or why there is none."""
     d, q = model.state_dimension, model.process_noise_dimension
-    probes = np.stack([np.zeros(d), np.ones(d)])[:, None, :]       # two states: is L constant?
-    jacobians = model.process_noise_jacobian(probes, model.control(1))
     noise = model.process_noise
+    substeps = model.propagations_per_step
+    if substeps > 1 and np.any(noise.covariance()):
+        return TransitionDensityUnavailable(f"advances {substeps} noisy substeps between measurements "
+                                            f"(substeps: {substeps}), and the law of their composition has no "
+                                            "closed form")
+    probes = np.stack([np.zeros(d), np.ones(d)])[:, None, :]       # two states: is L constant?
+    jacobians = model.process_noise_jacobian_at(probes, model.control(1), model.substep_time(1, 0))
     if jacobians is not None:
         if not np.array_equal(jacobians[0], jacobians[1]):
             return TransitionDensityUnavailable("has a process-noise Jacobian L that depends on the state "
@@ -132,8 +144,9 @@ def _enters_additively(model, gain: np.ndarray) -> bool:
         std = np.ones_like(std)
     pattern = np.array([0.7, -1.3, 2.1, -0.4, 1.1, -2.2, 0.3])[:, None]
     noise = pattern * std * np.where(np.arange(len(std)) % 2 == 0, 1.0, -0.8)
-    control = model.control(1)
+    control, time = model.control(1), model.substep_time(1, 0)
     with np.errstate(all="ignore"):
-        moved = model.propagate(points, control, noise) - model.propagate(points, control, np.zeros_like(noise))
+        moved = (model.propagate_at(points, control, noise, time)
+                 - model.propagate_at(points, control, np.zeros_like(noise), time))
     expected = noise @ gain.T
     return bool(np.allclose(moved, expected, rtol=1e-6, atol=1e-9 * float(np.abs(expected).max() or 1.0)))

@@ -39,6 +39,25 @@ the truth, ``(R, N)`` for particles):
 ``log_likelihood(measurement, state (R, N, d))``        ``(R, N)``; measurement ``(R, 1, m)``
 =====================================================  =========================================
 
+**Observation intervals.** ``dt`` is the time between two measurements (two filter steps).
+A model integrated with a smaller step declares ``integrates_substeps = True``, lets its
+``propagate`` advance one substep of :attr:`Model.substep_duration` = ``dt / substeps``, and the
+config sets ``substeps``: the transition from step k-1 to step k is then
+
+.. math::
+
+    x^{(0)} = R\,x_{k-1}, \qquad
+    x^{(j)} = f\big(x^{(j-1)}, u_k, w^{(j)}; t_{k-1} + (j-1) h\big) \quad (j = 1..s), \qquad
+    x_k = x^{(s)},
+
+with :math:`h` the substep duration, :math:`w^{(j)}` a fresh draw of the process noise for
+every substep (``process_noise`` is the law of one ``propagate`` call) and :math:`R` the reset
+of the accumulating components (:attr:`Model.accumulating_components`: counts over the
+interval, set to 0 before its first substep). A ``propagate`` with a parameter named ``time``
+is given the time at the start of its substep. :meth:`Model.mean_transition` is the same
+composition with every :math:`w^{(j)} = 0`. With ``substeps: 1`` (the default) this is one
+``propagate`` call, as it always was.
+
 A measurement that is not "h(x) + noise" (multiplicative noise, say) overrides both
 ``simulate_measurement`` (how the truth's measurements are drawn; every draw from ``random``)
 and ``log_likelihood`` (log p(z | x), in the log domain). :meth:`Model.check_contract` checks
@@ -48,6 +67,7 @@ the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
 from __future__ import annotations
 
 import copy
+import functools
 import inspect
 import math
 from types import FunctionType
@@ -76,6 +96,10 @@ class Model(BaseModel):
     covariates: Optional[dict[str, list[StrictFloat]]] = Field(
         None, description="covariates over time, for a model that reads them (covariate_names): `time` (increasing) "
                           "and one list of values per covariate; filled from the file `data.covariates` names")
+    substeps: StrictInt = Field(1, ge=1, le=100_000,
+                                description="propagate calls between two measurements, each advancing dt / substeps "
+                                            "with its own process noise draw; above 1 only for a model that declares "
+                                            "integrates_substeps (docs/plugins.md)")
 
     # -- what a subclass provides --------------------------------------------------------------
 
@@ -143,7 +167,36 @@ class Model(BaseModel):
         """The covariates the model reads (:meth:`covariates_at`), in order; default none."""
         return ()
 
+    @property
+    def accumulating_components(self) -> tuple[int, ...]:
+        """Indices of the state components reset to 0 at the start of every step's transition,
+        before its first substep, so that they accumulate over the substeps between two
+        measurements (deaths counted between observations: pomp's accumulator variables)."""
+        return ()
+
+    @property
+    def substep_duration(self) -> float:
+        """h = dt / substeps: the time one ``propagate`` call advances in a model that
+        integrates substeps (``integrates_substeps``)."""
+        return self.dt / self.substeps
+
+    @property
+    def propagations_per_step(self) -> int:
+        """How many times the transition calls ``propagate`` between two measurements:
+        ``substeps``, or 1 for a model whose own ``propagate`` integrates the whole interval
+        (``substeps_inside_propagate``)."""
+        return 1 if self.substeps_inside_propagate else self.substeps
+
     time_unit: ClassVar[str] = "s"
+    # Whether ``propagate`` advances one substep of ``substep_duration`` (so that ``substeps``
+    # may exceed 1). A model whose propagate integrates a whole ``dt`` must not declare it:
+    # with substeps it would integrate s times too far.
+    integrates_substeps: ClassVar[bool] = False
+    # Whether the model's own ``substeps`` field counts integration steps inside one
+    # ``propagate`` call that spans the whole interval, with the process noise added once per
+    # interval (the falling body, whose field is older than the substeps of every model):
+    # the transition then calls propagate once per step.
+    substeps_inside_propagate: ClassVar[bool] = False
     # Whether the model reads :meth:`step_duration` (the time between steps may vary), so that
     # recorded data with irregular times can be filtered with it; no built-in model does.
     variable_dt: ClassVar[bool] = False
@@ -250,8 +303,7 @@ class Model(BaseModel):
         if isinstance(density, ValueError) or not density.has_density:
             reason = density.reason if isinstance(density, ValueError) else "has a singular process noise covariance"
             raise ValueError(f"model {self.kind} has no transition density pfx can evaluate: it {reason}")
-        mean = self.propagate(previous, self.control(step), np.zeros(previous.shape[:-1] + (self.process_noise_dimension,)))
-        return density.log_density(state, mean)
+        return density.log_density(state, self.mean_transition(previous, step))
 
     def look_ahead_log_weight(self, previous: np.ndarray, step: int, measurement: np.ndarray) -> np.ndarray:
         r"""The auxiliary particle filter's first-stage log-weight g(x_{k-1}) of each particle,
@@ -260,21 +312,94 @@ class Model(BaseModel):
         ignored).
 
         Default (Pitt & Shephard 1999): the likelihood at the point prediction,
-        :math:`\log p(z_k \mid f(x_{k-1}, u_k, 0))`. A model may give a better look-ahead (the
+        :math:`\log p(z_k \mid f(x_{k-1}, u_k, 0))` (over every substep: :meth:`mean_transition`). A model may give a better look-ahead (the
         ``logeta`` of the ``particles`` library): the closer to :math:`\log p(z_k \mid x_{k-1})`,
         the flatter the second-stage weights. Any finite function keeps the likelihood estimate
         unbiased: the second stage divides its exponential out again.
         """
-        predicted = self.propagate(previous, self.control(step),
-                                   np.zeros(previous.shape[:-1] + (self.process_noise_dimension,)))
-        return self.log_likelihood(measurement, predicted)
+        return self.log_likelihood(measurement, self.mean_transition(previous, step))
 
     # -- composed operations used by the engine and the truth simulator ------------------------
 
     def transition(self, state: np.ndarray, step: int, random: TrialStreams) -> np.ndarray:
-        """Sample x_k ~ p(x_k | x_{k-1}, u_k) for every leading index; trial axis first."""
-        noise = self.process_noise.sample(random, state.shape[1:-1])
-        return self.propagate(state, self.control(step), noise)
+        r"""Sample x_k ~ p(x_k | x_{k-1}, u_k) for every leading index; trial axis first.
+
+        The composition of the step's substeps (module docstring): the accumulating components
+        reset, then :math:`x \leftarrow f(x, u_k, w^{(j)})` for j = 1..s, each with a fresh
+        draw :math:`w^{(j)}` of the process noise from the trials' streams, in order.
+        """
+        control = self.control(step)
+        state = self.reset_accumulators(state)
+        for substep in range(self.propagations_per_step):
+            noise = self.process_noise.sample(random, state.shape[1:-1])
+            state = self.propagate_at(state, control, noise, self.substep_time(step, substep))
+        return state
+
+    def mean_transition(self, previous: np.ndarray, step: int) -> np.ndarray:
+        r"""The noise-free transition over step k, :math:`\bar f_k(x_{k-1})`: (..., d) from
+        ``previous`` (..., d).
+
+        :math:`x^{(0)} = R\,x_{k-1}` (the accumulating components reset),
+        :math:`x^{(j)} = f(x^{(j-1)}, u_k, 0; t_{k-1} + (j-1) h)` for j = 1..s, and
+        :math:`\bar f_k(x_{k-1}) = x^{(s)}`; with one substep, :math:`f(x_{k-1}, u_k, 0)`. What
+        "the prediction of x_k without noise" means for the transition density, the guided
+        proposals, the look-ahead and the histogram filter.
+        """
+        control = self.control(step)
+        state = self.reset_accumulators(previous)
+        zeros = np.zeros(previous.shape[:-1] + (self.process_noise_dimension,))
+        for substep in range(self.propagations_per_step):
+            state = self.propagate_at(state, control, zeros, self.substep_time(step, substep))
+        return state
+
+    def reset_accumulators(self, state: np.ndarray) -> np.ndarray:
+        """``state`` with its accumulating components set to 0 (a copy; ``state`` itself when the
+        model has none)."""
+        components = list(self.accumulating_components)
+        if not components:
+            return state
+        state = np.array(state, dtype=float)
+        state[..., components] = 0.0
+        return state
+
+    def substep_time(self, step: int, substep: int) -> float:
+        """t_(k-1) + j h: the time at the start of substep j = 0..s-1 of step k (h the substep
+        duration), with t_(k-1) the time of step k-1 (:meth:`times`) and, for k = 1,
+        t_1 - dt. What a ``propagate`` with a ``time`` parameter is given."""
+        if step >= 2:
+            start = float(self._recorded_times[step - 2]) if self._recorded_times is not None else self.dt * (step - 1)
+        else:
+            first = float(self._recorded_times[0]) if self._recorded_times is not None else self.dt
+            start = first - self.step_duration(1)
+        return start + substep * self.substep_duration if substep else start
+
+    @property
+    def propagate_reads_time(self) -> bool:
+        """Whether the model's ``propagate`` has a ``time`` parameter (its transition may change
+        with time, so nothing about it may be computed once for every step)."""
+        return _takes_time(type(self).propagate)
+
+    def propagate_at(self, state: np.ndarray, control: Optional[np.ndarray], noise: np.ndarray,
+                     time: float) -> np.ndarray:
+        """``propagate(state, control, noise)``, with ``time=time`` if the model's propagate has
+        a parameter named ``time`` (looked up once per class)."""
+        if self.propagate_reads_time:
+            return self.propagate(state, control, noise, time=time)
+        return self.propagate(state, control, noise)
+
+    def transition_jacobian_at(self, state: np.ndarray, control: Optional[np.ndarray],
+                               time: float) -> Optional[np.ndarray]:
+        """``transition_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
+        if _takes_time(type(self).transition_jacobian):
+            return self.transition_jacobian(state, control, time=time)
+        return self.transition_jacobian(state, control)
+
+    def process_noise_jacobian_at(self, state: np.ndarray, control: Optional[np.ndarray],
+                                  time: float) -> Optional[np.ndarray]:
+        """``process_noise_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
+        if _takes_time(type(self).process_noise_jacobian):
+            return self.process_noise_jacobian(state, control, time=time)
+        return self.process_noise_jacobian(state, control)
 
     def truth_event(self, state: np.ndarray, step: int) -> np.ndarray:
         """What happens to the true state at step k beyond the transition (a kidnapping): applied
@@ -345,7 +470,7 @@ class Model(BaseModel):
         trials, particles = 2, 3
         self._check_names()
         d, m = self.state_dimension, self.measurement_dimension
-        for name in ("position_components", "angular_components"):
+        for name in ("position_components", "angular_components", "accumulating_components"):
             components = tuple(getattr(self, name))
             if not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and 0 <= c < d
                        for c in components):
@@ -356,7 +481,8 @@ class Model(BaseModel):
         cloud = np.asarray(self.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
         truth = cloud[:, 0, :].copy()
         noise = np.zeros((trials, particles, self.process_noise_dimension))
-        _check_result("propagate", self.propagate(cloud, self.control(1), noise), (trials, particles, d))
+        _check_result("propagate", self.propagate_at(cloud, self.control(1), noise, self.substep_time(1, 0)),
+                      (trials, particles, d))
         _check_result("measurement_mean", self.measurement_mean(cloud), (trials, particles, m))
         measurement = _check_result("simulate_measurement", self.simulate_measurement(truth, random), (trials, m))
         _check_result("log_likelihood", self.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
@@ -403,6 +529,7 @@ class Model(BaseModel):
                    if getattr(self, name) is None]
         if missing:
             raise ValueError(f"@{missing[0]}: required for model {self.kind}")
+        self._check_substeps()
         self.check()
         _bind(self.process_noise, self.process_noise_dimension, "process_noise", need_density=False)
         _bind(self.measurement_noise, self.measurement_dimension, "measurement_noise", need_density=True)
@@ -410,6 +537,19 @@ class Model(BaseModel):
         self.setup()
         self._transition_density = None           # derived again from these parameters when asked
         return self
+
+    def _check_substeps(self) -> None:
+        """substeps > 1 only for a model whose propagate advances one substep."""
+        cls = type(self)
+        if self.substeps == 1 or cls.substeps_inside_propagate:
+            return
+        if not cls.integrates_substeps:
+            raise ValueError(f"@substeps: model {self.kind}'s propagate advances a whole dt, so it cannot take "
+                             f"{self.substeps} substeps between measurements; a model whose propagate advances "
+                             "self.substep_duration (dt / substeps) declares integrates_substeps = True")
+        if cls.variable_dt:
+            raise ValueError(f"@substeps: model {self.kind} declares variable_dt (irregular measurement times), "
+                             "and pfx does not take substeps between irregular times; leave substeps at 1")
 
     def model_copy(self, *, update: Optional[dict[str, Any]] = None, deep: bool = False) -> "Model":
         """A copy of the model; with ``update``, a new model validated from the copy's parameters
@@ -486,6 +626,15 @@ def _bind(component, dimension: int, key: str, **options) -> None:
         if message.startswith("@"):
             raise ValueError(f"@{key}.{message[1:]}") from None
         raise ValueError(f"@{key}: {message}") from None
+
+
+@functools.lru_cache(maxsize=None)
+def _takes_time(method: Callable) -> bool:
+    """Whether a model method (the function on the class) has a parameter named ``time``."""
+    try:
+        return "time" in inspect.signature(method).parameters
+    except (TypeError, ValueError):      # a builtin or C function: called without time
+        return False
 
 
 # What every model must define itself: the rest of the interface has defaults.

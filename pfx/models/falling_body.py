@@ -24,6 +24,10 @@ Both are one equation in pfx: with :math:`s = -1` (jud, downward speed) or :math
 :math:`\dot x_1 = s x_2` and :math:`\dot x_2 = s\,(\tfrac{\rho_0}{2} e^{-x_1/k} x_2^2 x_3 - g)`;
 jud is :math:`\rho_0 = 2`, :math:`k = 1/\gamma`, :math:`g = 0`.
 Process noise (default zero, as in both sources) is added after each integration interval.
+The model's ``substeps`` field is its own (older than the substeps of every model,
+:mod:`pfx.models.base`): the RK4 or Euler steps inside one ``propagate`` call that spans the
+whole interval (``substeps_inside_propagate``), so the transition calls ``propagate`` once per
+step and draws one noise per interval, as the sources do.
 
 EKF Jacobians: the measurement's is analytic, :math:`\partial r / \partial x = [(x_1 - H)/r, 0, 0]`
 (:math:`r \ge M > 0`, so it is defined everywhere); the transition's is central finite differences
@@ -39,7 +43,7 @@ at most 4 ft at the printed times (Euler's O(h) error reaches 7.4 ft elsewhere o
 from __future__ import annotations
 
 import math
-from typing import Literal, Optional
+from typing import ClassVar, Literal, Optional
 
 import numpy as np
 from pydantic import Field, StrictFloat, StrictInt
@@ -85,6 +89,9 @@ class FallingBody(Model):
     gravity: Optional[StrictFloat] = Field(None, ge=0, description="g (0 for jud)")
     integrator: Literal["rk4", "euler"] = Field("rk4", description="integration scheme between measurements")
     substeps: Optional[StrictInt] = Field(None, ge=1, le=100_000, description="integration sub-steps per measurement interval")
+    # propagate integrates the whole interval in `substeps` RK4 or Euler steps and adds the
+    # process noise once, after it (the published setups): one propagate call per step.
+    substeps_inside_propagate: ClassVar[bool] = True
 
     def presets(self):
         if (self.variant, self.units) not in _PRESETS:

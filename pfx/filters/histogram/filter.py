@@ -47,6 +47,7 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
     d = grid.dimension
     noises = axis_noises(model)
     transition = Transition(model, grid, noises)
+    timed = model.propagate_reads_time        # its transition changes with time: a kernel per step
     points = grid.points
     size = grid.size
     predicted_h = model.measurement_mean(points)                    # (G, m)
@@ -83,9 +84,9 @@ def run_histogram_filter(model, measurements: np.ndarray, *, prior, grid: Grid,
         for k in range(1, steps + 1):
             t = k - 1
             control = model.control(k)
-            key = (on_grid, None if control is None else np.array(control, dtype=float))
-            if kernel is None or not _same_key(key, kernel_key):      # rebuilt when the control changes
-                kernel = transition.kernel(sources, control, on_grid=on_grid)
+            key = (on_grid, None if control is None else np.array(control, dtype=float), k if timed else None)
+            if kernel is None or not _same_key(key, kernel_key):      # rebuilt when the control (or time) changes
+                kernel = transition.kernel(sources, k, on_grid=on_grid)
                 kernel_key = key
 
             log_q, log_lik = transition.predict(
@@ -169,8 +170,8 @@ def _grid_log_likelihood(model, measurement: np.ndarray, points: np.ndarray, chu
 
 
 def _same_key(key, previous) -> bool:
-    (on_grid, control), (previous_on_grid, previous_control) = key, previous
-    if on_grid != previous_on_grid or (control is None) != (previous_control is None):
+    (on_grid, control, step), (previous_on_grid, previous_control, previous_step) = key, previous
+    if on_grid != previous_on_grid or step != previous_step or (control is None) != (previous_control is None):
         return False
     return control is None or np.array_equal(control, previous_control)
 

@@ -108,6 +108,10 @@ def _check_additive(model) -> None:
     """The noise must be added to the state, x' = f(x, u) + w (the model's transition density,
     :meth:`pfx.models.base.Model.transition_density`)."""
     density = model.transition_density()
+    if model.propagations_per_step > 1:
+        raise ConfigError(f"the histogram filter needs the transition density of a whole step; model {model.kind} "
+                          f"takes {model.propagations_per_step} substeps between measurements (model.substeps), "
+                          "whose composition has none pfx can evaluate", key="filter.kind")
     if isinstance(density, ValueError) or not density.identity_gain:
         raise ConfigError(f"the histogram filter needs additive process noise (x' = f(x, u) + w); "
                           f"model {model.kind}'s noise does not enter additively", key="filter.kind")

@@ -102,16 +102,16 @@ class Transition:
                 out[start:start + chunk] = np.log(np.sum(density, axis=1) * width)
         return out
 
-    def kernel(self, sources: np.ndarray, control, *, on_grid: bool) -> Kernel:
-        """The kernel from ``sources`` (n, d) under control u.
+    def kernel(self, sources: np.ndarray, step: int, *, on_grid: bool) -> Kernel:
+        """The kernel from ``sources`` (n, d) at step k, about the noise-free transition
+        f(x, u_k, 0) over the step (:meth:`~pfx.models.base.Model.mean_transition`).
 
         On a 2-D grid, axis c's factor is indexed by the grid coordinate on axis c when f_c
         depends on x_c alone there (checked on every grid point, to 1e-12 relative).
         """
         d = self.grid.dimension
-        zeros = np.zeros_like(sources)
         with np.errstate(over="ignore", invalid="ignore"):
-            moved = self.model.propagate(sources, control, zeros)
+            moved = self.model.mean_transition(sources, step)
         if not np.all(np.isfinite(moved)):
             bad = sources[~np.isfinite(moved).all(axis=-1)][0]
             raise ModelNumericalError(f"model {self.model.kind} maps the grid point {bad.tolist()} to a NaN or "

@@ -6,7 +6,7 @@ import numpy as np
 
 from pfx.filters.base import FILTERS, FilterKind
 from pfx.filters.kalman.linearisation import measurement_jacobian
-from pfx.filters.kalman.prediction import extended_prediction, linear_prediction
+from pfx.filters.kalman.prediction import extended_prediction, linear_step_prediction
 from pfx.filters.kalman.recursion import gaussian_recursion, linear_update
 from pfx.filters.kalman.smoothing import smooth_after
 from pfx.filters.kalman.unscented import UnscentedParameters, run_unscented
@@ -36,7 +36,8 @@ class KalmanFilter(FilterKind):
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
-            return linear_prediction(A, Q, model.control(k), mean, covariance)
+            predicted, predicted_covariance, _ = linear_step_prediction(model, A, Q, k, mean, covariance)
+            return predicted, predicted_covariance
 
         def update(mean, covariance, z, k):
             H_batch = np.broadcast_to(H, mean.shape[:-1] + H.shape)
@@ -62,7 +63,7 @@ class ExtendedKalmanFilter(FilterKind):
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
-            predicted, predicted_covariance, _ = extended_prediction(model, model.control(k), mean, covariance)
+            predicted, predicted_covariance, _ = extended_prediction(model, k, mean, covariance)
             return predicted, predicted_covariance
 
         def update(mean, covariance, z, k):

@@ -58,14 +58,17 @@ def _state_scale(covariance: Optional[np.ndarray]) -> Optional[np.ndarray]:
     return np.sqrt(np.clip(np.diagonal(covariance, axis1=-2, axis2=-1), 0.0, None))
 
 
-def transition_jacobian(model, mean: np.ndarray, control, covariance: Optional[np.ndarray] = None) -> np.ndarray:
-    """F = d f / d x at (mean, control, w = 0): the model's, or central differences."""
-    analytic = model.transition_jacobian(mean, control)
+def transition_jacobian(model, mean: np.ndarray, control, covariance: Optional[np.ndarray] = None,
+                        time: Optional[float] = None) -> np.ndarray:
+    """F = d f / d x at (mean, control, w = 0) for one ``propagate`` call starting at ``time``
+    (default: the start of step 1): the model's, or central differences."""
+    time = model.substep_time(1, 0) if time is None else time
+    analytic = model.transition_jacobian_at(mean, control, time)
     if analytic is not None:
         return np.broadcast_to(analytic, mean.shape + (mean.shape[-1],))
     zeros_shape = (model.process_noise_dimension,)
     return finite_difference_jacobian(
-        lambda states: model.propagate(states, control, np.zeros(states.shape[:-1] + zeros_shape)),
+        lambda states: model.propagate_at(states, control, np.zeros(states.shape[:-1] + zeros_shape), time),
         mean, _state_scale(covariance))
 
 
@@ -77,9 +80,11 @@ def measurement_jacobian(model, mean: np.ndarray, covariance: Optional[np.ndarra
     return finite_difference_jacobian(model.measurement_mean, mean, _state_scale(covariance))
 
 
-def noise_jacobian(model, mean: np.ndarray, control) -> np.ndarray:
-    """L = d f / d w at (mean, control, w = 0): the model's, or central differences over w."""
-    analytic = model.process_noise_jacobian(mean, control)
+def noise_jacobian(model, mean: np.ndarray, control, time: Optional[float] = None) -> np.ndarray:
+    """L = d f / d w at (mean, control, w = 0) for one ``propagate`` call starting at ``time``
+    (default: the start of step 1): the model's, or central differences over w."""
+    time = model.substep_time(1, 0) if time is None else time
+    analytic = model.process_noise_jacobian_at(mean, control, time)
     q = model.process_noise_dimension
     if analytic is not None:
         return np.broadcast_to(analytic, mean.shape + (q,))
@@ -87,17 +92,18 @@ def noise_jacobian(model, mean: np.ndarray, control) -> np.ndarray:
     origin = np.zeros(mean.shape[:-1] + (q,))
     states = mean[..., None, :]
     return finite_difference_jacobian(
-        lambda noise: model.propagate(np.broadcast_to(states, noise.shape[:-1] + mean.shape[-1:]).copy(),
-                                      control, noise),
+        lambda noise: model.propagate_at(np.broadcast_to(states, noise.shape[:-1] + mean.shape[-1:]).copy(),
+                                         control, noise, time),
         origin, np.sqrt(np.clip(np.diag(Q), 0.0, None)))
 
 
-def process_noise_in_state(model, mean: np.ndarray, control) -> np.ndarray:
-    """L Q L' (trials, d, d): the process noise covariance in state coordinates (0 when Q = 0)."""
+def process_noise_in_state(model, mean: np.ndarray, control, time: Optional[float] = None) -> np.ndarray:
+    """L Q L' (trials, d, d): the process noise covariance in state coordinates (0 when Q = 0),
+    of one ``propagate`` call starting at ``time``."""
     Q = model.process_noise.covariance()
     d = mean.shape[-1]
     if not np.any(Q):
         return np.zeros(mean.shape[:-1] + (d, d))
-    L = noise_jacobian(model, mean, control)
+    L = noise_jacobian(model, mean, control, time)
     return L @ Q @ transpose(L)
 

@@ -42,6 +42,11 @@ k+1 (the same function, so the same numbers):
   stable form of :mod:`~pfx.filters.kalman.unscented`, the square root of :math:`P_k` repaired as
   the filter repairs it).
 
+With substeps between measurements (:mod:`pfx.filters.kalman.prediction`), the kf and ekf
+forms use the Jacobian of the whole step, :math:`C_{k+1} = P_k (F_s \cdots F_1 R)^\top`, which
+is the RTS recursion run over the substeps (whose filtered moments are their predictions)
+collapsed to the measurement steps; the ukf form is refused there.
+
 For a linear model the three coincide (the EKF's Jacobian is A, the unscented transform is exact
 for linear maps). For a nonlinear one, the EKF and UKF smoothers are Gaussian approximations,
 as the filters are.
@@ -68,7 +73,7 @@ from typing import ClassVar, Literal, Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError, note_step
-from pfx.filters.kalman.prediction import extended_prediction, linear_prediction
+from pfx.filters.kalman.prediction import extended_prediction, linear_step_prediction
 from pfx.filters.kalman.recursion import check_finite, symmetric, transpose
 from pfx.filters.kalman.unscented import (
     UnscentedParameters,
@@ -145,13 +150,13 @@ def _prediction(model, kind: str, parameters: Optional[UnscentedParameters]):
         Q = model.process_noise.covariance()
 
         def linear(mean, covariance, step):
-            predicted, predicted_covariance = linear_prediction(A, Q, model.control(step), mean, covariance)
-            return covariance, predicted, predicted_covariance, covariance @ A.T
+            predicted, predicted_covariance, F = linear_step_prediction(model, A, Q, step, mean, covariance)
+            return covariance, predicted, predicted_covariance, covariance @ transpose(F)
 
         return linear
     if kind == "ekf":
         def extended(mean, covariance, step):
-            predicted, predicted_covariance, F = extended_prediction(model, model.control(step), mean, covariance)
+            predicted, predicted_covariance, F = extended_prediction(model, step, mean, covariance)
             return covariance, predicted, predicted_covariance, covariance @ transpose(F)
 
         return extended
@@ -164,7 +169,7 @@ def _prediction(model, kind: str, parameters: Optional[UnscentedParameters]):
     def unscented(mean, covariance, step):
         square_root, covariance = robust_square_root(covariance, repairs)
         points, images, predicted, predicted_covariance = unscented_prediction(
-            model, model.control(step), mean, square_root, parameters)
+            model, model.control(step), mean, square_root, parameters, model.substep_time(step, 0))
         _, cross = unscented_moments(points, images, weight, curvature)
         return covariance, predicted, predicted_covariance, cross
 
@@ -178,6 +183,16 @@ class RauchTungStriebel(Smoother):
     kind: Literal["rts"] = "rts"
     filter_kinds: ClassVar[frozenset[str]] = frozenset({"kf", "ekf", "ukf"})
     needs_history: ClassVar[bool] = False
+
+    def check(self, filter_kind: str, model, settings) -> None:
+        """Also refuses the unscented form on a model with substeps or accumulating components:
+        its cross-covariance C_{k+1} is that of one unscented transform of one propagate call."""
+        super().check(filter_kind, model, settings)
+        if filter_kind == "ukf" and (model.propagations_per_step > 1 or tuple(model.accumulating_components)):
+            raise ValueError(f"@smoothers: the rts smoother after ukf takes the cross-covariance of one unscented "
+                             f"transform of one propagate call; model {model.kind} takes substeps between "
+                             "measurements or resets accumulating components (use ekf, whose step Jacobian "
+                             "composes the substeps)")
 
     def smooth_trace(self, model, trace: FilterTrace, kind: str,
                      parameters: Optional[UnscentedParameters] = None) -> Smoothed:

@@ -22,7 +22,9 @@ The predict step maps the posterior's sigma points through :math:`f(\cdot, u_k, 
 :math:`L Q L^\top` (additive process noise, L as for the EKF at the posterior mean); the update
 draws new sigma points from :math:`N(\hat x_k^-, P_k^-)`, maps them through h, and with
 :math:`S = P_{zz} + R`, :math:`K = P_{xz} S^{-1}` sets :math:`\hat x_k = \hat x_k^- + K \nu`,
-:math:`P_k = P_k^- - K S K^\top`.
+:math:`P_k = P_k^- - K S K^\top`. A model with substeps between measurements is predicted by one
+such unscented transform per substep (new sigma points from each substep's predicted moments),
+after its accumulating components are reset (:func:`unscented_step_prediction`).
 
 For a small :math:`\alpha` the weight :math:`W^m_0 \approx -1/(\alpha^2 d)` is huge and negative
 (-3.3e5 for d = 3 at the default :math:`\alpha = 10^{-3}`), and the sums above lose about
@@ -140,9 +142,7 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     def predict(mean, covariance, k):
         if "S" not in factor:          # the first step, or one whose update some trials skipped
             factor["S"], covariance = robust_square_root(covariance, repairs)
-        _, _, predicted, predicted_covariance = unscented_prediction(model, model.control(k), mean, factor["S"],
-                                                                     parameters)
-        return predicted, predicted_covariance
+        return unscented_step_prediction(model, k, mean, covariance, factor["S"], parameters, repairs)
 
     def update(mean, covariance, z, k):
         square_root, covariance = robust_square_root(covariance, repairs)
@@ -168,18 +168,40 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     return trace
 
 
+def unscented_step_prediction(model, step: int, mean: np.ndarray, covariance: np.ndarray,
+                              square_root: np.ndarray, parameters: UnscentedParameters, repairs: dict):
+    """The UKF's predict over step k: one :func:`unscented_prediction` per substep (one when the
+    model has no substeps), each from the sigma points of the previous substep's moments, after
+    the reset of the accumulating components (their means and their rows of S set to 0, so
+    that S S' is the reset covariance): (x^-_k, P^-_k). ``square_root`` factors ``covariance``."""
+    control = model.control(step)
+    components = list(model.accumulating_components)
+    if components:
+        mean, square_root = mean.copy(), np.array(square_root)
+        mean[..., components] = 0.0
+        square_root[..., components, :] = 0.0
+    for substep in range(model.propagations_per_step):
+        if substep:
+            square_root, covariance = robust_square_root(covariance, repairs)
+        _, _, mean, covariance = unscented_prediction(model, control, mean, square_root, parameters,
+                                                      model.substep_time(step, substep))
+    return mean, covariance
+
+
 def unscented_prediction(model, control, mean: np.ndarray, square_root: np.ndarray,
-                         parameters: UnscentedParameters):
-    """The UKF's predict from N(mean, S S') (S = ``square_root``, the posterior's factor):
-    the sigma points X_i, their images Y_i = f(X_i, u_k, 0), the predicted mean
+                         parameters: UnscentedParameters, time: Optional[float] = None):
+    """The UKF's predict from N(mean, S S') (S = ``square_root``, the posterior's factor) over one
+    ``propagate`` call starting at ``time`` (default: the start of step 1): the sigma points X_i,
+    their images Y_i = f(X_i, u_k, 0), the predicted mean
     x^-_k = sum_i W^m_i Y_i and covariance P^-_k = sum_i W^c_i (Y_i - x^-_k)(Y_i - x^-_k)' + L Q L'
     (L at the mean): (X, Y, x^-_k, P^-_k), X and Y of shape (trials, 2d + 1, d)."""
+    time = model.substep_time(1, 0) if time is None else time
     c, _, _, weight = parameters.weights(mean.shape[-1])
     points = unscented_sigma_points(mean, square_root, c)
     noise = np.zeros(points.shape[:-1] + (model.process_noise_dimension,))
-    images = model.propagate(points, control, noise)
+    images = model.propagate_at(points, control, noise, time)
     predicted, spread = unscented_moments(images, images, weight, parameters.beta - parameters.alpha ** 2)
-    return points, images, predicted, spread + process_noise_in_state(model, mean, control)
+    return points, images, predicted, spread + process_noise_in_state(model, mean, control, time)
 
 
 def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, curvature: float):

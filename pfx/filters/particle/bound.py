@@ -64,8 +64,12 @@ class BoundParticleFilter:
     @property
     def uses_compiled_step(self) -> bool:
         """Whether the model's compiled step (transition and likelihood in one pass) computes
-        exactly this filter's proposal and weights: the bootstrap filter with the likelihood."""
-        return self.proposal is None and self.auxiliary is None and self.weighting.is_likelihood
+        exactly this filter's proposal and weights: the bootstrap filter with the likelihood, on a
+        model whose transition is one ``propagate`` call (no substeps between measurements, no
+        accumulating components to reset), which is what a compiled step fuses."""
+        model = self.model
+        one_call = model.propagations_per_step == 1 and not tuple(model.accumulating_components)
+        return self.proposal is None and self.auxiliary is None and self.weighting.is_likelihood and one_call
 
     def run(self, measurements: np.ndarray, random, recording: Recording = Recording()) -> FilterTrace:
         """Filter measurements (trials, T, m), one random stream per trial

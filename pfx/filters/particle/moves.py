@@ -212,8 +212,7 @@ class BoundResampleMove:
         scale = self.settings.scale if self.settings.scale is not None else 2.38 / math.sqrt(d)
         factor = scale * square_root(weighted_covariance(context.weights, context.cloud)).transpose(0, 2, 1)
         parents = context.parents
-        predicted_mean = model.propagate(parents, model.control(context.step),
-                                         np.zeros(parents.shape[:-1] + (model.process_noise_dimension,)))
+        predicted_mean = model.mean_transition(parents, context.step)
         measurement = context.measurement[:, None, :]
         observed = ~np.isnan(context.measurement).any(axis=-1)
 

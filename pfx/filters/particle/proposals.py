@@ -170,9 +170,8 @@ class BoundGaussianProposal(BoundProposal):
     def propose(self, previous, step, measurement, observed, random):
         model, density = self.model, self.density
         noise, noise_factor = density.covariance, density.factor
-        control = model.control(step)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            predicted = model.propagate(previous, control, np.zeros(previous.shape[:-1] + (model.process_noise_dimension,)))
+            predicted = model.mean_transition(previous, step)
             # A particle whose prediction left the model's domain keeps a NaN state (the engine
             # parks it at weight zero); the others must not see its NaN in the batched algebra.
             finite = np.isfinite(predicted).all(axis=-1)

@@ -120,7 +120,7 @@ def transition_log_densities(model, following: np.ndarray, current: np.ndarray, 
     density = model.transition_density()
     if isinstance(density, ValueError):           # the model's own density (checked at plan time)
         return model.transition_log_density(following[:, :, None, :], current[:, None, :, :], step)
-    mean = model.propagate(current, model.control(step), np.zeros(current.shape[:-1] + (model.process_noise_dimension,)))
+    mean = model.mean_transition(current, step)
     return density.log_density(following[:, :, None, :], mean[:, None, :, :])
 
 
@@ -206,7 +206,6 @@ class RejectionBackwardSampling(BackwardSampling):
         weights = np.exp(log_weights)
         indices = np.zeros((trials, count), dtype=np.intp)
         pending = np.ones((trials, count), dtype=bool)
-        control = model.control(step)
         for _ in range(self.rounds):
             rows = np.flatnonzero(pending.any(axis=1))
             if not rows.size:
@@ -215,7 +214,7 @@ class RejectionBackwardSampling(BackwardSampling):
             candidates = inverse_cdf(weights[rows], streams.uniform((count,)))
             accept_draws = streams.uniform((count,))
             chosen = _gather(current[rows], candidates)
-            mean = model.propagate(chosen, control, np.zeros(chosen.shape[:-1] + (model.process_noise_dimension,)))
+            mean = model.mean_transition(chosen, step)
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 accepted = np.log(accept_draws) < density.log_density(following[rows], mean) - log_bound
             accepted &= pending[rows]
