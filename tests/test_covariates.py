@@ -167,21 +167,3 @@ def test_covariates_inline_in_the_model_work_too(tmp_path):
     model = build_plan(write_config_file(tmp_path, inline)).cells[0].truth_model
     assert np.array_equal(model.covariates_at(3.0), [1.0])
 
-
-def test_times_printed_to_fifteen_digits_meet_the_tables_first_row(tmp_path):
-    """Monthly times 1891 + k/12 printed to 15 significant digits (as R writes them): the start of
-    step 1, t_1 - dt, falls about 1e-11 short of a table that starts at 1891 exactly. Times that
-    close (relative 1e-9, as recorded data's spacings) are the same time: the span check passes
-    and the first row is read there. A table that is really short is still refused."""
-    months = 1891.0 + np.arange(1, 7) / 12.0
-    (tmp_path / "months.csv").write_text("time,z1\n" + "".join(f"{t:.15g},0.5\n" for t in months))
-    write_table(tmp_path, "time,drift\n1891,1\n1892,2\n")
-    config = drift_config(tmp_path, model={"kind": "drift"})
-    config["data"]["measurements"] = "months.csv"
-    model = build_plan(write_config_file(tmp_path, config)).cells[0].truth_model
-    start = model.times()[0] - model.step_duration(1)
-    assert 0.0 < 1891.0 - start < 1e-9
-    assert model.covariates_at(start) == pytest.approx([1.0], abs=0.0)
-    write_table(tmp_path, "time,drift\n1891.001,1\n1892,2\n")
-    with pytest.raises(ConfigError, match=r"from 1891\.001 to 1892; the model reads covariates from 1891 "):
-        build_plan(write_config_file(tmp_path, config))

@@ -92,6 +92,22 @@ def test_data_files_are_on_pomps_time_grids():
     assert dacca.substeps == 20 and dacca.substep_duration == pytest.approx(1.0 / 240.0)
 
 
+def test_the_printed_times_meet_the_covariate_tables_first_row():
+    """The deaths' times are printed to 15 digits: the start of step 1, t_1 - dt with dt their
+    spacing, falls about 1e-11 years before the table's first row (1891 exactly). pfx counts
+    times within a relative 1e-9 as equal: the span check passes and the first row is read
+    there. A time really before the table is still refused."""
+    deaths = pd.read_csv(DEATHS_FILE)
+    dacca = model(steps=600, dt=float(np.diff(deaths["time"])[0]))
+    dacca.use_recorded_times(deaths["time"].to_numpy())
+    start = dacca.times()[0] - dacca.step_duration(1)
+    assert 0.0 < 1891.0 - start < 1e-9
+    dacca.check_covariate_span()
+    assert np.array_equal(dacca.covariates_at(start), COVARIATE_TABLE.iloc[0, 1:].to_numpy())
+    with pytest.raises(ValueError, match="outside their table"):
+        dacca.covariates_at(1890.999)
+
+
 def test_initial_state_is_the_fractions_of_the_first_population():
     dacca = model()
     fractions = np.array([0.621, 0.378, 0.0, 0.000843, 0.000972, 1.16e-07])
