@@ -166,3 +166,4 @@ def test_covariates_inline_in_the_model_work_too(tmp_path):
                           model={"kind": "drift", "covariates": {"time": [0.0, 6.0], "drift": [1.0, 1.0]}})
     model = build_plan(write_config_file(tmp_path, inline)).cells[0].truth_model
     assert np.array_equal(model.covariates_at(3.0), [1.0])
+

@@ -72,13 +72,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pfx.config.validation import validate
 from pfx.errors import ConfigError
 from pfx.models import MODELS
+from pfx.models.base import RELATIVE_TIME_TOLERANCE, time_slack
 from pfx.numerics.hashing import canonical_hash
 from pfx.user_files import UnreadableFile, read_user_file
 
 TRACE_ALL_TRIALS = 10_000      # outputs.trace_trials' maximum: every trial of a data run
 MAX_FILE_BYTES = 100 * 1024 * 1024
 INDEX_COLUMNS = ("step", "time")
-RELATIVE_TIME_TOLERANCE = 1e-9  # spacings equal to this relative precision count as regular
 
 
 class DataConfig(BaseModel):
@@ -325,7 +325,7 @@ def _spacing(times: np.ndarray) -> tuple[Optional[float], Optional[int]]:
     if len(times) < 2:
         return None, None
     gaps = np.diff(times)
-    irregular = np.abs(gaps - gaps[0]) > RELATIVE_TIME_TOLERANCE * np.abs(times).max()
+    irregular = np.abs(gaps - gaps[0]) > time_slack(times)
     if irregular.any():
         return None, int(np.argmax(irregular)) + 2        # the row at the end of the first odd gap
     return float(gaps[0]), None

@@ -432,9 +432,11 @@ class Model(BaseModel):
         if self._covariate_table is None:
             raise ValueError(f"model {self.kind} reads no covariates (its covariate_names is empty)")
         times, values = self._covariate_table
-        if not times[0] <= time <= times[-1]:
-            raise ValueError(f"model {self.kind}: covariates asked at time {time:g}, outside their table "
-                             f"({times[0]:g} to {times[-1]:g})")
+        slack = time_slack(times)
+        if not times[0] - slack <= time <= times[-1] + slack:
+            raise ValueError(f"model {self.kind}: covariates asked at time {time:.12g}, outside their table "
+                             f"({times[0]:.12g} to {times[-1]:.12g})")
+        time = min(max(time, times[0]), times[-1])      # an end's row, for a time within the slack of it
         row = min(int(np.searchsorted(times, time, side="right")) - 1, len(times) - 2)
         if row < 0:          # a table of one row: constant covariates
             return values[0].copy()
@@ -450,10 +452,11 @@ class Model(BaseModel):
         times = self.times()
         start, end = float(times[0] - self.step_duration(1)), float(times[-1])
         table = self._covariate_table[0]
-        if start < table[0] or end > table[-1]:
-            raise ValueError(f"@covariates: the table's times run from {table[0]:g} to {table[-1]:g}; the model "
-                             f"reads covariates from {start:g} (the start of step 1) to {end:g} (step {self.steps}): "
-                             "give rows that cover them")
+        slack = time_slack(table)
+        if start < table[0] - slack or end > table[-1] + slack:
+            raise ValueError(f"@covariates: the table's times run from {table[0]:.12g} to {table[-1]:.12g}; the "
+                             f"model reads covariates from {start:.12g} (the start of step 1) to {end:.12g} "
+                             f"(step {self.steps}): give rows that cover them")
 
     def use_recorded_times(self, times: np.ndarray) -> None:
         """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`)."""
@@ -563,6 +566,19 @@ class Model(BaseModel):
         fresh = type(self).model_validate(parameters)
         fresh._recorded_times = self._recorded_times
         return fresh
+
+
+# Times read from files carry their printing precision (15 significant digits, say): two times
+# this close, relative to the largest time's magnitude, are the same time. Recorded data's
+# spacings (pfx.config.data) and the ends of a covariate table are compared with it.
+RELATIVE_TIME_TOLERANCE = 1e-9
+
+
+def time_slack(times: np.ndarray) -> float:
+    """How far apart two of ``times`` may be and still count as equal: RELATIVE_TIME_TOLERANCE
+    times the largest magnitude among them (a time 1 month before a table's first row, computed
+    as t_1 - dt from printed times, may fall 1e-11 short of it)."""
+    return RELATIVE_TIME_TOLERANCE * float(np.abs(times).max())
 
 
 def _covariate_table(model: Model) -> Optional[tuple[np.ndarray, np.ndarray]]:
