@@ -16,7 +16,14 @@ from scipy import stats
 from pfx.config.plan import build_plan
 from pfx.config.schema import config_schema
 from pfx.errors import ConfigError
-from pfx.filters.particle.moves import MoveContext, Regularisation, ResampleMove, square_root, weighted_covariance
+from pfx.filters.particle.moves import (
+    MoveContext,
+    Regularisation,
+    ResampleMove,
+    square_root,
+    unbiased_weighted_covariance,
+    weighted_covariance,
+)
 from pfx.models import MODELS
 from pfx.numerics.seeding import TrialStreams
 
@@ -65,7 +72,9 @@ def test_mcmc_move_leaves_the_target_invariant_and_accepts_at_the_gaussian_rate(
     cloud = np.zeros((trials, particles, 1))
     cloud[:, 0], cloud[:, 1] = tau, -tau
     context = MoveContext(model=model, step=1, resampled=start.copy(), cloud=cloud, weights=weights,
-                          measurement=np.full((trials, 1), MEASUREMENT), parents=parents)
+                          measurement=np.full((trials, 1), MEASUREMENT), parents=parents,
+                          indices=np.broadcast_to(np.arange(particles), (trials, particles)),
+                          log_weights=np.where(weights > 0, np.log(np.maximum(weights, 1e-300)), -np.inf))
     move = ResampleMove(steps=steps).bind(model, config_schema().FilterConfig())
     moved, acceptance = move.apply(context, TrialStreams.from_seeds([101, 102]))
 
@@ -90,7 +99,8 @@ def test_mcmc_move_without_a_measurement_targets_the_transition_density():
     std = math.sqrt(PROCESS_VARIANCE)
     start = parents + std * setup.standard_normal((trials, particles, 1))
     context = MoveContext(model=model, step=1, resampled=start, cloud=start, weights=np.full((1, particles), 1 / particles),
-                          measurement=np.full((trials, 1), np.nan), parents=parents)
+                          measurement=np.full((trials, 1), np.nan), parents=parents,
+                          indices=np.arange(particles)[None], log_weights=np.full((1, particles), -math.log(particles)))
     moved, acceptance = ResampleMove(steps=3).bind(model, config_schema().FilterConfig()).apply(
         context, TrialStreams.from_seeds([7]))
     standardised = ((moved - parents) / std).ravel()
@@ -125,24 +135,33 @@ def test_epanechnikov_draws_lie_in_the_unit_ball_with_the_beta_radial_law(dimens
 @pytest.mark.parametrize("kernel", ["gaussian", "epanechnikov"])
 def test_regularisation_noise_has_covariance_h_squared_times_the_cloud_covariance(kernel):
     r"""The added noise h D eps has covariance h^2 c_K D D', c_K the kernel's variance (1 for the
-    standard Gaussian, 1/(d+4) for the Epanechnikov kernel on the unit ball), D D' the weighted
-    covariance of the cloud before resampling. Checked along directions a: v = a' noise has
-    E v^2 = h^2 c_K a' Sigma a and, eps being spherically symmetric, Var v^2 = (h^2 a' Sigma a)^2
-    (m_4 - c_K^2) with m_4 = E eps_1^4: 3 for the Gaussian, 3 / ((d+4)(d+6)) for the Epanechnikov
-    kernel (E r^4 = d(d+2)/((d+4)(d+6)) for r^2 ~ Beta(d/2, 2), E u_1^4 = 3/(d(d+2)) on the sphere).
+    standard Gaussian, 1/(d+4) for the Epanechnikov kernel on the unit ball), D D' the unbiased
+    weighted covariance of the cloud before resampling, Sigma = sum_j w_j (x_j - m)(x_j - m)' /
+    (1 - sum_j w_j^2). Checked along directions a: v = a' noise has E v^2 = h^2 c_K a' Sigma a
+    and, eps being spherically symmetric, Var v^2 = (h^2 a' Sigma a)^2 (m_4 - c_K^2) with
+    m_4 = E eps_1^4: 3 for the Gaussian, 3 / ((d+4)(d+6)) for the Epanechnikov kernel
+    (E r^4 = d(d+2)/((d+4)(d+6)) for r^2 ~ Beta(d/2, 2), E u_1^4 = 3/(d(d+2)) on the sphere).
+
+    Five particles hold 0.16 of the weight each (the rest share 0.2), so N_eff is about 7.8 and
+    the unbiasing factor 1 / (1 - sum w^2) = N_eff / (N_eff - 1) is 1.15: the check tells the
+    unbiased covariance from the plain weighted one (asserted: their gap exceeds the tolerance).
     """
     d, particles = 2, 60_000
     setup = np.random.default_rng(5)
     cloud = setup.standard_normal((1, particles, d)) @ np.array([[1.4, 0.0], [0.5, 0.6]]).T
-    weights = setup.uniform(size=(1, particles))
-    weights /= weights.sum()
-    covariance = weighted_covariance(weights, cloud)[0]
-    assert np.allclose(covariance, np.cov(cloud[0].T, aweights=weights[0], bias=True))
+    weights = np.full((1, particles), 0.2 / (particles - 5))
+    weights[0, :5] = 0.16
+    factor = 1.0 / (1.0 - np.sum(weights ** 2))
+    plain = np.cov(cloud[0].T, aweights=weights[0], bias=True)
+    assert np.allclose(weighted_covariance(weights, cloud)[0], plain)
+    covariance = unbiased_weighted_covariance(weights, cloud, np.ones_like(weights, dtype=bool))[0]
+    assert np.allclose(covariance, factor * plain)
     move = Regularisation(kernel=kernel)
     h = move.bandwidth_for(particles, d)
     resampled = np.zeros((1, particles, d))
     context = MoveContext(model=None, step=1, resampled=resampled, cloud=cloud, weights=weights,
-                          measurement=np.zeros((1, 1)), parents=None)
+                          measurement=np.zeros((1, 1)), parents=None,
+                          indices=np.arange(particles)[None], log_weights=np.log(weights))
     moved, acceptance = move.apply(context, TrialStreams.from_seeds([9]))
     assert acceptance is None
     noise = moved[0] - resampled[0]
@@ -152,6 +171,7 @@ def test_regularisation_noise_has_covariance_h_squared_times_the_cloud_covarianc
         spread = h * h * direction @ covariance @ direction
         standard_error = spread * math.sqrt((fourth - variance ** 2) / particles)
         assert abs(np.mean(projected ** 2) - variance * spread) < Z_LIMIT * standard_error
+        assert variance * spread * (1 - 1 / factor) > 2 * Z_LIMIT * standard_error    # the check has power
 
 
 def test_square_root_of_a_singular_covariance():

@@ -261,6 +261,7 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         "ess_threshold": settings.effective_threshold() if particles else None,
         "weighting": settings.weighting.label() if particles else None,
         "diffusion": settings.diffusion.kind if particles else None,
+        "move": settings.move.kind if particles else None,
     }
     for dotted, value in combination.items():
         column = sweep_column(dotted)

@@ -141,7 +141,7 @@ def _build(plugins: frozenset) -> ConfigSchema:
         move: Move = Field(  # type: ignore[valid-type]
             default_factory=NoMove,
             description="move after resampling, given the step's context (`pfx list moves`): none, "
-                        "{kind: regularise, kernel, bandwidth}, {kind: mcmc, steps, scale}")
+                        "{kind: regularise, kernel, bandwidth, bandwidth_scale, jitter}, {kind: mcmc, steps, scale}")
         initial: Optional[InitialLaw] = Field(None, description="the filter's prior (default: the model's)")
         adaptive: Optional[KLDSampling] = Field(
             None, description="adaptive particle count: {kind: kld, epsilon, delta, bin_size, min_particles} "

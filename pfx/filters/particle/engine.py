@@ -329,7 +329,7 @@ class ParticleFilter:
         parents = resample_rows(self.previous_state, rows, indices) if self.keep_previous else None
         context = MoveContext(model=self.model, step=k, resampled=resampled, cloud=self.state[selected],
                               weights=self.weights[selected], measurement=self.measurements[selected, k - 1],
-                              parents=parents)
+                              parents=parents, indices=indices, log_weights=self.log_weights[selected])
         moved, acceptance = self.filter.move.apply(context, streams)
         if self.acceptance_tally is not None:
             self.acceptance_tally[0, selected] += acceptance

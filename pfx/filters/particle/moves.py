@@ -3,7 +3,8 @@ r"""Moves after resampling (``filter.move``): the particle filter's ``resample_a
 Resampling duplicates the heavy particles; a *move* then spreads the copies again. Unlike a
 diffusion (:mod:`pfx.filters.particle.diffusion`, which sees only the resampled cloud), a move
 is given the step's context by the engine (:class:`MoveContext`): the model, the measurement,
-the cloud and its weights before resampling, and each particle's parent's previous state.
+the cloud and its weights before resampling, each resampled particle's parent (its index in
+the cloud) and that parent's previous state.
 Only the trials that resampled at a step are moved, with draws from their own streams.
 
 * ``none`` (default): nothing; the filter is exactly the one without this setting.
@@ -11,11 +12,11 @@ Only the trials that resampled at a step are moved, with draws from their own st
   resampling,
 
   .. math:: x_i \leftarrow x_i + h D \epsilon_i, \qquad D D^\top = \hat\Sigma
-     = \sum_j w_j (x_j - \bar x)(x_j - \bar x)^\top ,
+     = \frac{\sum_j w_j (x_j - \bar x)(x_j - \bar x)^\top}{1 - \sum_j w_j^2} ,
 
-  with :math:`\hat\Sigma` the weighted covariance of the cloud *before* resampling (weights
-  :math:`w_j`, mean :math:`\bar x = \sum_j w_j x_j`) and :math:`\epsilon_i` drawn from the
-  kernel :math:`K`:
+  with :math:`\hat\Sigma` the *unbiased* weighted covariance of the cloud *before* resampling
+  (weights :math:`w_j`, mean :math:`\bar x = \sum_j w_j x_j`; :func:`unbiased_weighted_covariance`)
+  and :math:`\epsilon_i` drawn from the kernel :math:`K`:
 
   - ``gaussian``: :math:`\epsilon \sim N(0, I_d)`, covariance :math:`I_d`;
   - ``epanechnikov``: :math:`K(\epsilon) = \frac{d+2}{2 c_d} (1 - \lVert\epsilon\rVert^2)` on the
@@ -27,13 +28,37 @@ Only the trials that resampled at a step are moved, with draws from their own st
     :math:`\Gamma(d/2) / (\Gamma(d/2) + \Gamma(2))` is :math:`\mathrm{Beta}(d/2, 2)`, and
     :math:`Z / \lVert Z\rVert` is uniform and independent of :math:`\lVert Z\rVert`).
 
-  ``bandwidth: optimal`` is :math:`h = A N^{-1/(d+4)}`, optimal (mean integrated square error)
-  for a Gaussian density, with
+  The denominator :math:`1 - \sum_j w_j^2 = 1 - 1/N_\text{eff}` makes :math:`\hat\Sigma` the
+  reliability-weights estimator (unbiased for independent draws of one law under weights that do
+  not depend on them; a factor :math:`N_\text{eff} / (N_\text{eff} - 1)` over the plain weighted
+  covariance); with equal weights it is the usual :math:`N/(N-1)` sample covariance. Where one weight
+  holds all the mass to round-off (:math:`1 - \max_j w_j < 10^{-10}`, the test of DAPPER's
+  ``weight_degeneracy``), the weighted covariance is zero to round-off and a filter without
+  process noise would never spread its copies again: :math:`\hat\Sigma` is then the unweighted
+  (:math:`M/(M-1)`) covariance of the cloud's :math:`M` members, the particles with a finite
+  log-weight (a lost particle, parked at 0, an adaptive count's inactive particle and one the
+  measurement rules out have log-weight :math:`-\infty`); with a single member it is 0.
+
+  ``bandwidth`` gives the base :math:`h_0` and ``bandwidth_scale`` :math:`c` (default 1)
+  multiplies it, :math:`h = c\, h_0`. ``optimal`` is :math:`h_0 = A N^{-1/(d+4)}`, optimal (mean
+  integrated square error) for a Gaussian density, with
 
   .. math:: A_\text{gaussian} = \left(\frac{4}{d+2}\right)^{1/(d+4)}, \qquad
      A_\text{epanechnikov} = \left[8 c_d^{-1} (d+4) (2\sqrt\pi)^d\right]^{1/(d+4)} ;
 
-  a number sets :math:`h` itself.
+  ``scott`` (Gaussian kernel only) is Scott's rule of thumb :math:`h_0 = N^{-1/(d+4)}`, which is
+  DAPPER's ``auto_bandw(N, d)``: DAPPER's ``PartFilt(N, reg, ...)`` jitters with
+  :math:`h = \mathrm{reg}\, N^{-1/(d+4)}`, i.e. ``bandwidth: scott, bandwidth_scale: reg``
+  (its bandwidth lacks the factor :math:`A_\text{gaussian} < 1`, so ``optimal`` would need
+  ``bandwidth_scale`` :math:`= \mathrm{reg} / A_\text{gaussian}`); a number sets :math:`h_0`.
+
+  ``jitter`` says which resampled particles move: ``all`` (default; Musso et al.: every
+  particle), or ``duplicates`` (DAPPER's ``PartFilt``, whose default ``nuj=True`` its published
+  Lorenz tables use): only the particles whose parent was drawn more than once, *every* copy of
+  such a parent (DAPPER's ``mask_unique_of_sorted``); a parent drawn once keeps its single
+  offspring where it is. The kernel is drawn for every particle either way
+  (the stream advances by the same count whatever the ancestry, and the two forms move a shared
+  particle by the same draw); the unmoved particles' draws are discarded.
 * ``mcmc``: resample-move (Gilks & Berzuini 2001). After resampling, ``steps`` random-walk
   Metropolis steps per particle, each leaving the step's target invariant given the particle's
   parent :math:`a_i`:
@@ -44,11 +69,13 @@ Only the trials that resampled at a step are moved, with draws from their own st
   which needs additive Gaussian process noise with one component per state component (refused
   otherwise at validation) and the Bayesian weighting (``weighting: gaussian``: with another
   weighting the filter's weights target another distribution). The proposal is
-  :math:`y = x + s D \eta`, :math:`\eta \sim N(0, I_d)`, with :math:`D D^\top = \hat\Sigma` as
-  above; it is accepted with probability :math:`\min(1, \pi_i(y) / \pi_i(x))`. The default
-  scale :math:`s = 2.38 / \sqrt d` is Roberts, Gelman & Gilks' (1997) for Gaussian targets,
-  whose proposal covariance :math:`\hat\Sigma` approximates the target's (a particle's target
-  given its parent is narrower than the cloud when the process noise is small: then a smaller
+  :math:`y = x + s D \eta`, :math:`\eta \sim N(0, I_d)`, with :math:`D D^\top = \sum_j w_j
+  (x_j - \bar x)(x_j - \bar x)^\top` the weighted covariance before resampling (without the
+  unbiasing and the fallback of ``regularise``: the proposal's scale changes no target); it is
+  accepted with probability :math:`\min(1, \pi_i(y) / \pi_i(x))`. The default scale
+  :math:`s = 2.38 / \sqrt d` is Roberts, Gelman & Gilks' (1997) for Gaussian targets, whose
+  proposal covariance approximates the target's (a particle's target given its parent is
+  narrower than the cloud when the process noise is small: then a smaller
   ``scale`` raises the acceptance). The mean acceptance rate over the moved steps and
   proposals is reported per trial (``move_acceptance`` in trials.csv). A step whose
   measurement is missing targets the transition density alone.
@@ -64,7 +91,7 @@ from dataclasses import dataclass
 from typing import Annotated, ClassVar, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
@@ -81,6 +108,8 @@ class MoveContext:
     weights: np.ndarray                # (R, N) their normalised weights
     measurement: np.ndarray            # (R, m) z_k (NaN where missing)
     parents: Optional[np.ndarray]      # (R, N, d) x_{k-1} of each resampled particle's parent
+    indices: np.ndarray                # (R, N) each resampled particle's parent, an index into cloud
+    log_weights: np.ndarray            # (R, N) the cloud's log-weights (-inf: lost, or inactive)
 
 
 def weighted_covariance(weights: np.ndarray, cloud: np.ndarray) -> np.ndarray:
@@ -88,6 +117,39 @@ def weighted_covariance(weights: np.ndarray, cloud: np.ndarray) -> np.ndarray:
     mean = np.matmul(weights[:, None, :], cloud)
     centred = cloud - mean
     return np.matmul(centred.transpose(0, 2, 1) * weights[:, None, :], centred)
+
+
+# 1 - max_j w_j below this: one particle holds all the mass to round-off (DAPPER's weight_degeneracy)
+DEGENERATE_WEIGHTS = 1e-10
+
+
+def unbiased_weighted_covariance(weights: np.ndarray, cloud: np.ndarray, members: np.ndarray) -> np.ndarray:
+    r"""The reliability-weights covariance per trial, (R, N), (R, N, d), (R, N) -> (R, d, d):
+
+    .. math:: \hat\Sigma = \frac{\sum_j w_j (x_j - \bar x)(x_j - \bar x)^\top}{1 - \sum_j w_j^2},
+       \qquad \bar x = \sum_j w_j x_j ,
+
+    unbiased for independent draws weighted by fixed weights (equal weights: the N/(N-1) sample
+    covariance). In a trial where :math:`1 - \max_j w_j <` ``DEGENERATE_WEIGHTS`` the weights are
+    replaced by 1/M over its M ``members`` (the unweighted covariance of the cloud), since
+    otherwise :math:`\hat\Sigma` is zero to round-off; a trial with a single member has
+    :math:`\hat\Sigma = 0` (no spread to estimate).
+    """
+    degenerate = 1.0 - weights.max(axis=-1) < DEGENERATE_WEIGHTS
+    if degenerate.any():
+        uniform = members / np.maximum(members.sum(axis=-1, keepdims=True), 1)
+        weights = np.where(degenerate[:, None], uniform, weights)
+    spread = 1.0 - np.sum(weights * weights, axis=-1)
+    unbiasing = np.divide(1.0, spread, out=np.zeros_like(spread), where=spread > 0)
+    return weighted_covariance(weights, cloud) * unbiasing[:, None, None]
+
+
+def shared_parents(indices: np.ndarray) -> np.ndarray:
+    """(R, N) True where a resampled particle's parent index appears more than once in its row."""
+    trials, n = indices.shape
+    flat = indices + n * np.arange(trials)[:, None]
+    offspring = np.bincount(flat.ravel(), minlength=trials * n).reshape(trials, n)
+    return np.take_along_axis(offspring, indices, axis=-1) > 1
 
 
 def square_root(covariance: np.ndarray) -> np.ndarray:
@@ -132,23 +194,42 @@ class NoMove(_Move):
 
 @MOVES.register_kind
 class Regularisation(_Move):
-    """Regularised particle filter: x <- x + h D eps, D D' the weighted covariance before resampling (Musso et al. 2001)."""
+    """Regularised particle filter: x <- x + h D eps, D D' the unbiased weighted covariance before resampling (Musso et al. 2001)."""
 
     kind: Literal["regularise"] = "regularise"
     kernel: Literal["gaussian", "epanechnikov"] = Field("gaussian", description="the kernel eps is drawn from")
-    bandwidth: Union[Literal["optimal"], Annotated[StrictFloat, Field(gt=0)]] = Field(
-        "optimal", description="h: `optimal` (A N^(-1/(d+4))) or a positive number")
+    bandwidth: Union[Literal["optimal", "scott"], Annotated[StrictFloat, Field(gt=0)]] = Field(
+        "optimal", description="h before bandwidth_scale: `optimal` (A N^(-1/(d+4))), `scott` (N^(-1/(d+4)), "
+                               "DAPPER's; gaussian kernel only) or a positive number")
+    bandwidth_scale: Annotated[StrictFloat, Field(gt=0)] = Field(
+        1.0, description="c in h = c h_0 (DAPPER's reg, with bandwidth: scott)")
+    jitter: Literal["all", "duplicates"] = Field(
+        "all", description="which resampled particles move: all (Musso et al.), or duplicates: every copy of a "
+                           "parent drawn more than once (DAPPER's default)")
+
+    @model_validator(mode="after")
+    def _scott_is_gaussian(self) -> "Regularisation":
+        if self.bandwidth == "scott" and self.kernel != "gaussian":
+            raise ValueError("@bandwidth: scott (h = N^(-1/(d+4)), Scott's rule of thumb) is a bandwidth for the "
+                             "gaussian kernel; with kernel: epanechnikov use optimal or a number")
+        return self
 
     def bandwidth_for(self, particles: int, dimension: int) -> float:
-        """h: the given number, or h_opt = A N^(-1/(d+4)) (module docstring)."""
-        if self.bandwidth != "optimal":
-            return float(self.bandwidth)
+        r"""h = c h_0: c = ``bandwidth_scale``; h_0 the given number, h_opt = A N^(-1/(d+4)), or
+        Scott's N^(-1/(d+4)) (module docstring). DAPPER's ``reg * auto_bandw(N, d)`` is
+        ``bandwidth: scott, bandwidth_scale: reg``."""
         d = dimension
-        if self.kernel == "gaussian":
-            constant = (4.0 / (d + 2)) ** (1.0 / (d + 4))
+        if self.bandwidth == "optimal":
+            if self.kernel == "gaussian":
+                constant = (4.0 / (d + 2)) ** (1.0 / (d + 4))
+            else:
+                constant = (8.0 / unit_ball_volume(d) * (d + 4) * (2.0 * math.sqrt(math.pi)) ** d) ** (1.0 / (d + 4))
+            base = constant * particles ** (-1.0 / (d + 4))
+        elif self.bandwidth == "scott":
+            base = particles ** (-1.0 / (d + 4))
         else:
-            constant = (8.0 / unit_ball_volume(d) * (d + 4) * (2.0 * math.sqrt(math.pi)) ** d) ** (1.0 / (d + 4))
-        return constant * particles ** (-1.0 / (d + 4))
+            base = float(self.bandwidth)
+        return self.bandwidth_scale * base
 
     def draw_kernel(self, random: TrialStreams, particles: int, dimension: int) -> np.ndarray:
         """eps_i, (R, N, d): standard normal, or Epanechnikov on the unit ball (module docstring)."""
@@ -161,9 +242,13 @@ class Regularisation(_Move):
 
     def apply(self, context, random):
         _, n, d = context.resampled.shape
-        root = square_root(weighted_covariance(context.weights, context.cloud))
-        eps = self.draw_kernel(random, n, d)
-        return context.resampled + self.bandwidth_for(n, d) * np.matmul(eps, root.transpose(0, 2, 1)), None
+        members = np.isfinite(context.log_weights)
+        root = square_root(unbiased_weighted_covariance(context.weights, context.cloud, members))
+        eps = self.draw_kernel(random, n, d)      # every particle's, moved or not: one count per step
+        moved = context.resampled + self.bandwidth_for(n, d) * np.matmul(eps, root.transpose(0, 2, 1))
+        if self.jitter == "duplicates":
+            moved = np.where(shared_parents(context.indices)[..., None], moved, context.resampled)
+        return moved, None
 
 
 @MOVES.register_kind
