@@ -167,3 +167,24 @@ def test_covariates_inline_in_the_model_work_too(tmp_path):
     model = build_plan(write_config_file(tmp_path, inline)).cells[0].truth_model
     assert np.array_equal(model.covariates_at(3.0), [1.0])
 
+
+
+@pytest.mark.parametrize("with_measurements", [False, True])
+def test_a_result_folder_records_the_file_and_reruns(run_pfx, tmp_path, with_measurements):
+    write_table(tmp_path, LINEAR_DRIFT)
+    config = drift_config(tmp_path)
+    if with_measurements:
+        (tmp_path / "z.csv").write_text("time,z1\n" + "".join(f"{k},{k * (k - 1) / 2}\n" for k in range(1, 7)))
+        config["data"]["measurements"] = "z.csv"
+    first = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
+    assert first.returncode == 0, first.output
+    record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
+    assert "covariates" not in record["model"]
+    assert record["data"]["covariates"] == str(tmp_path / "drift.csv")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    again = run_pfx("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=elsewhere)
+    assert again.returncode == 0, again.output
+    first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv").drop(columns="run_time_s")
+                                  for name in ("first", "again"))
+    pd.testing.assert_frame_equal(first_trials, again_trials)

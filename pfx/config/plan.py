@@ -378,8 +378,14 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
     if "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
         experiment.outputs.figures = ["rmse_vs_particles", *experiment.outputs.figures]
     resolved = resolved_config(experiment, raw, arms, cells, file, schema)
-    if data is None:
+    files = {key: value for key, value in (resolved.get("data") or {}).items() if value is not None}
+    for key in ("controls", "covariates"):      # a table a data file filled is recorded by the file's
+        if key in files:                        # path (rerunning reads it again), not copied into the model
+            resolved["model"].pop(key, None)
+    if data is None and not files:
         resolved.pop("data", None)     # the record of a config without data is unchanged
+    elif data is None:
+        resolved["data"] = files       # covariates only: the measurements are simulated
     elif experiment.datasets is not None:
         raise ConfigError("recorded data is one dataset: every trial filters it already; drop datasets",
                           file=file, key="datasets")
