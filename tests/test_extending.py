@@ -880,7 +880,7 @@ def add_paper(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
     copy.new_file("configs/papers/tiny-paper/paper.yaml", "rmse_position: 1.0\n")
     # step 2: the report, imported in pfx/papers/__init__.py ...
     copy.new_file("pfx/papers/tiny_paper.py", REPORT)
-    copy.replace("pfx/papers/__init__.py", "    prob_robotics,\n)", "    prob_robotics,\n    tiny_paper,\n)")
+    copy.replace("pfx/papers/__init__.py", "    prob_robotics,\n", "    prob_robotics,\n    tiny_paper,\n")
     refused = drive(copy, {"gallery": {"code": GALLERY_REFUSES}}, label="before-order")
     assert refused["gallery"]["code"] == "exception"
     assert "ValueError: reports missing from pfx.papers.GALLERY_ORDER: tiny-paper" in refused["gallery"]["stderr"], \

@@ -18,6 +18,7 @@ from pfx.papers import (  # noqa: F401  (register the reports)
     kim_mcl,
     park_mpf,
     prob_robotics,
+    sv_gbp_usd,
 )
 from pfx.papers.base import REPORTS
 
