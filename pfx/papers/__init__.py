@@ -14,6 +14,7 @@ live in ``configs/benchmarks/<short-name>/`` and whose setup is described in
 from pfx.papers import (  # noqa: F401  (register the reports)
     bayes_blog,
     beyond_the_papers,
+    dacca_cholera,
     han_lee,
     kim_mcl,
     park_mpf,
