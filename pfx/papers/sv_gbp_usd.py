@@ -3,7 +3,7 @@ r"""sv-gbp-usd: stochastic volatility on the GBP/USD returns, the benchmarks' ga
 The benchmark is described in docs/benchmarks/sv-gbp-usd.md: the 201 daily returns of
 Chopin & Papaspiliopoulos (2020, section 10.4.2) under the stochastic-volatility model at Pitt &
 Shephard's (1999) parameters, filtered 1000 times per filter and N. Its result folders
-(``configs/benchmarks/sv-gbp-usd/paper.yaml`` lists the configs under ``also_run``):
+(the configs in ``configs/benchmarks/sv-gbp-usd/``):
 
 * ``exact-log-likelihood``: the histogram filter on three grids; its reference grid's
   :math:`\log L` against the independent quadrature's -160.940264 (claim: equal to the printed
