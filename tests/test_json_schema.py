@@ -2,7 +2,9 @@
 
 A standard validator (the ``jsonschema`` library, as editors and check-jsonschema use it)
 accepts every shipped config, shorthands and studies included, and rejects what pfx rejects
-for its shape: unknown keys, wrong types, unknown kinds.
+for its shape: unknown keys, wrong types, unknown kinds. A shipped config that names plugins
+(the benchmarks' models) is checked against the schema with those plugins' components, the one
+``pfx schema --plugin FILE`` prints for editors.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import jsonschema
 import pytest
 from conftest import REPO_ROOT, tiny_config_dict
 
+from pfx.config.plugins import load_plugin
 from pfx.config.schema import config_json_schema
 from pfx.safe_yaml import load_config_file
 
@@ -30,7 +33,11 @@ def validator():
 
 @pytest.mark.parametrize("config", SHIPPED, ids=lambda path: str(path.relative_to(REPO_ROOT / "configs")))
 def test_every_shipped_config_is_valid_under_the_schema(config, validator):
-    errors = sorted(validator.iter_errors(load_config_file(config)), key=lambda error: error.path)
+    data = load_config_file(config)
+    if data.get("plugins"):
+        origins = [load_plugin(entry, config.parent, config_file=str(config)).origin for entry in data["plugins"]]
+        validator = jsonschema.Draft202012Validator(config_json_schema(origins))
+    errors = sorted(validator.iter_errors(data), key=lambda error: error.path)
     assert not errors, f"{config}: {errors[0].message[:300]}"
 
 
