@@ -50,7 +50,8 @@ time averaging excluded).
 One CSV row per (case, seed): case, method, N, reg, NER, R, seed, rmse_a, seconds. Rows are
 appended as they finish (an interrupted run keeps its rows; ``--skip-done`` resumes it), and
 ``--summary`` prints per case the mean rmse.a with its standard error, the median, the
-number of lost runs (rmse.a above a threshold, see :data:`LOST_ABOVE`) and seconds per run.
+number of lost runs (rmse.a above a threshold, see :data:`LOST_ABOVE`) and the mean and median
+seconds per run (the median is the steadier figure on a machine shared with other jobs).
 """
 
 from __future__ import annotations
@@ -165,7 +166,8 @@ def summarise(path: Path) -> list[dict]:
         summaries.append({"case": name, "runs": len(scores), "mean": statistics.fmean(scores),
                           "standard_error": error, "median": statistics.median(scores),
                           "lost": sum(score > LOST_ABOVE[model] for score in scores),
-                          "lost_above": LOST_ABOVE[model], "seconds_per_run": statistics.fmean(seconds)})
+                          "lost_above": LOST_ABOVE[model], "seconds_per_run": statistics.fmean(seconds),
+                          "seconds_median": statistics.median(seconds)})
     return summaries
 
 
@@ -180,7 +182,7 @@ def main(argv=None) -> int:
     if arguments.summary:
         for summary in summarise(arguments.output):
             print("{case:16} runs {runs:4d}  mean {mean:.4f}  SE {standard_error:.4f}  median {median:.4f}  "
-                  "lost {lost} (> {lost_above})  {seconds_per_run:.2f} s/run".format(**summary))
+                  "lost {lost} (> {lost_above})  {seconds_per_run:.2f} s/run (median {seconds_median:.2f})".format(**summary))
         return 0
     import dapper
     import dapper.tools.progressbar as progressbar
