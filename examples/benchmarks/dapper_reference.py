@@ -8,7 +8,7 @@ same machine, not only beside the numbers printed in DAPPER's comments.
 
 Run it (from the repository's root, with DAPPER installed in ``VENV``)::
 
-    VENV/bin/python examples/benchmarks/dapper_reference.py --seeds 1-40 \
+    VENV/bin/python examples/benchmarks/dapper_reference.py --seeds 1-120 \
         --output configs/benchmarks/dapper-lorenz/dapper-reference.csv
 
 The cases (``--cases`` picks some; default all):
@@ -174,7 +174,7 @@ def summarise(path: Path) -> list[dict]:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", default="all", help="comma-separated case names, or 'all'")
-    parser.add_argument("--seeds", default="1-40", help="seeds, e.g. 1-40 or 1,2,7")
+    parser.add_argument("--seeds", default="1-120", help="seeds, e.g. 1-120 or 1,2,7")
     parser.add_argument("--output", type=Path, default=Path("dapper-reference.csv"))
     parser.add_argument("--skip-done", action="store_true", help="skip (case, seed) rows the output has")
     parser.add_argument("--summary", action="store_true", help="only print the output's summary")
