@@ -15,6 +15,7 @@ from pfx.papers import (  # noqa: F401  (register the reports)
     bayes_blog,
     beyond_the_papers,
     dacca_cholera,
+    dapper_lorenz,
     han_lee,
     kim_mcl,
     park_mpf,
