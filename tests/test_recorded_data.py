@@ -423,3 +423,27 @@ def test_bad_data_through_the_command_line(run_pfx, tmp_path):
     assert result.stderr.strip() == "pfx: error: measurements.csv:3: column z1: 'abc' is not a number " \
                                     "(leave a missing value blank)"
     assert "Traceback" not in result.output and not (tmp_path / "out").exists()
+
+
+def test_a_result_folder_with_recorded_controls_reruns(run_pfx, tmp_path):
+    """config.yaml records data.controls by its path, not copied into model.controls as well
+    (which the rerun refused: "controls are given twice")."""
+    config = {"name": "controls", "seed": 1, "trials": 2,
+              "model": {"kind": "linear_gaussian", "transition_matrix": [[1.0]], "measurement_matrix": [[1.0]],
+                        "control_matrix": [[1.0]], "process_noise": {"variance": 0.1},
+                        "measurement_noise": {"variance": 0.1},
+                        "initial": {"kind": "gaussian", "mean": [0.0], "covariance": 1.0}},
+              "filter": {"particles": 20}, "data": {"measurements": "z.csv", "controls": "u.csv"},
+              "outputs": {"figures": []}}
+    (tmp_path / "z.csv").write_text("step,z1\n1,0.1\n2,0.3\n3,0.2\n")
+    (tmp_path / "u.csv").write_text("step,u1\n1,0.1\n2,0.1\n3,0.1\n")
+    first = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
+    assert first.returncode == 0, first.output
+    record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
+    assert "controls" not in record["model"] and record["data"]["controls"] == str(tmp_path / "u.csv")
+    again = run_pfx("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=tmp_path)
+    assert again.returncode == 0, again.output
+    columns = ["trial", "log_likelihood", "rmse_x"]
+    first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv") for name in ("first", "again"))
+    pd.testing.assert_frame_equal(first_trials[[c for c in columns if c in first_trials]],
+                                  again_trials[[c for c in columns if c in again_trials]])
