@@ -236,6 +236,12 @@ class ResultFolder:
         return self.manifest.get("units", {})
 
     @property
+    def recorded_data(self) -> bool:
+        """Whether the run filtered recorded measurements (``data:``): every trial then filters
+        the same data, whatever its ``truth_seed``."""
+        return bool(self.manifest.get("recorded_data", False))
+
+    @property
     def label_columns(self) -> list[str]:
         return self.manifest.get("label_columns", ["arm"])
 

@@ -447,3 +447,28 @@ def test_a_result_folder_with_recorded_controls_reruns(run_pfx, tmp_path):
     first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv") for name in ("first", "again"))
     pd.testing.assert_frame_equal(first_trials[[c for c in columns if c in first_trials]],
                                   again_trials[[c for c in columns if c in again_trials]])
+
+
+def test_the_log_likelihood_spread_figure_treats_recorded_data_as_one_dataset(run_pfx, tmp_path):
+    """Every trial of a data run filters the same measurements: the spread of the log-likelihood
+    estimate is pooled over all of a cell's trials (each has its own truth_seed, which told
+    datasets apart and left no dataset run twice: the figure drew nothing)."""
+    from pfx.analysis.estimator_spread import within_dataset_spread
+    from pfx.result_folder import ResultFolder
+
+    config = yaml.safe_load(NILE_CONFIG.read_text())
+    config.update(trials=8, outputs={"figures": ["log_likelihood_spread_vs_particles"]},
+                  filter={"kind": "particle", "particles": 50})
+    config["data"]["measurements"] = str(NILE_DATA)
+    config.pop("arms", None)
+    config["sweep"] = {"filter.particles": [50, 200]}
+    result = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 0, result.output
+    folder = ResultFolder(tmp_path / "out")
+    assert folder.recorded_data and folder.trials.groupby("n_particles")["truth_seed"].nunique().eq(8).all()
+    spread = within_dataset_spread(folder.trials, folder.label_columns, one_dataset=True)
+    for particles, cell in folder.trials.groupby("n_particles"):
+        row = spread[spread["n_particles"] == particles].iloc[0]
+        assert row["datasets"] == 1 and row["degrees_of_freedom"] == 7
+        assert row["variance"] == pytest.approx(np.var(cell["log_likelihood"], ddof=1), rel=1e-12)
+    assert (tmp_path / "out" / "figures" / "log_likelihood_spread_vs_particles.png").exists()

@@ -2,7 +2,8 @@ r"""The spread of an estimator for fixed data: repeated filter runs on the same 
 
 With the config key ``datasets`` the trials of a cell share simulated datasets (trial ``t``
 filters dataset ``t mod datasets``; ``truth_seed`` in trials.csv names it), so the trials of one
-dataset are independent repetitions of the filter on the same measurements. Their spread is the
+dataset are independent repetitions of the filter on the same measurements; with recorded data
+(``data:``) every trial is a repetition on the one dataset. Their spread is the
 filter's own Monte Carlo error, without the variation of the data. For a statistic
 :math:`\hat\ell` (the log-likelihood estimate, by default) of a cell with datasets
 :math:`d = 1..D` holding :math:`n_d` runs each, the pooled within-dataset variance is
@@ -36,10 +37,12 @@ SPREAD_COLUMNS = ("runs", "datasets", "degrees_of_freedom", "mean", "variance", 
 
 
 def within_dataset_spread(trials: pd.DataFrame, label_columns: list[str],
-                          metric: str = "log_likelihood") -> pd.DataFrame:
+                          metric: str = "log_likelihood", *, one_dataset: bool = False) -> pd.DataFrame:
     """One row per cell (its ``label_columns``): the pooled within-dataset variance of ``metric``.
 
-    Datasets are told apart by ``truth_seed``; non-finite values are left out. Columns: the
+    Datasets are told apart by ``truth_seed``, or, with ``one_dataset`` (a run on recorded
+    data, whose trials all filter the same measurements), every trial of a cell is a run on the
+    one dataset; non-finite values are left out. Columns: the
     labels, then ``runs``, ``datasets``, ``degrees_of_freedom`` (:math:`\\nu`), ``mean``,
     ``variance`` with its 95% interval, ``sd``. A cell with no dataset run twice has no
     variance (NaN).
@@ -51,7 +54,8 @@ def within_dataset_spread(trials: pd.DataFrame, label_columns: list[str],
     for key, cell in trials.groupby("cell", sort=False):
         values = cell[metric].to_numpy(dtype=float)
         usable = cell[np.isfinite(values)]
-        by_dataset = usable.groupby("truth_seed")[metric]
+        dataset = np.zeros(len(usable), dtype=int) if one_dataset else usable["truth_seed"].to_numpy()
+        by_dataset = usable.groupby(dataset)[metric]
         squares = float(by_dataset.apply(lambda v: float(((v - v.mean()) ** 2).sum())).sum()) if len(usable) else 0.0
         freedom = int((by_dataset.size() - 1).clip(lower=0).sum()) if len(usable) else 0
         variance = squares / freedom if freedom > 0 else math.nan
@@ -60,7 +64,7 @@ def within_dataset_spread(trials: pd.DataFrame, label_columns: list[str],
             low = freedom * variance / float(stats.chi2.ppf(0.975, freedom))
             high = freedom * variance / float(stats.chi2.ppf(0.025, freedom))
         row = {column: cell[column].iloc[0] for column in labels}
-        row.update(runs=len(usable), datasets=int(usable["truth_seed"].nunique()), degrees_of_freedom=freedom,
+        row.update(runs=len(usable), datasets=int(len(set(dataset))), degrees_of_freedom=freedom,
                    mean=float(usable[metric].mean()) if len(usable) else math.nan, variance=variance,
                    variance_ci95_low=low, variance_ci95_high=high, sd=math.sqrt(variance))
         rows.append(row)

@@ -1,6 +1,7 @@
 """The spread of the log-likelihood estimate for fixed data against the particle count.
 
-For configs whose trials share datasets (``datasets``; :mod:`pfx.analysis.estimator_spread`):
+For configs whose trials share datasets (``datasets``; :mod:`pfx.analysis.estimator_spread`),
+or filter recorded data (``data:``, one dataset for every trial):
 the pooled within-dataset standard deviation of ``log_likelihood`` per arm against N, on
 log-log axes, with its 95% interval (from the variance's chi-square interval) as error bars.
 A particle filter's log-likelihood variance falls as 1/N for large N, so its sd falls along
@@ -24,7 +25,8 @@ def log_likelihood_spread_vs_particles(result: ResultFolder):
     trials = result.trials
     if trials.empty or "log_likelihood" not in trials or trials["n_particles"].isna().all():
         return None
-    spread = within_dataset_spread(trials, result.label_columns).dropna(subset=["n_particles", "variance"])
+    spread = within_dataset_spread(trials, result.label_columns, one_dataset=result.recorded_data)
+    spread = spread.dropna(subset=["n_particles", "variance"])
     spread = spread[spread["variance"] > 0]
     if spread.empty:
         return None

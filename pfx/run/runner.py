@@ -412,6 +412,8 @@ def _manifest(plan: Plan, started: str) -> dict:
         "angular_states": [model.state_names[i] for i in model.angular_components],
         "full_turn": model.full_turn,
         "cells": [{"cell": c.key, **c.labels, **_auxiliary_mark(c)} for c in plan.cells],
+        # every trial filters the same recorded measurements: one dataset (figures need to know)
+        **({"recorded_data": True} if plan.cells[0].data is not None else {}),
     }
 
 
