@@ -575,10 +575,11 @@ RELATIVE_TIME_TOLERANCE = 1e-9
 
 
 def time_slack(times: np.ndarray) -> float:
-    """How far apart two of ``times`` may be and still count as equal: RELATIVE_TIME_TOLERANCE
-    times the largest magnitude among them (a time 1 month before a table's first row, computed
-    as t_1 - dt from printed times, may fall 1e-11 short of it)."""
-    return RELATIVE_TIME_TOLERANCE * float(np.abs(times).max())
+    """How far apart two of ``times`` (increasing) may be and still count as equal:
+    RELATIVE_TIME_TOLERANCE times the largest magnitude among them, which is at one end (a time
+    1 month before a table's first row, computed as t_1 - dt from printed times, may fall 1e-11
+    short of it). Two lookups, not a pass over the times: covariates_at asks at every substep."""
+    return RELATIVE_TIME_TOLERANCE * max(abs(float(times[0])), abs(float(times[-1])))
 
 
 def _covariate_table(model: Model) -> Optional[tuple[np.ndarray, np.ndarray]]:

@@ -73,8 +73,7 @@ def reset_moments(model, mean: np.ndarray, covariance: np.ndarray) -> tuple[np.n
     components = list(model.accumulating_components)
     if not components:
         return mean, covariance, None
-    mean, covariance = mean.copy(), covariance.copy()
-    mean[..., components] = 0.0
+    mean, covariance = model.reset_accumulators(mean), covariance.copy()
     covariance[..., components, :] = 0.0
     covariance[..., :, components] = 0.0
     reset = np.eye(mean.shape[-1])

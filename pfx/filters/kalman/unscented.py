@@ -177,8 +177,7 @@ def unscented_step_prediction(model, step: int, mean: np.ndarray, covariance: np
     control = model.control(step)
     components = list(model.accumulating_components)
     if components:
-        mean, square_root = mean.copy(), np.array(square_root)
-        mean[..., components] = 0.0
+        mean, square_root = model.reset_accumulators(mean), np.array(square_root)
         square_root[..., components, :] = 0.0
     for substep in range(model.propagations_per_step):
         if substep:
