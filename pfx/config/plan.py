@@ -24,6 +24,7 @@ from pydantic_core import PydanticUndefined
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import CellData, attach_recorded_data, check_covariate_spans, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
+from pfx.config.estimation import check_estimated_paths
 from pfx.config.plugin_faults import locate, plan_time_fault
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, recorded_names, unknown_name_hint
 from pfx.config.schema import ConfigSchema, config_schema
@@ -95,6 +96,9 @@ class Plan:
             numbers_depend_on["datasets"] = self.experiment.datasets
         if outputs.genealogy:                        # likewise: genealogy.csv is a table of the results
             numbers_depend_on["genealogy"] = outputs.genealogy
+        if self.experiment.estimation is not None:   # every setting but the iterations (more extend a run)
+            numbers_depend_on["estimation"] = self.experiment.estimation.model_dump(mode="json",
+                                                                                   exclude={"iterations"})
         return canonical_hash(with_plugin_code(numbers_depend_on, self.plugins))
 
     @property
@@ -393,7 +397,35 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("datasets", None)     # nor is that of a config without datasets
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
+    if experiment.estimation is None:
+        resolved.pop("estimation", None)     # nor that of a config without estimation
+    else:
+        for cell in cells:
+            check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
+
+
+def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:
+    """The estimated paths name numbers of the cell's filter model; IF2 perturbs every particle's
+    parameters, so it needs a bootstrap particle filter and a model that takes each of them as an
+    array (``vectorised_parameters``)."""
+    where = f" (cell {cell.labels})" if several else ""
+    check_estimated_paths(estimation, cell.filter_model, file, where)
+    if estimation.method != "if2":
+        return
+    settings = cell.filter
+    if settings.kind != "particle" or settings.proposal.guided or settings.auxiliary or not \
+            settings.weighting.is_likelihood or settings.move.kind != "none" or settings.adaptive is not None or \
+            settings.injection is not None:
+        raise ConfigError(f"IF2 runs the bootstrap particle filter (kind particle, the transition as proposal, the "
+                          f"likelihood as weight, no auxiliary stage, move, adaptive count or injection){where}",
+                          file=file, key="estimation.method")
+    declared = type(cell.filter_model).vectorised_parameters
+    for path in estimation.parameters:
+        if path[len("model."):] not in declared:
+            raise ConfigError(f"IF2 gives every particle its own {path}, and model {cell.filter_model.kind} does not "
+                              f"declare it among its vectorised_parameters ({', '.join(declared) or 'none'}; "
+                              "docs/estimation.md)", file=file, key=f"estimation.parameters.{path}")
 
 
 def _check_burn_in(cell: Cell, file: str, swept: bool) -> None:

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, Stri
 
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
+from pfx.config.estimation import EstimationConfig
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS
 from pfx.filters.particle.adaptive import KLDSampling
@@ -265,6 +266,9 @@ def _build(plugins: frozenset) -> ConfigSchema:
         data: Optional[DataConfig] = Field(
             None, description="recorded data to filter instead of simulating the model (docs/recorded-data.md); "
                               "default none: simulate")
+        estimation: Optional[EstimationConfig] = Field(
+            None, description="estimate model parameters from the data (PMMH or IF2, docs/estimation.md) instead "
+                              "of running trials; default none")
 
     class StudyExperiment(ExperimentHeader):
         """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""

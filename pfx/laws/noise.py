@@ -170,6 +170,7 @@ class Noise(BaseModel):
     _definite: bool = PrivateAttr(True)
     _covariance: Optional[np.ndarray] = PrivateAttr(None)   # read-only, made by bind()
     _zero: bool = PrivateAttr(False)                          # no noise at all: sample() draws nothing
+    _row_scale: bool = PrivateAttr(False)                     # _scale differs by row (with_row_variances)
 
     @model_validator(mode="after")
     def _check(self) -> "Noise":
@@ -235,9 +236,31 @@ class Noise(BaseModel):
     def covariance(self) -> np.ndarray:
         """The covariance matrix, shape (k, k), read-only (computed once, by :meth:`bind`)."""
         covariance = self.__pydantic_private__["_covariance"]
+        if self.__pydantic_private__["_row_scale"]:
+            raise RuntimeError("a noise with a variance per row (parameter estimation) has no one covariance matrix")
         if covariance is None:
             raise RuntimeError("Noise.bind(dimension) must be called first")
         return covariance
+
+    def with_row_variances(self, variance: np.ndarray) -> "Noise":
+        """A copy whose variance differs by trial row (or by particle): ``variance`` is an
+        array whose leading axes are those of the draws, (R, 1, 1) or (R, N, 1) (one variance
+        for every component) or (..., k). Parameter estimation gives each chain its own
+        variance this way (:meth:`pfx.models.base.Model.with_parameter_arrays`); only
+        :meth:`sample` and :meth:`log_density` are defined for it (no covariance matrix, so no
+        compiled step and no Kalman filter reads it)."""
+        variance = np.asarray(variance, dtype=float)
+        if self._scale is None:
+            raise ValueError("a noise with a covariance matrix cannot take a variance per row")
+        if np.any(variance <= 0):
+            raise ValueError("@variance: variances must be > 0")
+        copy = self.model_copy()
+        scale = np.sqrt(variance) * np.ones(self.dimension)
+        copy.__pydantic_private__ = {**self.__pydantic_private__, "_scale": scale,
+                                     "_log_det_factor": np.sum(np.log(scale), axis=-1),
+                                     "_covariance": None, "_factor": None, "_row_scale": True,
+                                     "_zero": False, "_definite": True}
+        return copy
 
     # -- the two operations -------------------------------------------------------------------
 
@@ -257,6 +280,8 @@ class Noise(BaseModel):
         # component (what a model's propagate does) run several times faster over.
         standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape[-1:] + full_shape[:-1], self.df)
         component_last = (0, *range(2, standard.ndim), 1)      # (trials, k, *shape) -> (trials, *shape, k)
+        if private["_row_scale"]:
+            return standard.transpose(component_last) * scale
         if scale is not None:
             # x_j = s_j z_j in place, while the component axis is still the second one: NumPy's
             # inner loop then runs along a component's contiguous draws (over the short last axis
@@ -271,7 +296,7 @@ class Noise(BaseModel):
         log-density (:meth:`pfx.models.base.Model.compiled_step`) needs:
         log p(v) = sum_j (-v_j^2 / (2 s_j^2)) - k log(2 pi) / 2 - sum_j log s_j."""
         private = self.__pydantic_private__
-        if self.family != "gaussian" or private["_scale"] is None or not private["_definite"]:
+        if self.family != "gaussian" or private["_scale"] is None or not private["_definite"] or private["_row_scale"]:
             return None
         return private["_scale"].copy(), private["_log_det_factor"]
 

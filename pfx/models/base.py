@@ -200,6 +200,14 @@ class Model(BaseModel):
     # Whether the model reads :meth:`step_duration` (the time between steps may vary), so that
     # recorded data with irregular times can be filtered with it; no built-in model does.
     variable_dt: ClassVar[bool] = False
+    # The parameters (dotted paths under ``model``) whose values the model's methods can take as
+    # arrays over the leading axes, (R, 1, 1) for one value per trial row or (R, N, 1) for one
+    # per particle, broadcasting against state arrays (R, N, d): parameter estimation then runs
+    # many chains in one batch (:meth:`with_parameter_arrays`, docs/estimation.md). A top-level
+    # field named here must be read by propagate and log_likelihood in expressions that
+    # broadcast so; ``process_noise.variance`` and ``measurement_noise.variance`` (a number)
+    # work for a model that uses its noises only through ``sample`` and ``log_density``.
+    vectorised_parameters: ClassVar[tuple[str, ...]] = ()
     _recorded_times: Optional[np.ndarray] = PrivateAttr(None)    # set by use_recorded_times
     _transition_density: Any = PrivateAttr(None)                   # derived on first use (transition_density)
     _covariate_table: Optional[tuple[np.ndarray, np.ndarray]] = PrivateAttr(None)   # (times, values (n, c))
@@ -553,6 +561,25 @@ class Model(BaseModel):
         if cls.variable_dt:
             raise ValueError(f"@substeps: model {self.kind} declares variable_dt (irregular measurement times), "
                              "and pfx does not take substeps between irregular times; leave substeps at 1")
+
+    def with_parameter_arrays(self, values: dict[str, np.ndarray]) -> "Model":
+        """A copy of the model whose parameters at the dotted paths of ``values`` (each one of
+        :attr:`vectorised_parameters`) are arrays, (R, 1, 1) or (R, N, 1), one value per trial row
+        or per particle. No check runs and nothing is derived again from them (presets, the
+        initial law): the copy is for the filter's transition and likelihood, not for validation.
+        ValueError for a path the model does not declare."""
+        copy_ = super().model_copy()
+        for path, value in values.items():
+            if path not in type(self).vectorised_parameters:
+                raise ValueError(f"model {self.kind} does not take {path} as an array (its vectorised_parameters: "
+                                 f"{', '.join(type(self).vectorised_parameters) or 'none'})")
+            if path in ("process_noise.variance", "measurement_noise.variance"):
+                name = path.split(".")[0]
+                copy_.__dict__[name] = getattr(self, name).with_row_variances(value)
+            else:
+                copy_.__dict__[path] = value
+        copy_._transition_density = None
+        return copy_
 
     def model_copy(self, *, update: Optional[dict[str, Any]] = None, deep: bool = False) -> "Model":
         """A copy of the model; with ``update``, a new model validated from the copy's parameters

@@ -39,6 +39,9 @@ class LinearGaussian(Model):
     position: Optional[list[int]] = Field(
         None, description="0-based indices of the components forming the position (default: all)")
 
+    # the noise variances may differ by trial row or particle (parameter estimation)
+    vectorised_parameters = ("process_noise.variance", "measurement_noise.variance")
+
     _A: np.ndarray = PrivateAttr(None)
     _H: np.ndarray = PrivateAttr(None)
     _B: Optional[np.ndarray] = PrivateAttr(None)

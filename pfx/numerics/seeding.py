@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike
 TRUTH_ROLE = 0
 FILTER_ROLE = 1
 STUDY_ROLE = 2
+ESTIMATION_ROLE = 3
 
 
 def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int:
@@ -58,6 +59,16 @@ def truth_seed(root_seed: int, trial: int, datasets: int | None = None) -> int:
 def filter_seed(root_seed: int, cell_key: int, trial: int) -> int:
     """Seed of trial ``trial``'s filter stream in the cell with key ``cell_key``."""
     return stream_seed(root_seed, FILTER_ROLE, trial, cell_key)
+
+
+def chain_seeds(root_seed: int, cell_key: int, chain: int, iteration: int) -> tuple[int, int]:
+    """The two seeds of one iteration of one chain of parameter estimation (PMMH, or an IF2
+    replicate) in a cell: its filter's stream and its move's (the proposal and the accept
+    draw). Each depends only on (seed, cell, chain, iteration), so a chain's numbers do not
+    depend on the other chains, on batching, or on where an interrupted run resumed."""
+    sequence = np.random.SeedSequence(root_seed, spawn_key=(ESTIMATION_ROLE, cell_key, chain, iteration))
+    filter_state, move_state = sequence.generate_state(2, np.uint64) >> np.uint64(1)
+    return int(filter_state), int(move_state)
 
 
 def study_generator(root_seed: int) -> np.random.Generator:

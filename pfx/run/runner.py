@@ -124,6 +124,11 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
     out = Path(out)
     if isinstance(plan, StudyPlan):
         return run_study(plan, out, fresh=fresh, report=report)
+    if plan.experiment.estimation is not None:
+        from pfx.run.estimation import run_estimation
+
+        return run_estimation(plan, out, fresh=fresh, report=report, progress=progress,
+                              manifest_of=_manifest, write_config=write_record_config, now=_now)
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
     check_folder(plan, out, fresh)                # refuse early, before making anything

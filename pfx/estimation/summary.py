@@ -1,0 +1,64 @@
+"""The posterior's summary from PMMH chains, and the prior densities the figures draw beside it.
+
+posterior.csv has one row per (cell, parameter), from the draws after the warm-up, pooled over
+the chains: mean, sd, quantiles, and ArviZ's convergence diagnostics (the ``arviz-stats``
+package, the computations of ArviZ on plain arrays): the rank-normalised split R-hat (Vehtari
+et al. 2021; below 1.01 when the chains agree), the bulk and tail effective sample sizes and the
+Monte Carlo standard error of the mean. ``acceptance_rate`` is the share of accepted proposals
+after the warm-up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from arviz_stats.base import array_stats
+
+QUANTILES = {"quantile_2_5": 0.025, "quantile_25": 0.25, "median": 0.5, "quantile_75": 0.75, "quantile_97_5": 0.975}
+GRID_POINTS = 200
+
+
+def posterior_summary(rows: pd.DataFrame, columns: list[str], warm_up: int) -> pd.DataFrame:
+    """One row per parameter (and the log-likelihood) from a cell's chains table ``rows``."""
+    draws = rows[rows["iteration"] > warm_up].sort_values(["chain", "iteration"])
+    chains = draws["chain"].nunique()
+    length = draws.groupby("chain").size().min()
+    summary = []
+    for name in [*columns, "log_likelihood"]:
+        values = np.stack([group[name].to_numpy(dtype=float)[:length] for _, group in draws.groupby("chain")])
+        pooled = values.ravel()
+        row = {"parameter": name, "n": pooled.size, "mean": pooled.mean(), "sd": pooled.std(ddof=1) if pooled.size > 1
+               else np.nan, **{key: np.quantile(pooled, q) for key, q in QUANTILES.items()}}
+        row.update(_diagnostics(values))
+        row["acceptance_rate"] = float(draws["accepted"].astype(bool).mean())
+        row["chains"] = chains
+        summary.append(row)
+    return pd.DataFrame(summary)
+
+
+def _diagnostics(values: np.ndarray) -> dict:
+    """R-hat, bulk and tail ESS, MCSE of the mean for draws (chains, draws); NaN where too few."""
+    if values.shape[1] < 4:
+        return {"r_hat": np.nan, "ess_bulk": np.nan, "ess_tail": np.nan, "mcse_mean": np.nan}
+    options = {"chain_axis": 0, "draw_axis": 1}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return {"r_hat": float(array_stats.rhat(values, **options)),
+                "ess_bulk": float(array_stats.ess(values, method="bulk", **options)),
+                "ess_tail": float(array_stats.ess(values, method="tail", prob=(0.05, 0.95), **options)),
+                "mcse_mean": float(array_stats.mcse(values, method="mean", **options))}
+
+
+def prior_grid(target, draws: pd.DataFrame) -> pd.DataFrame:
+    """priors.csv: each parameter's prior density on GRID_POINTS points spanning its draws (widened
+    by a quarter of their range each side, clipped to the prior's support)."""
+    frames = []
+    for name, prior in zip(target.columns, target.priors):
+        values = draws[name].to_numpy(dtype=float) if name in draws else np.array([])
+        if values.size == 0:
+            continue
+        low, high = values.min(), values.max()
+        margin = 0.25 * (high - low) if high > low else 0.1 * abs(low) + 1e-9
+        lower, upper = prior.support
+        grid = np.linspace(max(low - margin, lower), min(high + margin, upper), GRID_POINTS)
+        frames.append(pd.DataFrame({"parameter": name, "value": grid, "density": np.exp(prior.log_density(grid))}))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["parameter", "value", "density"])

@@ -1,0 +1,169 @@
+r"""What parameter estimation targets: the log-likelihood estimate of one cell's filter at given
+parameter values, and the log-prior.
+
+For parameters :math:`\theta` at the dotted paths of ``estimation.parameters``, the model at
+:math:`\theta` is the cell's filter model with those values set and everything derived from them
+derived again (its presets, its checks: a stationary initial law follows :math:`\mu, \phi,
+\sigma`). :meth:`EstimationTarget.log_likelihoods` runs the cell's filter on the dataset for
+several parameter vectors at once, one per row, each with its own random stream, and returns
+each row's :math:`\log \hat p_\theta(z_{1:T})`:
+
+* **batched**: when the model declares every estimated path among its
+  ``vectorised_parameters`` and the filter is the bootstrap particle filter (the transition and
+  the likelihood are all it reads of the model), the rows are one batch of the engine: one model
+  whose parameters are arrays (R, 1, 1), each row's initial particles drawn from its own model's
+  prior;
+* **row by row** otherwise (any filter kind, any model): the same numbers, one filter call per
+  row.
+
+Either way row r's numbers depend only on its parameters and its seed.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import ValidationError
+
+from pfx.config.estimation import EstimationConfig
+from pfx.config.plan import Cell
+from pfx.config.validation import validate
+from pfx.errors import ConfigError
+from pfx.filters import FILTERS
+from pfx.filters.particle.bound import bind_particle_filter
+from pfx.laws.priors import make_transform
+from pfx.models import MODELS
+from pfx.models.base import bind_law
+from pfx.models.simulation import simulate_truth
+from pfx.numerics.seeding import TrialStreams, truth_seed
+
+
+class RowPriors:
+    """Initial laws that differ by row: row r's particles are drawn from ``laws[r]``, from row
+    r's own stream (what the engine's ``prior.sample(random, (N,))`` asks)."""
+
+    def __init__(self, laws: list):
+        self.laws = laws
+
+    def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
+        return np.concatenate([law.sample(random.subset([row]), shape) for row, law in enumerate(self.laws)])
+
+
+@dataclass
+class EstimationTarget:
+    """One cell's estimation problem: its dataset, its filter, the estimated parameters."""
+
+    cell: Cell
+    estimation: EstimationConfig
+    measurements: np.ndarray           # (T, m), NaN for a missing measurement
+
+    def __post_init__(self):
+        parameters = self.estimation.parameters
+        self.paths = list(parameters)
+        self.columns = self.estimation.columns
+        self.priors = [parameters[path].prior for path in self.paths]
+        self.transforms = [make_transform(parameters[path].transform, prior.support)
+                           for path, prior in zip(self.paths, self.priors)]
+        model = self.cell.filter_model
+        presets = model.presets()
+        # The model's own settings, without the values its presets filled (derived again at each θ).
+        self.raw_model = {name: copy.deepcopy(getattr(model, name)) for name in type(model).model_fields
+                          if name not in presets or _plain(getattr(model, name)) != _plain(presets[name])}
+        self.raw_model = {name: _plain(value) for name, value in self.raw_model.items()}
+        self.recorded_times = model._recorded_times
+        settings = self.cell.filter
+        declared = type(model).vectorised_parameters
+        self.batched = (settings.kind in ("particle", "sis") and not settings.proposal.guided and not
+                        settings.auxiliary and settings.weighting.is_likelihood and settings.move.kind == "none"
+                        and getattr(settings, "adaptive", None) is None and getattr(settings, "injection", None)
+                        is None and all(path[len("model."):] in declared for path in self.paths))
+
+    @property
+    def dimension(self) -> int:
+        return len(self.paths)
+
+    # -- the prior and the transformed scale ------------------------------------------------------
+
+    def log_prior(self, values: np.ndarray) -> np.ndarray:
+        """log pi(theta) for values (R, p) on the natural scale: (R,)."""
+        values = np.atleast_2d(values)
+        return sum(prior.log_density(values[:, j]) for j, prior in enumerate(self.priors))
+
+    def to_unconstrained(self, values: np.ndarray) -> np.ndarray:
+        return np.stack([t.to_unconstrained(values[..., j]) for j, t in enumerate(self.transforms)], axis=-1)
+
+    def to_natural(self, values: np.ndarray) -> np.ndarray:
+        return np.stack([t.to_natural(values[..., j]) for j, t in enumerate(self.transforms)], axis=-1)
+
+    def log_jacobian(self, unconstrained: np.ndarray) -> np.ndarray:
+        """log |d theta / d u| summed over the parameters: (R,) from (R, p)."""
+        return sum(t.log_jacobian(unconstrained[..., j]) for j, t in enumerate(self.transforms))
+
+    # -- models at given parameters ---------------------------------------------------------------
+
+    def model_at(self, values: np.ndarray):
+        """The filter model with the parameters set to ``values`` (p,), validated (presets derived
+        again, checks run); None if the model refuses them (outside its domain)."""
+        raw = copy.deepcopy(self.raw_model)
+        for path, value in zip(self.paths, values):
+            node = raw
+            parts = path.split(".")[1:]
+            for part in parts[:-1]:
+                node = node.setdefault(part, {})
+            node[parts[-1]] = float(value)
+        try:
+            model = validate(MODELS[raw["kind"]], raw, file="<estimation>", prefix="model")
+        except (ConfigError, ValueError, ValidationError):       # a value the model refuses
+            return None
+        if self.recorded_times is not None:
+            model.use_recorded_times(self.recorded_times)
+        return model
+
+    def prior_of(self, model):
+        settings = self.cell.filter
+        law = settings.initial or model.default_prior()
+        return bind_law(law, model.state_dimension, "initial")
+
+    def log_likelihoods(self, values: np.ndarray, seeds: list[int]) -> np.ndarray:
+        """log p_hat(z_1:T | theta_r) for each row r of ``values`` (R, p), with filter seed
+        ``seeds[r]``; -inf for a row whose parameters the model refuses."""
+        models = [self.model_at(row) for row in values]
+        result = np.full(len(values), -np.inf)
+        valid = [r for r, model in enumerate(models) if model is not None]
+        if not valid:
+            return result
+        if self.batched:
+            arrays = {path[len("model."):]: values[valid, j][:, None, None] for j, path in enumerate(self.paths)}
+            stacked = models[valid[0]].with_parameter_arrays(arrays)
+            prior = RowPriors([self.prior_of(models[r]) for r in valid])
+            bound = bind_particle_filter(self.cell.filter.kind, stacked, self.cell.filter, prior)
+            data = np.broadcast_to(self.measurements, (len(valid),) + self.measurements.shape)
+            trace = bound.run(np.ascontiguousarray(data), TrialStreams.from_seeds([seeds[r] for r in valid]))
+            result[valid] = trace.log_likelihood
+            return result
+        for r in valid:
+            model, settings = models[r], self.cell.filter
+            prior = self.prior_of(model)
+            planned = FILTERS[settings.kind].plan(model, settings, prior)
+            trace = planned.run(model, self.measurements[None], TrialStreams.from_seeds([seeds[r]]),
+                                settings=settings, prior=prior)
+            result[r] = trace.log_likelihood[0]
+        return result
+
+
+def _plain(value):
+    """A field's value as plain data (pydantic models dumped), for comparing and re-validating."""
+    if hasattr(value, "model_dump"):
+        return value.model_dump(mode="python")
+    return value
+
+
+def dataset(cell: Cell, root_seed: int) -> np.ndarray:
+    """The measurements a cell estimates from, (T, m): the recorded ones, or the dataset of trial
+    0 simulated from the true model (its truth stream, as every run's trial 0 sees it)."""
+    if cell.data is not None:
+        return np.asarray(cell.data.measurements, dtype=float)
+    _, measurements = simulate_truth(cell.truth_model, TrialStreams.from_seeds([truth_seed(root_seed, 0)]))
+    return measurements[0]
