@@ -12,7 +12,9 @@ from pfx.figures import (
     closeups,  # noqa: F401
     concept,  # noqa: F401
     degeneracy,  # noqa: F401
+    estimation_chains,  # noqa: F401
     estimator_spread,  # noqa: F401
+    if2,  # noqa: F401
     log_likelihood,  # noqa: F401
     mahalanobis,  # noqa: F401
     maps,  # noqa: F401

@@ -15,6 +15,8 @@ Three things every figure of a quantity over time needs, decided here once:
   gets one panel per value.
 * **A panel per cell** (:func:`panel_per_cell`) for figures whose lines in a panel are
   something else (a filter and its smoothers): the cells' panels share their axes.
+* **A colour per cell** (:func:`one_colour_per_cell`) for figures whose panels are something
+  else (one per estimated parameter): every cell in every panel, told apart by colour.
 * **Legends outside the axes.** :func:`legend_outside` puts one figure legend below every
   panel (constrained layout makes room for it), so no legend ever hides data.
 
@@ -180,7 +182,7 @@ class SmallMultiples:
 
         ``extra_handles`` (artists with a label, e.g. a reference line's) end the legend.
         """
-        columns = _grid_columns(len(self.panels))
+        columns = grid_columns(len(self.panels))
         for index, (axes, panel_title) in enumerate(zip(self.panels, self.panel_titles)):
             notes = self.notes.get(index) or []
             if notes:                   # above the data, in red, left; the panel's title above it
@@ -199,7 +201,7 @@ class SmallMultiples:
         legend_outside(self.figure, extra_handles)
 
 
-def _grid_columns(panels: int) -> int:
+def grid_columns(panels: int) -> int:
     """Columns of the panel grid: at most 3 (4 beyond 9 panels), the rows as full as possible."""
     most = 3 if panels <= 9 else 4
     return math.ceil(panels / math.ceil(panels / most))
@@ -228,11 +230,22 @@ def panel_per_cell(result: ResultFolder, table, single_size=(7.5, 4.3), panel_si
     return SmallMultiples(figure, panels, titles, lines)
 
 
+def one_colour_per_cell(result: ResultFolder, table) -> dict[str, CellLine]:
+    """Each cell of ``table`` with its label and a colour of its own, all in panel 0: for
+    figures whose panels are something other than cells (one per estimated parameter), where
+    every cell is drawn in every panel and a colour must name one cell throughout (beyond ten
+    cells the colours repeat)."""
+    cells = table.drop_duplicates("cell")
+    labels = cell_labels(cells, legend_columns_of(result, table))
+    return {key: CellLine(key, 0, label, f"C{index % 10}")
+            for index, (key, label) in enumerate(zip(cells["cell"], labels))}
+
+
 def _panel_grid(count: int, single_size, panel_size, log_y: bool):
     """A figure of ``count`` panels sharing their axes, in rows as full as possible."""
     import matplotlib.pyplot as plt
 
-    columns = _grid_columns(count)
+    columns = grid_columns(count)
     rows = math.ceil(count / columns)
     size = single_size if count == 1 else (panel_size[0] * columns + 1.0, panel_size[1] * rows + 1.4)
     figure, grid = plt.subplots(rows, columns, figsize=size, sharex=True, sharey=True, squeeze=False,

@@ -1,0 +1,368 @@
+r"""Figures of the chains of particle marginal Metropolis-Hastings (PMMH), from chains.csv,
+posterior.csv and priors.csv.
+
+PMMH (Andrieu, Doucet & Holenstein 2010) samples the posterior of a model's parameters
+:math:`p(\theta \mid y_{1:T}) \propto p(y_{1:T} \mid \theta)\, p(\theta)`: at each iteration
+a random walk proposes :math:`\theta'`, a particle filter estimates its likelihood
+:math:`\hat p(y_{1:T} \mid \theta')`, and the chain moves there with probability
+
+.. math::
+
+    \min\Big(1, \frac{\hat p(y_{1:T} \mid \theta')\, p(\theta')}
+                     {\hat p(y_{1:T} \mid \theta)\, p(\theta)}\Big)
+
+(a symmetric proposal), keeping the estimate of the point it stands on. The estimate is
+unbiased, so the chain's draws follow the exact posterior, but its noise makes the chain
+sticky: a point whose likelihood was overestimated by luck is left only rarely, and the chain
+lies flat for long stretches (as it does when its proposals reach too far). The three
+figures show what a reader checks before trusting the posterior summary (posterior.csv):
+
+* ``chain_traces``: every chain's path, one row of panels per parameter and one for the
+  log-likelihood estimate, a column per cell, the warm-up shaded. Chains that mix overlap like
+  noise around one level from early on; a flat stretch is a sticky chain, a chain apart from the
+  others one that has not yet found the posterior's mass.
+* ``posterior_marginals``: per parameter, a histogram (density) of the draws after warm-up,
+  pooled over the chains, per cell, with the prior density (priors.csv) dashed and the posterior
+  mean marked: how far the data moved the parameter from its prior. Each panel's title gives
+  the split R-hat (about 1 when the chains agree; above 1.01 they do not yet) and the bulk
+  effective sample size from posterior.csv.
+* ``posterior_pairs``: the draws after warm-up of every pair of parameters, evenly thinned to
+  at most :data:`MOST_POINTS_PER_CELL` per cell, with each parameter's histogram on the
+  diagonal and the correlation of the draws above it: a ridge (two variances that trade off
+  against each other) is what slows a random walk down and what an adapted proposal follows.
+
+Each cell has one colour in every figure (:func:`pfx.figures.layout.one_colour_per_cell`);
+in the traces, where a column holds one cell, the colours tell the chains apart.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Optional
+
+import numpy as np
+
+from pfx.figures.layout import CellLine, grid_columns, legend_outside, one_colour_per_cell
+from pfx.figures.registry import FIGURES
+from pfx.result_folder import ResultFolder
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+MOST_POINTS_PER_CELL = 2000     # of a pair plot's scatter: more is one blot, and slow to draw
+FEWEST_BINS, MOST_BINS = 10, 50  # of a histogram of n draws: sqrt(n) bins within these
+WARM_UP_SHADE = "0.88"
+LONGEST_AXIS_NAME = 16          # characters of a parameter's name on a vertical axis, unbroken
+
+
+# -- reading the tables ---------------------------------------------------------------------------
+
+def parameter_columns(table: pd.DataFrame, after: str) -> list[str]:
+    """The estimated parameters of a table: its columns between ``after`` and ``log_likelihood``
+    (chains.csv: after ``warm_up``; if2.csv: after ``iteration``), in order. A parameter's name
+    is its dotted path into the model (``measurement_noise.variance``)."""
+    columns = list(table.columns)
+    if after not in columns or "log_likelihood" not in columns:
+        return []
+    return columns[columns.index(after) + 1:columns.index("log_likelihood")]
+
+
+def as_flags(column: pd.Series) -> np.ndarray:
+    """A column of True/False as booleans (pandas reads it as text where a field is empty)."""
+    if column.dtype == bool:
+        return column.to_numpy()
+    return column.astype(str).str.strip().str.lower().isin(["true", "1", "1.0"]).to_numpy()
+
+
+@dataclass(frozen=True)
+class Chains:
+    """chains.csv as the figures use it."""
+
+    table: pd.DataFrame           # warm_up and accepted as booleans
+    parameters: list[str]         # in posterior.csv's order (else chains.csv's)
+    lines: dict[str, CellLine]    # cell key -> its label and colour
+
+    @property
+    def after_warm_up(self) -> pd.DataFrame:
+        """The draws the posterior is summarised from: every chain's iterations after warm-up."""
+        return self.table[~self.table["warm_up"]]
+
+    def chain_counts(self) -> list[int]:
+        return list(self.table.groupby("cell", sort=False)["chain"].nunique())
+
+
+def read_chains(result: ResultFolder) -> Optional[Chains]:
+    """The folder's chains (None if it has none). The parameters are posterior.csv's
+    ``parameter`` values when it has them, else chains.csv's columns between ``warm_up`` and
+    ``log_likelihood``."""
+    table = result.optional_table("chains")
+    if table.empty or not {"cell", "chain", "iteration", "warm_up", "log_likelihood"} <= set(table.columns):
+        return None
+    in_chains = parameter_columns(table, "warm_up")
+    posterior = result.optional_table("posterior")
+    if "parameter" in posterior:
+        named = [name for name in dict.fromkeys(posterior["parameter"].astype(str)) if name in in_chains]
+        in_chains = named or in_chains
+    if not in_chains:
+        return None
+    table = table.assign(warm_up=as_flags(table["warm_up"]),
+                         accepted=as_flags(table["accepted"]) if "accepted" in table else False)
+    return Chains(table, in_chains, one_colour_per_cell(result, table))
+
+
+def count_text(counts) -> str:
+    """How many, over the cells: "16", or "8-16" when the cells differ."""
+    counts = [int(count) for count in counts]
+    low, high = min(counts), max(counts)
+    return f"{low}" if low == high else f"{low}-{high}"
+
+
+def axis_name(parameter: str) -> str:
+    """A parameter's name for a vertical axis: a long dotted path broken after its last dot
+    (``measurement_noise.`` over ``variance``), so the label fits beside its panel."""
+    head, dot, tail = parameter.rpartition(".")
+    return f"{head}.\n{tail}" if dot and len(parameter) > LONGEST_AXIS_NAME else parameter
+
+
+def histogram_bins(values: np.ndarray) -> int:
+    """Bins for a histogram of ``values``: sqrt(n), at least FEWEST_BINS and at most MOST_BINS."""
+    return int(np.clip(round(math.sqrt(values.size)), FEWEST_BINS, MOST_BINS))
+
+
+def histogram(axes, values: np.ndarray, line: CellLine) -> None:
+    """A density histogram of one cell's draws: its colour faint inside, full on the outline,
+    so that the cells' histograms stay apart where they overlap."""
+    from matplotlib.colors import to_rgba
+
+    axes.hist(values, bins=histogram_bins(values), density=True, histtype="stepfilled",
+              facecolor=to_rgba(line.colour, 0.25), edgecolor=line.colour, linewidth=1.0, label=line.label)
+
+
+def finite_or_nan(values) -> np.ndarray:
+    """Values to plot: an infinite log-likelihood (a filter whose weights all vanished) as a gap."""
+    values = np.asarray(values, dtype=float)
+    return np.where(np.isfinite(values), values, np.nan)
+
+
+# -- chain_traces -----------------------------------------------------------------------------------
+
+def acceptance_text(rows: pd.DataFrame) -> str:
+    """The share of the iterations after warm-up whose proposal was accepted."""
+    after = rows[~rows["warm_up"]]
+    if after.empty:
+        return "no iteration after warm-up"
+    return f"acceptance after warm-up {after['accepted'].mean():.0%}"
+
+
+@FIGURES.register("chain_traces")
+def chain_traces(result: ResultFolder):
+    """PMMH chain traces: each parameter and the log-likelihood estimate against the iteration, a line per chain, warm-up shaded; a column per cell.
+
+    From chains.csv: chains that mix overlap like noise around one level; a chain flat for long stretches rejects its proposals, stuck on a lucky overestimate of the likelihood (too noisy an estimate: more particles) or proposing too far; each column's title gives the acceptance rate after warm-up.
+    """
+    chains = read_chains(result)
+    if chains is None:
+        return None
+    import matplotlib.pyplot as plt
+
+    rows = [*chains.parameters, "log_likelihood"]
+    cells = list(chains.lines)
+    width = 7.5 if len(cells) == 1 else 1.0 + 3.4 * len(cells)
+    figure, grid = plt.subplots(len(rows), len(cells), figsize=(width, 1.2 + 1.7 * len(rows)), sharex=True,
+                                sharey="row", squeeze=False, layout="constrained")
+    iterations, warm_ups = [], []
+    for column, cell in enumerate(cells):
+        cell_rows = chains.table[chains.table["cell"] == cell]
+        paths = [path.sort_values("iteration") for _, path in cell_rows.groupby("chain", sort=True)]
+        iterations.append(int(cell_rows["iteration"].max()))
+        warm_up = cell_rows.loc[cell_rows["warm_up"], "iteration"]
+        warm_ups.append(int(warm_up.max()) if not warm_up.empty else 0)
+        for row, name in enumerate(rows):
+            axes = grid[row, column]
+            if warm_ups[-1] > 0:
+                axes.axvspan(0, warm_ups[-1], color=WARM_UP_SHADE, linewidth=0, zorder=0)
+            for index, path in enumerate(paths):
+                axes.plot(path["iteration"].to_numpy(dtype=float), finite_or_nan(path[name]),
+                          color=f"C{index % 10}", linewidth=0.6, alpha=0.75, rasterized=True)
+            axes.grid(alpha=0.3)
+        if len(cells) > 1:
+            grid[0, column].set_title(f"{chains.lines[cell].label}\n{acceptance_text(cell_rows)}", fontsize=9)
+        grid[-1, column].set_xlabel("iteration")
+    for row, name in enumerate(rows):
+        grid[row, 0].set_ylabel("log-likelihood\nestimate" if name == "log_likelihood" else axis_name(name))
+    colours = "a colour each" if max(chains.chain_counts()) <= 10 else "ten colours in turn"
+    title = (f"{result.manifest.get('name', '')}: PMMH chain traces\n"
+             f"{count_text(chains.chain_counts())} chains ({colours}) x {count_text(iterations)} iterations "
+             f"per cell, the first {count_text(warm_ups)} warm-up (shaded)")
+    if len(cells) == 1:
+        title += f"; {acceptance_text(chains.table)}"
+    figure.suptitle(title, fontsize=11)
+    return figure
+
+
+# -- posterior_marginals ---------------------------------------------------------------------------------
+
+def summary_row(posterior: pd.DataFrame, cell: str, parameter: str) -> Optional[pd.Series]:
+    """posterior.csv's row of one cell and parameter (None if the folder has none)."""
+    if posterior.empty or not {"cell", "parameter"} <= set(posterior.columns):
+        return None
+    rows = posterior[(posterior["cell"] == cell) & (posterior["parameter"].astype(str) == parameter)]
+    return rows.iloc[0] if not rows.empty else None
+
+
+def diagnostics_text(summary: Optional[pd.Series]) -> str:
+    """"R-hat 1.003, bulk ESS 812" from a row of posterior.csv ("" without one)."""
+    if summary is None:
+        return ""
+    parts = []
+    for column, name, form in (("r_hat", "R-hat", ".3f"), ("ess_bulk", "bulk ESS", ".0f")):
+        value = float(summary.get(column, np.nan))
+        parts.append(f"{name} {value:{form}}" if np.isfinite(value) else f"{name} -")
+    return ", ".join(parts)
+
+
+def parameter_panels(count: int, panel_size=(3.6, 2.8)):
+    """A figure of ``count`` panels in rows as full as possible (as the small multiples'), each
+    panel with its own axes; returns the figure, the panels and the number of columns."""
+    import matplotlib.pyplot as plt
+
+    columns = grid_columns(count)
+    rows = math.ceil(count / columns)
+    figure, grid = plt.subplots(rows, columns, figsize=(1.0 + panel_size[0] * columns, 1.6 + panel_size[1] * rows),
+                                squeeze=False, layout="constrained")
+    panels = list(grid.flat)
+    for unused in panels[count:]:
+        figure.delaxes(unused)
+    return figure, panels[:count], columns
+
+
+@FIGURES.register("posterior_marginals")
+def posterior_marginals(result: ResultFolder):
+    """PMMH posterior of each parameter: histogram of the draws after warm-up (chains pooled) per cell, the prior dashed, the posterior mean marked.
+
+    From chains.csv, with the prior density from priors.csv and, from posterior.csv, the mean and each panel's split R-hat and bulk effective sample size.
+    """
+    chains = read_chains(result)
+    if chains is None or chains.after_warm_up.empty:
+        return None
+    from matplotlib.lines import Line2D
+
+    draws = chains.after_warm_up
+    posterior = result.optional_table("posterior")
+    priors = result.optional_table("priors")
+    figure, panels, columns = parameter_panels(len(chains.parameters))
+    drew_prior = False
+    for index, (axes, parameter) in enumerate(zip(panels, chains.parameters)):
+        notes = []
+        for cell, line in chains.lines.items():
+            values = draws.loc[draws["cell"] == cell, parameter].to_numpy(dtype=float)
+            values = values[np.isfinite(values)]
+            if values.size == 0:
+                continue
+            histogram(axes, values, line)
+            summary = summary_row(posterior, cell, parameter)
+            mean = float(summary["mean"]) if summary is not None and "mean" in summary else np.nan
+            if not np.isfinite(mean):
+                mean = float(values.mean())       # the same draws' mean, posterior.csv's definition
+            axes.axvline(mean, color=line.colour, linewidth=1.6)
+            text = diagnostics_text(summary)
+            if text:
+                notes.append(f"{line.label}: {text}" if len(chains.lines) > 1 else text)
+        if "parameter" in priors:
+            prior = priors[priors["parameter"].astype(str) == parameter].sort_values("value")
+            if not prior.empty:
+                axes.plot(prior["value"], prior["density"], "--", color="black", linewidth=1.2)
+                drew_prior = True
+        if notes:
+            axes.set_title("\n".join(notes), fontsize=8)
+        axes.set_xlabel(parameter)
+        if index % columns == 0:
+            axes.set_ylabel("density")
+        axes.grid(alpha=0.3)
+    extra = [Line2D([], [], color="0.3", linewidth=1.6, label="posterior mean")]
+    if drew_prior:
+        extra.append(Line2D([], [], color="black", linestyle="--", linewidth=1.2, label="prior"))
+    figure.suptitle(f"{result.manifest.get('name', '')}: PMMH posterior marginals\n"
+                    f"draws after warm-up, pooled over {count_text(chains.chain_counts())} chains "
+                    f"({count_text(draws.groupby('cell', sort=False).size())} per cell)", fontsize=11)
+    legend_outside(figure, extra)
+    return figure
+
+
+# -- posterior_pairs ----------------------------------------------------------------------------------
+
+def evenly_thinned(count: int, most: int = MOST_POINTS_PER_CELL) -> np.ndarray:
+    """Indices of at most ``most`` of ``count`` draws, evenly spaced from the first to the last
+    (pooled draws run chain by chain, so every chain keeps its share; no random choice)."""
+    if count <= most:
+        return np.arange(count)
+    return np.unique(np.linspace(0, count - 1, most).round().astype(int))
+
+
+def correlation(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson's correlation of the draws where both are finite (NaN if either is constant)."""
+    both = np.isfinite(x) & np.isfinite(y)
+    if both.sum() < 2 or np.std(x[both]) == 0 or np.std(y[both]) == 0:
+        return float("nan")
+    return float(np.corrcoef(x[both], y[both])[0, 1])
+
+
+@FIGURES.register("posterior_pairs")
+def posterior_pairs(result: ResultFolder):
+    """PMMH posterior pair plot: the draws after warm-up of every pair of parameters, a colour per cell; histograms on the diagonal, correlations above.
+
+    From chains.csv, chains pooled, evenly thinned to at most 2000 points per cell (the correlations use every draw): ridges show the parameters the data cannot tell apart.
+    """
+    chains = read_chains(result)
+    if chains is None or chains.after_warm_up.empty:
+        return None
+    import matplotlib.pyplot as plt
+
+    parameters = chains.parameters
+    count = len(parameters)
+    size = 1.2 + 2.3 * max(count, 2)
+    figure, grid = plt.subplots(count, count, figsize=(size, size + 0.4), sharex="col", squeeze=False,
+                                layout="constrained")
+    draws = {cell: rows[parameters].to_numpy(dtype=float)
+             for cell, rows in chains.after_warm_up.groupby("cell", sort=False)}
+    for row in range(count):
+        for column in range(count):
+            axes = grid[row, column]
+            if row < column:                # above the diagonal: the correlation of the pair
+                axes.axis("off")
+                for place, (cell, values) in enumerate(draws.items()):
+                    rho = correlation(values[:, column], values[:, row])
+                    axes.text(0.5, 0.5 + 0.14 * (len(draws) / 2 - place - 0.5), f"corr {rho:.2f}",
+                              transform=axes.transAxes, ha="center", va="center", fontsize=9,
+                              color=chains.lines[cell].colour)
+                continue
+            for cell, values in draws.items():
+                line = chains.lines[cell]
+                if row == column:
+                    finite = values[np.isfinite(values[:, row]), row]
+                    if finite.size:
+                        histogram(axes, finite, line)
+                else:
+                    shown = values[evenly_thinned(len(values))]
+                    axes.scatter(shown[:, column], shown[:, row], s=3, alpha=0.35, color=line.colour,
+                                 linewidths=0, rasterized=True)
+            axes.grid(alpha=0.3)
+            if row == column:
+                axes.set_title(parameters[row], fontsize=9)
+                axes.tick_params(axis="y", left=False, labelleft=False)
+            elif column == 0:
+                axes.set_ylabel(axis_name(parameters[row]))
+            if row == count - 1:
+                axes.set_xlabel(parameters[column])
+    for row in range(count):               # a row's scatters share the range of its parameter
+        for column in range(row):
+            grid[row, column].set_ylim(grid[row, row].get_xlim())
+            if column > 0:
+                grid[row, column].tick_params(axis="y", labelleft=False)
+    per_cell = count_text(len(values) for values in draws.values())
+    figure.suptitle(f"{result.manifest.get('name', '')}: PMMH posterior, parameters in pairs\n"
+                    f"draws after warm-up pooled over {count_text(chains.chain_counts())} chains ({per_cell} per cell, "
+                    f"at most {MOST_POINTS_PER_CELL} drawn); above the diagonal: correlation", fontsize=11)
+    legend_outside(figure)
+    return figure
