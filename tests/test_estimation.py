@@ -33,7 +33,6 @@ def nile_config(method="pmmh", **estimation):
                   "initial": {"kind": "gaussian", "mean": [0.0], "covariance": 1.0e7}},
         "data": {"measurements": NILE},
         "filter": {"particles": 100, "resampler": "systematic", "ess_threshold": 0.5},
-        "outputs": {"figures": []},
         "estimation": {"method": method, "chains": 4, "iterations": 20, "warm_up": 5 if method == "pmmh" else 0,
                        "parameters": {
                            "model.measurement_noise.variance": {"prior": {"law": "uniform", "lower": 1.0,
