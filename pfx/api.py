@@ -116,7 +116,8 @@ class Result:
       tables of a filter run (docs/output-files.md); each is ``None`` when the folder has no such
       file (a run that kept no particle clouds, a model without a scene, a study).
     * ``tables``: every table the folder holds, by file name without ``.csv``: the filter
-      run's tables above, or the tables a study wrote (its manifest lists them). Each is also
+      run's tables above, the tables a study wrote (its manifest lists them), or an estimation
+      run's (``chains``, ``posterior``, ``priors``; ``if2``, ``maximum_likelihood``). Each is also
       an attribute (``result.offspring``; ``tables`` has them all, whatever their names);
       another name is an AttributeError that lists them.
     * :meth:`compare`: ``pfx compare`` on this folder.
@@ -150,6 +151,10 @@ class Result:
         """The tables this folder holds, in the order the run (or the study) writes them."""
         if self.is_study:
             candidates = list(self.manifest.get("tables", []))
+        elif "estimation" in self.manifest:
+            from pfx.run.estimation import TABLES
+
+            candidates = [name.removesuffix(".csv") for name in TABLES]
         else:
             from pfx.run.runner import OUTPUT_FILES
 
@@ -236,6 +241,10 @@ class Result:
     def __repr__(self) -> str:
         if self.is_study:
             size = f"study={self.manifest['study']!r}"
+        elif "estimation" in self.manifest:
+            estimation = self.manifest["estimation"]
+            size = (f"cells={len(self.manifest.get('cells', []))}, {estimation['method']}: "
+                    f"chains={estimation['chains']}, iterations={estimation['iterations']}")
         else:
             size = f"cells={len(self.manifest.get('cells', []))}, trials={self.manifest.get('trials')}"
         return (f"Result(name={self.name!r}, folder={str(self.folder)!r}, {size}, "
@@ -318,5 +327,9 @@ def _print_run_summary(plan: Plan | StudyPlan, target: Path) -> None:
     from pfx.result_folder import read_manifest
 
     manifest = read_manifest(target)
-    if plan.cells and manifest and (target / "summary.csv").is_file():
+    if manifest and "estimation" in manifest:
+        from pfx.analysis.run_summary import print_estimation_summary
+
+        print_estimation_summary(target, manifest, print)
+    elif plan.cells and manifest and (target / "summary.csv").is_file():
         print_run_summary(target, manifest, print, rich_console=sys.stdout.isatty() and not os.environ.get("CI"))

@@ -184,7 +184,11 @@ def _print_summary(plan, target: Path) -> None:
     from pfx.result_folder import read_manifest
 
     manifest = read_manifest(target)
-    if plan.cells and manifest and (target / "summary.csv").is_file():
+    if manifest and "estimation" in manifest:
+        from pfx.analysis.run_summary import print_estimation_summary
+
+        print_estimation_summary(target, manifest, typer.echo)
+    elif plan.cells and manifest and (target / "summary.csv").is_file():
         print_run_summary(target, manifest, typer.echo,
                           rich_console=sys.stdout.isatty() and not os.environ.get("CI"))
 

@@ -235,3 +235,47 @@ def test_if2_climbs_into_the_likelihood_ratio_region_of_the_maximum():
     best = minimize(lambda u: -exact_log_likelihoods(np.exp(u)[None])[0], np.log([15099.0, 1469.1]),
                     method="Nelder-Mead", options={"xatol": 1e-4, "fatol": 1e-6})
     assert np.all(exact_log_likelihoods(estimates) > -best.fun - 3.0), (estimates, np.exp(best.x))
+
+
+def test_an_estimation_config_has_no_trials():
+    config = nile_config()
+    config["trials"] = 5
+    with pytest.raises(ConfigError) as error:
+        build_plan(config, "nile.yaml")
+    assert error.value.key == "trials"
+    plan = build_plan(nile_config(), "nile.yaml")
+    assert "trials" not in plan.resolved and plan.size_text == "1 cell(s) x 4 chain(s) x 20 iteration(s)"
+
+
+def test_the_result_of_an_estimation_run_lists_its_tables_and_prints_its_posterior(tmp_path, capsys):
+    result = pfx.run(nile_config(), out=tmp_path / "run", quiet=False)
+    assert result.table_names == ["chains", "posterior", "priors"]
+    assert list(result.posterior["parameter"]) == ["measurement_noise.variance", "process_noise.variance",
+                                                   "log_likelihood"]
+    assert len(result.chains) == 4 * 21 and "trials" not in result.manifest
+    printed = capsys.readouterr().out
+    assert "posterior after the warm-up" in printed and "process_noise.variance" in printed
+    again = pfx.run(nile_config(), out=tmp_path / "run")          # up to date: the same tables, times summed
+    assert again.chains.equals(result.chains)
+    first, second = result.manifest["wall_time_s"], again.manifest["wall_time_s"]
+    assert second >= first
+
+
+def test_a_value_the_filter_refuses_is_rejected_not_an_error(monkeypatch):
+    """A filter's set-up may refuse the model at some parameters (a histogram filter's grid that
+    cannot cover it): that value gets likelihood zero; the chain goes on."""
+    from pfx.filters import FILTERS
+
+    config = nile_config()
+    config["filter"] = {"kind": "kf"}
+    _, target = target_of(config)
+    plan_of = FILTERS["kf"].plan
+
+    def refusing(model, settings, prior):
+        if model.process_noise.variance > 50000:
+            raise ValueError("@grid: cannot cover the model there")
+        return plan_of(model, settings, prior)
+
+    monkeypatch.setattr(FILTERS["kf"], "plan", refusing)
+    values = target.log_likelihoods(np.array([[15099.0, 1469.1], [15099.0, 60000.0]]), [1, 2])
+    assert np.isfinite(values[0]) and values[1] == -np.inf

@@ -117,3 +117,33 @@ def print_run_summary(folder: Path, manifest: dict, echo, rich_console: bool, co
         columns = manifest.get("legend_columns", [])
         echo(f"next: {command}   (paired differences, trial by trial, with 95% intervals"
              + (f"; --by any of: {', '.join(columns)})" if len(columns) > 1 else ")"))
+
+
+def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
+    """What an estimation run prints at its end: per cell and parameter, the posterior mean and
+    sd with R-hat and bulk ESS (PMMH, posterior.csv), or the best replicate's estimate and its
+    log-likelihood (IF2, maximum_likelihood.csv)."""
+    method = manifest.get("estimation", {}).get("method")
+    labels = [column for column in manifest.get("legend_columns", [])] or []
+    if method == "pmmh" and (folder / "posterior.csv").is_file():
+        table = pd.read_csv(folder / "posterior.csv")
+        header = [*labels, "parameter", "mean", "sd", "R-hat", "bulk ESS"]
+        rows = [[*(str(row[c]) for c in labels), str(row["parameter"]), _number(row["mean"]), _number(row["sd"]),
+                 f"{row['r_hat']:.3f}" if math.isfinite(row["r_hat"]) else "-", _number(row["ess_bulk"])]
+                for _, row in table.iterrows()]
+        title = f"{manifest.get('name', '')}: posterior after the warm-up, chains pooled, per cell"
+    elif method == "if2" and (folder / "maximum_likelihood.csv").is_file():
+        table = pd.read_csv(folder / "maximum_likelihood.csv")
+        parameters = [c for c in table.columns if c not in ("cell", "replicate", "log_likelihood", "log_likelihood_se")
+                      and c not in manifest.get("label_columns", [])]
+        best = table.loc[table.groupby("cell", sort=False)["log_likelihood"].idxmax()]
+        header = [*labels, "replicate", *parameters, "log-likelihood", "se"]
+        rows = [[*(str(row[c]) for c in labels), str(int(row["replicate"])), *(_number(row[p]) for p in parameters),
+                 f"{row['log_likelihood']:.3f}", _number(row["log_likelihood_se"])] for _, row in best.iterrows()]
+        title = f"{manifest.get('name', '')}: IF2, the replicate of highest log-likelihood, per cell"
+    else:
+        return
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
+    echo(title)
+    for line in [header, *rows]:
+        echo("  " + "  ".join(text.ljust(width) for text, width in zip(line, widths)).rstrip())

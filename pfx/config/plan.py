@@ -103,6 +103,10 @@ class Plan:
 
     @property
     def size_text(self) -> str:
+        estimation = self.experiment.estimation
+        if estimation is not None:
+            chains, passes = ("chain(s)", "iteration(s)") if estimation.method == "pmmh" else ("replicate(s)", "pass(es)")
+            return f"{len(self.cells)} cell(s) x {estimation.chains} {chains} x {estimation.iterations} {passes}"
         return f"{len(self.cells)} cell(s) x {self.experiment.trials} trial(s)"
 
     @property
@@ -341,6 +345,11 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         raw["trials"] = trials
     data = prepare_recorded_data(raw, file)      # reads data: files; fills model.steps (dt, controls) from them
     experiment = validate(schema.Experiment, raw, file=file)
+    if experiment.estimation is not None:
+        for key in ("trials", "datasets"):
+            if key in raw:
+                raise ConfigError(f"an estimation config runs chains on one dataset, not trials; drop {key} (how many "
+                                  "chains: estimation.chains)", file=file, key=key)
     raw_arms = raw.get("arms") or {}
     arms: dict[str, Optional[dict]] = {name: raw_arms[name] for name in experiment.arms} or {DEFAULT_ARM: None}
     sweep = experiment.sweep
@@ -400,6 +409,7 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
     if experiment.estimation is None:
         resolved.pop("estimation", None)     # nor that of a config without estimation
     else:
+        resolved.pop("trials", None)         # it has none
         for cell in cells:
             check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)

@@ -30,7 +30,7 @@ from pydantic import ValidationError
 from pfx.config.estimation import EstimationConfig
 from pfx.config.plan import Cell
 from pfx.config.validation import validate
-from pfx.errors import ConfigError
+from pfx.errors import ConfigError, ModelNumericalError
 from pfx.filters import FILTERS
 from pfx.filters.particle.bound import bind_particle_filter
 from pfx.laws.priors import make_transform
@@ -140,17 +140,30 @@ class EstimationTarget:
             prior = RowPriors([self.prior_of(models[r]) for r in valid])
             bound = bind_particle_filter(self.cell.filter.kind, stacked, self.cell.filter, prior)
             data = np.broadcast_to(self.measurements, (len(valid),) + self.measurements.shape)
-            trace = bound.run(np.ascontiguousarray(data), TrialStreams.from_seeds([seeds[r] for r in valid]))
-            result[valid] = trace.log_likelihood
-            return result
+            try:
+                trace = bound.run(np.ascontiguousarray(data), TrialStreams.from_seeds([seeds[r] for r in valid]))
+            except ModelNumericalError:
+                pass        # a row's parameters broke the model: find which, row by row (the same numbers)
+            else:
+                result[valid] = trace.log_likelihood
+                return result
         for r in valid:
-            model, settings = models[r], self.cell.filter
+            result[r] = self._one_row(models[r], seeds[r])
+        return result
+
+    def _one_row(self, model, seed: int) -> float:
+        """One filter run at one parameter vector; -inf where the filter's set-up refuses the model
+        there (a grid it cannot cover, say) or every particle leaves the model's domain: a
+        parameter value the data rule out, not an error of the run."""
+        settings = self.cell.filter
+        try:
             prior = self.prior_of(model)
             planned = FILTERS[settings.kind].plan(model, settings, prior)
-            trace = planned.run(model, self.measurements[None], TrialStreams.from_seeds([seeds[r]]),
+            trace = planned.run(model, self.measurements[None], TrialStreams.from_seeds([seed]),
                                 settings=settings, prior=prior)
-            result[r] = trace.log_likelihood[0]
-        return result
+        except (ValueError, ConfigError, ModelNumericalError):
+            return -np.inf
+        return float(trace.log_likelihood[0])
 
 
 def _plain(value):

@@ -60,24 +60,41 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                                                                "iterations": estimation.iterations,
                                                                "chains": estimation.chains}}
         manifest["figures"] = figures_of(plan)
+        manifest.pop("trials", None)
+        times_file = out / PROGRESS / "times.json"
         write_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-        started, cell_times, batched = time.perf_counter(), {}, {}
+        cell_times, batched = {}, {}
         for cell in plan.cells:
             cell_started = time.perf_counter()
             target = EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
             batched[cell.key] = target.batched
             run = _run_pmmh if estimation.method == "pmmh" else _run_if2
             run(plan, target, out, report)
-            cell_times[cell.key] = round(time.perf_counter() - cell_started, 3)
+            cell_times[cell.key] = time.perf_counter() - cell_started
         _assemble(plan, out)
-        manifest.update(finished=now(), complete=True, wall_time_s=round(time.perf_counter() - started, 3),
+        # Times add up over the runs that made the folder (a resumed or extended run's own time
+        # plus the earlier ones'), as a filter run's do.
+        earlier = _earlier_times(out, plan)
+        cell_times = {key: round(value + earlier.get(key, 0.0), 3) for key, value in cell_times.items()}
+        manifest.update(finished=now(), complete=True, wall_time_s=round(sum(cell_times.values()), 3),
                         cell_wall_time_s=cell_times, batched=batched)
+        write_text(json.dumps(cell_times), times_file)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     from pfx.figures.registry import render_figures
 
     render_figures(out, manifest["figures"], tuple(plan.experiment.outputs.formats))
     return out
+
+
+def _earlier_times(out: Path, plan: Plan) -> dict:
+    """The cells' wall times of the runs before this one (``estimation/times.json``), then this
+    run's added to them for the next."""
+    path = out / PROGRESS / "times.json"
+    try:
+        return json.loads(path.read_text()) if path.is_file() else {}
+    except (ValueError, OSError):
+        return {}
 
 
 def _progress_file(out: Path, cell: Cell) -> Path:
