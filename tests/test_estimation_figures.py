@@ -383,3 +383,21 @@ def test_render_figures_writes_the_four(tmp_path):
     written = render_figures(path)
     assert sorted(target.name for target in written) == sorted(f"{name}.png" for name in FIGURE_NAMES)
     assert all(target.stat().st_size > 10_000 for target in written)
+
+
+def test_marginals_keep_the_posteriors_scale_under_a_flat_prior(tmp_path):
+    """A flat prior on (0, inf) writes density 1 into priors.csv whatever the units: the axes keep
+    the histograms' scale (their densities, about 0.08 here, stay visible) and say where the prior is."""
+    path = write_folder(tmp_path / "flat")
+    priors = priors_table()
+    flat = priors["parameter"] == "measurement_noise.variance"
+    priors.loc[flat, "density"] = 1.0
+    priors.loc[flat.idxmax(), "density"] = 0.0             # the support's open edge, as priors.csv has it
+    write_csv(priors, path / "priors.csv")
+    figure = posterior_marginals(ResultFolder(path))
+    axes = figure.axes[PARAMETERS.index("measurement_noise.variance")]
+    top = axes.get_ylim()[1]
+    bars = max(patch.get_path().vertices[:, 1].max() for patch in axes.patches)
+    assert bars <= top < 1.0 and bars > 0.5 * top
+    assert any("prior above the axes" in text.get_text() for text in axes.texts)
+    assert not any("prior above the axes" in text.get_text() for text in figure.axes[PARAMETERS.index("mu")].texts)

@@ -23,7 +23,9 @@ figures show what a reader checks before trusting the posterior summary (posteri
   others one that has not yet found the posterior's mass.
 * ``posterior_marginals``: per parameter, a histogram (density) of the draws after warm-up,
   pooled over the chains, per cell, with the prior density (priors.csv) dashed and the posterior
-  mean marked: how far the data moved the parameter from its prior. Each panel's title gives
+  mean marked: how far the data moved the parameter from its prior. The axes keep the
+  histograms' scale: a prior that lies wholly above them (an improper flat prior's density 1,
+  in whatever units the parameter has) is noted in the panel. Each panel's title gives
   the split R-hat (about 1 when the chains agree; above 1.01 they do not yet) and the bulk
   effective sample size from posterior.csv.
 * ``posterior_pairs``: the draws after warm-up of every pair of parameters, evenly thinned to
@@ -272,8 +274,14 @@ def posterior_marginals(result: ResultFolder):
         if "parameter" in priors:
             prior = priors[priors["parameter"].astype(str) == parameter].sort_values("value")
             if not prior.empty:
-                axes.plot(prior["value"], prior["density"], "--", color="black", linewidth=1.2)
+                # On the posterior's scale: a prior far flatter than the posterior, or an improper
+                # flat one (density 1 in any units), would otherwise squash the histograms flat.
+                axes.plot(prior["value"], prior["density"], "--", color="black", linewidth=1.2, scaley=False)
                 drew_prior = True
+                inside = prior.loc[prior["density"] > 0, "density"]        # 0 on the support's edge
+                if not inside.empty and inside.min() > axes.get_ylim()[1]:
+                    axes.text(0.98, 0.96, f"prior above the axes\n(density ≥ {inside.min():.3g})",
+                              transform=axes.transAxes, ha="right", va="top", fontsize=8)
         if notes:
             axes.set_title("\n".join(notes), fontsize=8)
         axes.set_xlabel(parameter)
