@@ -61,7 +61,7 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                                                                "chains": estimation.chains}}
         manifest["figures"] = figures_of(plan)
         manifest.pop("trials", None)
-        times_file = out / PROGRESS / "times.json"
+        earlier = _earlier_times(out, fresh)
         write_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         cell_times, batched = {}, {}
@@ -75,11 +75,9 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
         _assemble(plan, out)
         # Times add up over the runs that made the folder (a resumed or extended run's own time
         # plus the earlier ones'), as a filter run's do.
-        earlier = _earlier_times(out, plan)
         cell_times = {key: round(value + earlier.get(key, 0.0), 3) for key, value in cell_times.items()}
         manifest.update(finished=now(), complete=True, wall_time_s=round(sum(cell_times.values()), 3),
                         cell_wall_time_s=cell_times, batched=batched)
-        write_text(json.dumps(cell_times), times_file)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     from pfx.figures.registry import render_figures
 
@@ -87,14 +85,13 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
     return out
 
 
-def _earlier_times(out: Path, plan: Plan) -> dict:
-    """The cells' wall times of the runs before this one (``estimation/times.json``), then this
-    run's added to them for the next."""
-    path = out / PROGRESS / "times.json"
-    try:
-        return json.loads(path.read_text()) if path.is_file() else {}
-    except (ValueError, OSError):
-        return {}
+def _earlier_times(out: Path, fresh: bool) -> dict:
+    """The cells' wall times of the runs that made the folder so far: the finished manifest's
+    (a run stopped before its end records none, and its time is lost)."""
+    from pfx.result_folder import read_manifest
+
+    manifest = None if fresh else read_manifest(out)
+    return dict((manifest or {}).get("cell_wall_time_s") or {}) if (manifest or {}).get("complete") else {}
 
 
 def _progress_file(out: Path, cell: Cell) -> Path:
