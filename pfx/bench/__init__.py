@@ -91,7 +91,8 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
         if pmmh_case.examples_found():
             progress("pmmh: the stochastic-volatility and Nile problems")
             load_before = os.getloadavg()[0]
-            timings_pmmh = pmmh_case.time_pmmh(quick=quick, repeats=repeats, peers=peers, progress=progress)
+            timings_pmmh = pmmh_case.time_pmmh(quick=quick, repeats=repeats if quick else max(repeats, 5), peers=peers,
+                                               progress=progress)
             load = (load_before, os.getloadavg()[0])
             exact = {problem: pmmh_case.exact_start_log_likelihood(make()) for problem, make in pmmh_case.PROBLEMS.items()}
             echo(report.format_pmmh(timings_pmmh, exact, load))

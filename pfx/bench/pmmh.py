@@ -31,9 +31,10 @@ resampling when the ESS falls below N/2 (``particles``' default inside its PMMH)
 Implementations, in this one process, interleaved (the order rotates from round to round), best
 of several rounds: pfx's sampler with 1 chain, and with 16 chains advancing as one batch of the
 engine (:mod:`pfx.estimation.target`), both with a fixed random walk (``adapt: false``); and
-``particles``' ``mcmc.PMMH`` (one chain; ``adaptive=False``). Each first runs a few iterations
-that are not timed (first use of compiled code, caches); then each round times a block of
-iterations. pfx walks on its transformed scale (logit for :math:`\phi` and the Nile variances,
+``particles``' ``mcmc.PMMH`` (one chain; ``adaptive=False``). Each first runs 10 iterations
+that are not timed (first use of compiled code, caches); then each round times a block of 50
+iterations (short blocks, many rounds: on a shared machine the best round is the one least
+disturbed; ``--quick``: 1 and 3). pfx walks on its transformed scale (logit for :math:`\phi` and the Nile variances,
 log for :math:`\sigma`), ``particles`` on the parameters as its prior names them: its random
 walk's standard deviations are pfx's times :math:`|d\theta/du|` at the start
 (:func:`natural_scale_sds`), the same steps where the chains begin. A proposal outside the
@@ -67,7 +68,7 @@ EXAMPLES = Path(pfx.__file__).resolve().parents[1] / "examples"
 SIZES = (100, 1_000)
 QUICK_SIZES = (100,)
 CHAINS = 16
-ITERATIONS, WARM_UP = 100, 10               # timed per round; untimed first
+ITERATIONS, WARM_UP = 50, 10                # timed per round; untimed first
 QUICK_ITERATIONS, QUICK_WARM_UP = 3, 1
 START_RUNS = 16                             # filters at the starting point, for the likelihood check
 FILTER = {"kind": "particle", "resampler": "systematic", "ess_threshold": 0.5}
