@@ -86,10 +86,14 @@ class PmmhProblem:
 
     name: str
     label: str
-    seed: int
     config: dict
     peer_names: tuple[str, ...]        # particles' name of each estimated parameter, in pfx's order
     steps: int
+
+    @property
+    def seed(self) -> int:
+        """The config's root seed: pfx's chains' streams, and particles' global generator."""
+        return self.config["seed"]
 
 
 def _sv_problem() -> PmmhProblem:
@@ -105,7 +109,7 @@ def _sv_problem() -> PmmhProblem:
               "model": {"kind": "stochastic_volatility", **PITT_SHEPHARD},
               "data": {"measurements": str(EXAMPLES / "data" / "gbp-usd-returns.csv")},
               "filter": dict(FILTER), "estimation": {"method": "pmmh", "adapt": False, "parameters": parameters}}
-    return PmmhProblem("sv", "SV GBP/USD", 1997, config, ("mu", "rho", "sigma"), 201)
+    return PmmhProblem("sv", "SV GBP/USD", config, ("mu", "rho", "sigma"), 201)
 
 
 def _nile_problem() -> PmmhProblem:
@@ -123,7 +127,7 @@ def _nile_problem() -> PmmhProblem:
                         "initial": {"kind": "gaussian", "mean": [0.0], "covariance": LEVEL_PRIOR_VARIANCE}},
               "data": {"measurements": str(EXAMPLES / "data" / "nile.csv")},
               "filter": dict(FILTER), "estimation": {"method": "pmmh", "adapt": False, "parameters": parameters}}
-    return PmmhProblem("nile", "Nile", 1871, config, ("measurement_variance", "level_variance"), 100)
+    return PmmhProblem("nile", "Nile", config, ("measurement_variance", "level_variance"), 100)
 
 
 PROBLEMS: dict[str, Callable[[], PmmhProblem]] = {"sv": _sv_problem, "nile": _nile_problem}
