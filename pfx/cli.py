@@ -386,9 +386,12 @@ def bench(
     memory: bool = typer.Option(True, "--memory/--no-memory", help="measure memory per particle"),
     algorithms: bool = typer.Option(True, "--algorithms/--no-algorithms",
                                     help="time the proposals, APF, moves, KLD and injection against the bootstrap"),
+    pmmh: bool = typer.Option(True, "--pmmh/--no-pmmh",
+                              help="time a PMMH iteration (1 and 16 chains) against particles' PMMH"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress lines on stderr"),
 ):
-    """Benchmark: ns per particle-step of pfx, a plain NumPy filter, the Python peers, and pfx's algorithms."""
+    """Benchmark: ns per particle-step of pfx, a plain NumPy filter, the Python peers, and pfx's algorithms;
+    a PMMH iteration against particles'."""
     from pfx.bench import run_bench
 
     # A full benchmark takes minutes: say what is being timed, one plain line per case and
@@ -402,7 +405,7 @@ def bench(
 
     progress = hide if quiet or os.environ.get("CI") else show
     run_bench(quick=quick, repeats=repeats, budget=budget, peers=peers, workers=workers, memory=memory,
-              algorithms=algorithms, echo=typer.echo, progress=progress)
+              algorithms=algorithms, pmmh=pmmh, echo=typer.echo, progress=progress)
 
 
 def _one_thread_per_process() -> None:

@@ -198,3 +198,119 @@ def test_every_algorithm_runs_or_says_why_not(accuracy_case, algorithm_traces):
 def test_algorithm_is_as_accurate_as_the_bootstrap(accuracy_case, algorithm_traces, name):
     case, pfx_estimates = accuracy_case
     _assert_same_accuracy(case, algorithm_traces[name].estimates, pfx_estimates, name)
+
+
+# -- PMMH against particles' PMMH (pfx/bench/pmmh.py) ------------------------------------------
+
+def _pmmh_rows(lines):
+    """The PMMH table's rows: {case label: {implementation: [numbers]}}, and its other lines."""
+    from pfx.bench.report import PMMH_CASE_WIDTH, PMMH_NAME_WIDTH
+
+    title = next(i for i, line in enumerate(lines) if line.startswith("PMMH: milliseconds per iteration"))
+    end = next(i for i in range(title, len(lines)) if lines[i].startswith("(particles' PMMH runs one chain"))
+    rows, notes, label = {}, [], None
+    for line in lines[title + 3:end]:
+        if line.startswith("  ") and line[2] != " " or line.strip().startswith("particles: not installed"):
+            notes.append(line.strip())      # the lines under a case's rows, indented by two
+            continue
+        label = line[:PMMH_CASE_WIDTH].strip() or label
+        name = line[PMMH_CASE_WIDTH:PMMH_CASE_WIDTH + 1 + PMMH_NAME_WIDTH].strip()
+        rows.setdefault(label, {})[name] = line[PMMH_CASE_WIDTH + 1 + PMMH_NAME_WIDTH:].split()
+    return lines[title], rows, notes
+
+
+def test_quick_bench_prints_the_pmmh_table(quick_output):
+    """Both problems at the quick size: pfx with 1 chain and with 16 chains (and particles where
+    installed); per chain-iteration is per iteration over the chains; where a pfx iteration goes
+    adds up to the iteration (the rest is what the clocked stages leave, never negative)."""
+    from pfx.bench.pmmh import CHAINS, PROBLEMS, QUICK_SIZES, STAGES
+
+    title, rows, notes = _pmmh_rows(quick_output.splitlines())
+    assert "best of 1 rounds" in title and "load average" in title
+    labels = [f"{make().label}, N={particles}" for make in PROBLEMS.values() for particles in QUICK_SIZES]
+    assert list(rows) == labels
+    for label in labels:
+        implementations = rows[label]
+        for name, chains in (("pfx, 1 chain", 1), (f"pfx, {CHAINS} chains", CHAINS)):
+            milliseconds, per_chain, ratio, filters, accepted, rounds = implementations[name]
+            assert float(milliseconds) > 0 and int(rounds) == 1, (label, name)
+            assert abs(float(per_chain) * chains - float(milliseconds)) <= 0.0005 * chains + 0.005, (label, name)
+            # the starts lie inside the priors and the steps are small: every proposal runs a filter or
+            # is refused by the prior; the acceptance is a share of the chain-iterations
+            assert 0 < float(filters) <= 1 and 0 <= float(accepted) <= 1, (label, name)
+        if "particles, 1 chain" in implementations:
+            assert float(implementations["particles, 1 chain"][2]) == 1.0
+        else:
+            assert any(note.startswith("particles: not installed") for note in notes)
+    stage_lines = [note for note in notes if note.startswith("where a pfx iteration goes")]
+    assert len(stage_lines) == 2 * len(labels)
+    for note in stage_lines:
+        parts = dict(part.rsplit(" ", 1) for part in note.split("(ms): ")[1].split(", "))
+        assert list(parts) == list(STAGES) and all(float(value) >= 0 for value in parts.values()), note
+    likelihood_lines = [note for note in notes if note.startswith("log-likelihood estimates at the start")]
+    assert len(likelihood_lines) == len(labels)
+    assert "exact (Kalman)" in next(line for label, line in zip(labels, likelihood_lines) if label.startswith("Nile"))
+
+
+def test_pmmh_problems_run_batched_from_their_starts():
+    """The bench times the batched path (the chains one batch of the engine), on the data named,
+    from the published starting points."""
+    from pfx.bench.pmmh import DURBIN_KOOPMAN, PITT_SHEPHARD, PROBLEMS, build_target, start_values
+
+    starts = {"sv": list(PITT_SHEPHARD.values()), "nile": [DURBIN_KOOPMAN["measurement"], DURBIN_KOOPMAN["level"]]}
+    for name, make in PROBLEMS.items():
+        problem = make()
+        target, _ = build_target(problem, particles=50, chains=4, iterations=2)
+        assert target.batched, name
+        assert target.measurements.shape == (problem.steps, 1) and np.all(np.isfinite(target.measurements)), name
+        np.testing.assert_array_equal(start_values(target), starts[name])
+        assert len(problem.peer_names) == target.dimension
+
+
+def test_natural_scale_sds_are_the_walks_first_steps():
+    r"""particles walks on theta itself: its standard deviations are pfx's on u = g(theta) times
+    |d theta / du| at the start (none: 1; log: theta; logit on (a, b): (theta - a)(b - theta)/(b - a))."""
+    from pfx.bench.pmmh import PROBLEMS, build_target, natural_scale_sds
+
+    sv, _ = build_target(PROBLEMS["sv"](), particles=50, chains=1, iterations=2)
+    mu, phi, sigma = (sv.estimation.parameters[path] for path in sv.paths)
+    expected = [mu.proposal_sd, phi.proposal_sd * phi.start * (1.0 - phi.start), sigma.proposal_sd * sigma.start]
+    np.testing.assert_allclose(natural_scale_sds(sv), expected, rtol=1e-12)
+    nile, _ = build_target(PROBLEMS["nile"](), particles=50, chains=1, iterations=2)
+    expected = []
+    for path in nile.paths:
+        parameter = nile.estimation.parameters[path]
+        lower, upper = parameter.prior.lower, parameter.prior.upper
+        expected.append(parameter.proposal_sd * (parameter.start - lower) * (upper - parameter.start) / (upper - lower))
+    np.testing.assert_allclose(natural_scale_sds(nile), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["sv", "nile"])
+def test_particles_pmmh_peer_computes_pfx_likelihood(name):
+    """particles' model and data in the PMMH comparison give pfx's likelihood: at the start, the
+    means of 40 log-likelihood estimates each (N = 1000) agree within Z standard errors, plus the
+    difference of the two estimators' Jensen biases, about (s_pfx^2 - s_particles^2) / 2."""
+    pytest.importorskip("particles", reason="particles is installed only in the benchmark's environment (make bench)")
+    import particles
+    from particles import state_space_models
+
+    from pfx.bench.peers import global_generator_seeded
+    from pfx.bench.pmmh import PROBLEMS, _peer_problem, build_target, start_values
+
+    runs, count = 40, 1000
+    problem = PROBLEMS[name]()
+    target, _ = build_target(problem, particles=count, chains=runs, iterations=2)
+    ours = target.log_likelihoods(np.repeat(start_values(target)[None], runs, axis=0), list(range(runs)))
+    pieces = _peer_problem(problem, target)
+    start = {entry[0]: float(pieces["start"][entry[0]][0]) for entry in pieces["prior"].dtype}
+    theirs = []
+    with global_generator_seeded(problem.seed):
+        for _ in range(runs):
+            smc = particles.SMC(fk=state_space_models.Bootstrap(ssm=pieces["model"](**start), data=pieces["data"]),
+                                N=count, collect="off")
+            smc.run()
+            theirs.append(smc.logLt)
+    theirs = np.array(theirs)
+    se = np.sqrt(ours.var(ddof=1) / runs + theirs.var(ddof=1) / runs)
+    bias = abs(ours.var(ddof=1) - theirs.var(ddof=1)) / 2
+    assert abs(ours.mean() - theirs.mean()) < Z * se + bias, (ours.mean(), theirs.mean(), se, bias)

@@ -10,7 +10,8 @@ process, interleaved, best of several repeats, and reports nanoseconds per parti
 auxiliary filter, moves, KLD-sampling, injection) against its bootstrap filter on one case;
 :mod:`pfx.bench.small_filters` times one trial of a plugin-style model (no compiled step), where
 the engine's fixed cost per step counts, against ``particles`` and a NumPy loop, and the Python
-entry point against the config path;
+entry point against the config path; :mod:`pfx.bench.pmmh` times an iteration of particle
+marginal Metropolis-Hastings (1 chain, and 16 chains as one batch) against ``particles``' PMMH;
 :mod:`pfx.bench.scaling` measures ``--workers 2`` against 1 and the memory per particle;
 :mod:`pfx.bench.report` prints it all with the machine line and the goals as ratios.
 While it runs, one progress line per case and implementation (and per repeat) goes to
@@ -21,6 +22,7 @@ Speed is measured here and only here: no test asserts a timing.
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Callable
 
@@ -31,7 +33,7 @@ QUICK_CASES = [(100, 1), (1_000, 1), (50, 20)]
 
 
 def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, peers: bool = True,
-              workers: bool = True, memory: bool = True, algorithms: bool = True, echo: Callable[[str], None] = print,
+              workers: bool = True, memory: bool = True, algorithms: bool = True, pmmh: bool = True, echo: Callable[[str], None] = print,
               progress: Callable[[str], None] = lambda message: None) -> None:
     from pfx.bench import report, scaling
     from pfx.bench.problem import STEPS, make_case
@@ -82,6 +84,22 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
     overhead = entry_point_overhead(particles=100 if quick else 1_000, repeats=3 if quick else 20)
     echo(report.format_small_filters(small, overhead))
     echo("")
+
+    if pmmh:
+        from pfx.bench import pmmh as pmmh_case
+
+        if pmmh_case.examples_found():
+            progress("pmmh: the stochastic-volatility and Nile problems")
+            load_before = os.getloadavg()[0]
+            timings_pmmh = pmmh_case.time_pmmh(quick=quick, repeats=repeats if quick else max(repeats, 5), peers=peers,
+                                               progress=progress)
+            load = (load_before, os.getloadavg()[0])
+            exact = {problem: pmmh_case.exact_start_log_likelihood(make()) for problem, make in pmmh_case.PROBLEMS.items()}
+            echo(report.format_pmmh(timings_pmmh, exact, load))
+        else:
+            echo(f"pmmh: not run (its problems read {pmmh_case.EXAMPLES}, which this installation lacks: run "
+                 "pfx bench from a source tree)")
+        echo("")
 
     memory_result = None
     if memory:

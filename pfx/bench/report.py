@@ -175,3 +175,58 @@ def format_goals(timings: list[Timing], workers: Optional[dict], memory: Optiona
     lines.append(_goal_line(overhead["ratio"] if overhead else None, 1.05, True,
                             "one filter: Python entry point time / config path time", "skipped"))
     return "\n".join(lines)
+
+
+PMMH_CASE_WIDTH = 22
+PMMH_NAME_WIDTH = 20
+
+
+def format_pmmh(timings: list, exact: Optional[dict] = None, load: Optional[tuple] = None) -> str:
+    """The PMMH table (:mod:`pfx.bench.pmmh`): ms per iteration and per chain-iteration, particles'
+    time per chain-iteration over the row's, filters run per chain-iteration, acceptance; per
+    problem and N, the log-likelihood estimates at the start and where a pfx iteration goes; ``load``:
+    the machine's 1-minute load average before and after the timing (PMMH's rounds are long)."""
+    from pfx.bench.pmmh import CHAINS, STAGES, START_RUNS
+
+    if not timings:
+        return "pmmh: not run"
+    first = timings[0]
+    iterations = first.chain_iterations // max(first.rounds * first.chains, 1)
+    title = (f"PMMH: milliseconds per iteration, bootstrap filter (systematic resampling when ESS < N/2), a fixed "
+             f"random walk, {iterations} iterations per round after untimed ones, best of {first.rounds} rounds"
+             + (f"; load average {load[0]:.2f} before, {load[1]:.2f} after" if load else "") + ":")
+    header = (f"{'case':<{PMMH_CASE_WIDTH}} {'implementation':<{PMMH_NAME_WIDTH}} {'ms/iteration':>12} "
+              f"{'ms/chain-iter':>13} {'particles/pfx':>13} {'filters/iter':>12} {'accepted':>8} {'rounds':>6}")
+    lines = [title, header, "-" * len(header)]
+    groups: dict[str, list] = {}
+    for timing in timings:
+        groups.setdefault(timing.label, []).append(timing)
+    for label, rows in groups.items():
+        peer = next((row for row in rows if row.implementation.startswith("particles") and row.rounds), None)
+        for index, row in enumerate(rows):
+            case = label if index == 0 else ""
+            if row.error or not row.rounds:
+                lines.append(f"{case:<{PMMH_CASE_WIDTH}} {row.implementation:<{PMMH_NAME_WIDTH}} "
+                             f"failed: {row.error or 'not run'}")
+                continue
+            ratio = peer.per_chain_iteration / row.per_chain_iteration if peer else float("nan")
+            lines.append(f"{case:<{PMMH_CASE_WIDTH}} {row.implementation:<{PMMH_NAME_WIDTH}} "
+                         f"{row.seconds * 1e3:>12.2f} {row.per_chain_iteration * 1e3:>13.3f} {ratio:>13.2f} "
+                         f"{row.filters_per_chain_iteration:>12.2f} {row.acceptance:>8.2f} {row.rounds:>6}")
+        if peer is None:
+            lines.append(f"{'':<{PMMH_CASE_WIDTH}} particles: not installed or not run (--no-peers)")
+        estimates = [(row.implementation.split(",")[0], row.start_log_likelihoods) for row in rows
+                     if row.start_log_likelihoods is not None and len(row.start_log_likelihoods) == START_RUNS]
+        if estimates:
+            parts = [f"{name} {np.mean(values):.2f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.2f} "
+                     f"(sd {np.std(values, ddof=1):.2f})" for name, values in estimates]
+            known = (exact or {}).get(rows[0].problem.name)
+            lines.append(f"  log-likelihood estimates at the start, {START_RUNS} filters each: " + ", ".join(parts)
+                         + (f"; exact (Kalman) {known:.2f}" if known is not None else ""))
+        for row in rows:
+            if row.stages and row.rounds:
+                stages = ", ".join(f"{name} {row.stages[name] * 1e3:.2f}" for name in STAGES)
+                lines.append(f"  where a pfx iteration goes, {row.implementation} (ms): {stages}")
+    lines.append(f"(particles' PMMH runs one chain per sampler: {CHAINS} of its chains cost {CHAINS} times one chain's "
+                 "time; particles/pfx divides its ms per chain-iteration by the row's)")
+    return "\n".join(lines)
