@@ -44,7 +44,10 @@ def _diagnostics(values: np.ndarray) -> dict:
     with np.errstate(invalid="ignore", divide="ignore"):
         return {"r_hat": float(array_stats.rhat(values, **options)),
                 "ess_bulk": float(array_stats.ess(values, method="bulk", **options)),
-                "ess_tail": float(array_stats.ess(values, method="tail", prob=(0.05, 0.95), **options)),
+                # the tail ESS: the smaller of the 5% and 95% quantiles' (Vehtari et al. 2021),
+                # spelled out, since arviz-stats' "tail" method changed its arguments across versions
+                "ess_tail": float(min(array_stats.ess(values, method="quantile", prob=prob, **options)
+                                      for prob in (0.05, 0.95))),
                 "mcse_mean": float(array_stats.mcse(values, method="mean", **options))}
 
 
