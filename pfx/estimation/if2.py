@@ -114,16 +114,7 @@ class IteratedFiltering:
 
     def start(self) -> np.ndarray:
         """Iteration 0: every particle of replicate r at r's starting point (transformed), (R, N, p)."""
-        values = np.empty((self.replicates, self.target.dimension))
-        for j, path in enumerate(self.target.paths):
-            start = self.settings.parameters[path].start
-            for replicate in range(self.replicates):
-                if start == "prior":
-                    generator = np.random.default_rng([chain_seeds(self.root_seed, self.cell_key, replicate, 0)[1], j])
-                    values[replicate, j] = float(self.target.priors[j].sample(generator))
-                else:
-                    values[replicate, j] = start[replicate] if isinstance(start, list) else start
-        unconstrained = self.target.to_unconstrained(values)
+        unconstrained = self.target.to_unconstrained(self.target.starting_values(self.root_seed, self.cell_key))
         return np.repeat(unconstrained[:, None, :], self.particles, axis=1)
 
     def estimates(self, swarm: np.ndarray) -> np.ndarray:

@@ -70,16 +70,8 @@ class ParticleMarginalMetropolisHastings:
     def start(self) -> Chains:
         """Iteration 0: each chain's starting point (fixed, or drawn from the prior with its own
         generator) and the filter's estimate there."""
-        filter_seeds, move_seeds = self.seeds(0)
-        values = np.empty((self.chain_count, self.target.dimension))
-        for j, path in enumerate(self.target.paths):
-            start = self.settings.parameters[path].start
-            for chain in range(self.chain_count):
-                if start == "prior":
-                    generator = np.random.default_rng([move_seeds[chain], j])
-                    values[chain, j] = float(self.target.priors[j].sample(generator))
-                else:
-                    values[chain, j] = start[chain] if isinstance(start, list) else start
+        filter_seeds, _ = self.seeds(0)
+        values = self.target.starting_values(self.root_seed, self.cell_key)
         log_likelihood = self.target.log_likelihoods(values, filter_seeds)
         bad = np.flatnonzero(~np.isfinite(log_likelihood))
         if bad.size:

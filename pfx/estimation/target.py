@@ -37,7 +37,7 @@ from pfx.laws.priors import make_transform
 from pfx.models import MODELS
 from pfx.models.base import bind_law
 from pfx.models.simulation import simulate_truth
-from pfx.numerics.seeding import TrialStreams, truth_seed
+from pfx.numerics.seeding import TrialStreams, chain_seeds, truth_seed
 
 
 class RowPriors:
@@ -100,6 +100,22 @@ class EstimationTarget:
     def log_jacobian(self, unconstrained: np.ndarray) -> np.ndarray:
         """log |d theta / d u| summed over the parameters: (R,) from (R, p)."""
         return sum(t.log_jacobian(unconstrained[..., j]) for j, t in enumerate(self.transforms))
+
+    def starting_values(self, root_seed: int, cell_key: int) -> np.ndarray:
+        """Each chain's (or IF2 replicate's) starting point, (C, p): the parameter's ``start``
+        (one number, or one per chain), or a draw from its prior with the chain's own generator
+        (its iteration-0 move stream, one per parameter)."""
+        count = self.estimation.chains
+        values = np.empty((count, self.dimension))
+        for j, path in enumerate(self.paths):
+            start = self.estimation.parameters[path].start
+            for chain in range(count):
+                if start == "prior":
+                    generator = np.random.default_rng([chain_seeds(root_seed, cell_key, chain, 0)[1], j])
+                    values[chain, j] = float(self.priors[j].sample(generator))
+                else:
+                    values[chain, j] = start[chain] if isinstance(start, list) else start
+        return values
 
     # -- models at given parameters ---------------------------------------------------------------
 
