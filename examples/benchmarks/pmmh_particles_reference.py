@@ -15,7 +15,10 @@ are rejected by ``particles`` without running the filter), the acceptance rate, 
 means and sds after a burn-in with each parameter's integrated autocorrelation time (Sokal's
 window), and the standard deviation of the log-likelihood estimate at the chain's
 starting point over repeated filters (the quantity the N-choice rule of Doucet, Pitt,
-Deligiannidis & Kohn 2015 is stated in).
+Deligiannidis & Kohn 2015 is stated in). With ``--chain-out DIR`` it also writes each run's chain
+after the burn-in to ``DIR/<model>-N<n>-seed<seed>.csv``, from which
+``examples/benchmarks/chain_summary.py`` computes ArviZ's Monte Carlo standard errors (the
+estimation-sv benchmark runs four seeds this way).
 
 **How particles' PMMH proposes.** A Gaussian random walk on the parameters as the prior names
 them (no transformation unless the prior is written on a transformed scale, e.g. a log-variance).
@@ -220,6 +223,15 @@ def run(name: str, n: int, options: argparse.Namespace) -> dict:
         row["posterior_mean_variances"] = {
             key.removeprefix("log_"): round(float(np.exp(theta[key]).mean()), 1) for key in theta.dtype.names}
         row["exact_log_likelihood_at_start"] = round(problem["exact_log_likelihood"], 6)
+    if options.chain_out:
+        # the chain after the burn-in, one column per parameter: examples/benchmarks/chain_summary.py
+        # gives ArviZ's Monte Carlo standard errors of its means (pfx's posterior.csv uses the same)
+        path = Path(options.chain_out) / f"{name}-N{n}-seed{options.seed}.csv"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        header = ",".join(["iteration", *theta.dtype.names])
+        table = np.column_stack([np.arange(burn_in, options.iterations), *[theta[key] for key in theta.dtype.names]])
+        np.savetxt(path, table, delimiter=",", header=header, comments="", fmt=["%d"] + ["%.17g"] * len(names))
+        row["chain_file"] = str(path)
     if options.likelihood_runs:
         np.random.seed(options.seed + 1)
         row["log_likelihood_at_start"] = likelihood_spread(problem, n, options.likelihood_runs)
@@ -239,6 +251,8 @@ def main() -> None:
                              "in the prior's (alphabetical) order")
     parser.add_argument("--fixed-proposal", action="store_true", help="adaptive=False: the walk keeps rw_cov")
     parser.add_argument("--seed", type=int, default=2015, help="numpy's global seed (particles draws from it)")
+    parser.add_argument("--chain-out", default=None,
+                        help="folder for each run's chain after the burn-in, <model>-N<n>-seed<seed>.csv")
     options = parser.parse_args()
     rows = []
     for name in options.models:
