@@ -20,6 +20,7 @@ from pfx.figures import (
     maps,  # noqa: F401
     motion,  # noqa: F401
     particle_count,  # noqa: F401
+    pmmh_efficiency,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
     smoothing,  # noqa: F401
