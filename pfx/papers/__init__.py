@@ -17,6 +17,7 @@ from pfx.papers import (  # noqa: F401  (register the reports)
     dacca_cholera,
     dapper_lorenz,
     estimation_nile,
+    estimation_sv,
     han_lee,
     kim_mcl,
     park_mpf,
@@ -31,6 +32,6 @@ GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics"
 
 # The field's published benchmarks (configs/benchmarks/<name>/ -> results/benchmarks/<name>/,
 # `make reproduce-benchmarks`): their own gallery, results/benchmarks/README.md, in this order.
-BENCHMARK_ORDER = ("dapper-lorenz", "sv-gbp-usd", "dacca-cholera", "estimation-nile")
+BENCHMARK_ORDER = ("dapper-lorenz", "sv-gbp-usd", "dacca-cholera", "estimation-nile", "estimation-sv")
 
 __all__ = ["BENCHMARK_ORDER", "GALLERY_ORDER", "REPORTS"]
