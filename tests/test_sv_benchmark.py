@@ -144,3 +144,18 @@ def test_the_likelihood_estimate_is_unbiased(tmp_path, arm):
     standard_error = ratio.std(ddof=1) / math.sqrt(len(ratio))
     assert abs(ratio.mean() - 1.0) < 4 * standard_error, (ratio.mean(), standard_error)
     assert ratio.var() > 0.0
+
+
+def test_the_histogram_filter_takes_the_constant_gain_and_matches_the_quadrature(tmp_path):
+    """The model as the plugin writes it, x' = mu + phi (x - mu) + sigma w with w ~ N(0, 1): a
+    constant gain sigma on the noise, which the histogram filter now takes (its axis variance is
+    sigma^2). Its log-likelihood of all 201 returns equals the independent grid recursion of
+    test_gbp_usd: both are the filtering recursion on a fine grid, whose error is < 1e-9 there."""
+    data = tmp_path / "all-returns.csv"
+    y = returns()
+    pd.DataFrame({"step": range(1, len(y) + 1), "z1": y}).to_csv(data, index=False)
+    raw = config(tmp_path, filter={"kind": "histogram", "grid": {"low": [-8.4], "high": [6.4], "cells": [3000]}},
+                 data={"measurements": str(data)}, trials=1)
+    run_plan(build_plan(raw, str(tmp_path / "sv.yaml")), tmp_path / "out", progress=False)
+    log_likelihood = pd.read_csv(tmp_path / "out" / "trials.csv")["log_likelihood"].iloc[0]
+    assert abs(log_likelihood - quadrature_log_likelihood(y)) < 1e-6

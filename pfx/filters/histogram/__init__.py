@@ -8,7 +8,8 @@ Královec & Söderström 2006). Each step k = 1..T:
 
 1. **Predict** with the transition density of additive process noise,
    :math:`p(x_k \mid x_{k-1}) = p_w(x_k - f(x_{k-1}, u_k))`, where
-   :math:`f(x, u)` is ``model.propagate(x, u, 0)``:
+   :math:`f(x, u)` is ``model.propagate(x, u, 0)`` and :math:`w` the noise on the state, :math:`L w`
+   for a constant gain :math:`L` (the stochastic-volatility model's :math:`\sigma w`):
 
    .. math:: q_{k,j} = \sum_i \pi_{k-1,i}\, K_{ij}, \qquad
              K_{ij} = \frac{p_w(x_j - f(x_i, u_k))\,\Delta}{\sum_{n \in \text{lattice}}
@@ -92,8 +93,8 @@ once per batch of trials the runner hands over.
     :math:`16\,G (G_1 + G_2)` bytes of kernel (128 MB at 200 x 200).
 
 A correlated (non-diagonal) process noise covariance in 2-D, state dimensions above 2,
-process noise that is not additive (:math:`x' = f(x, u) + w`, checked numerically) or whose
-dimension differs from the state's, a prior with a singular covariance, cells wider than the
+process noise that is not additive (:math:`x' = f(x, u) + L w` with a constant gain :math:`L`,
+checked numerically), non-Gaussian noise whose gain is not diagonal, a prior with a singular covariance, cells wider than the
 process noise standard deviation and kernels over 2 GiB are refused with
 :class:`~pfx.errors.ConfigError` by :func:`plan_grid`, which a plan can call before anything
 runs.

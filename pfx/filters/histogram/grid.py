@@ -86,14 +86,30 @@ class Grid:
 # -- planning: checks and the grid ----------------------------------------------------------------
 
 def axis_noises(model) -> list[Noise]:
-    """The process noise as independent 1-D noises, one per state axis (ConfigError if it is not)."""
+    r"""The process noise on the state, :math:`L w`, as independent 1-D noises, one per state axis
+    (ConfigError if it is not).
+
+    The noise must enter additively, :math:`x' = f(x, u) + L w` with a constant gain :math:`L`
+    (the model's transition density, :meth:`pfx.models.base.Model.transition_density`). Gaussian
+    noise needs a diagonal :math:`Q = L \Sigma_w L^\top`, whose diagonal gives the axis variances;
+    another family, a diagonal :math:`L` and :math:`\Sigma_w`, axis c's noise being
+    :math:`L_{cc} w_c` (variance :math:`L_{cc}^2 \Sigma_{w,cc}`, as every family is parameterised by
+    its variance). A constant gain such as the stochastic-volatility model's :math:`\sigma w`
+    is therefore allowed."""
     d = model.state_dimension
-    if model.process_noise_dimension != d:
-        raise ConfigError(f"the histogram filter needs additive process noise with one component per state "
-                          f"component; model {model.kind} has {model.process_noise_dimension} noise and "
-                          f"{d} state components", key="filter.kind")
+    density = _whole_step_density(model)
     noise = model.process_noise
-    covariance = noise.covariance()
+    gain = density.gain
+    square_diagonal = gain.shape == (d, d) and not np.any(gain[~np.eye(d, dtype=bool)])
+    if noise.family == "gaussian":
+        covariance = density.covariance
+    elif square_diagonal:
+        covariance = gain @ noise.covariance() @ gain.T
+    else:
+        raise ConfigError(f"the histogram filter needs process noise with one component per state component; "
+                          f"model {model.kind}'s {noise.family} noise of {model.process_noise_dimension} "
+                          f"component(s) enters its {d} state components through a gain that is not diagonal",
+                          key="filter.kind")
     if np.any(covariance[~np.eye(d, dtype=bool)] != 0.0):
         raise ConfigError("the histogram filter needs process noise with a diagonal covariance "
                           "(independent components)", key="filter.model.process_noise.variance")
@@ -104,17 +120,17 @@ def axis_noises(model) -> list[Noise]:
     return [Noise(family=noise.family, variance=float(v), df=noise.df).bind(1) for v in variances]
 
 
-def _check_additive(model) -> None:
-    """The noise must be added to the state, x' = f(x, u) + w (the model's transition density,
-    :meth:`pfx.models.base.Model.transition_density`)."""
-    density = model.transition_density()
+def _whole_step_density(model):
+    """The additive transition of a whole step, x' = f(x, u) + L w (ConfigError if there is none)."""
     if model.propagations_per_step > 1:
         raise ConfigError(f"the histogram filter needs the transition density of a whole step; model {model.kind} "
                           f"takes {model.propagations_per_step} substeps between measurements (model.substeps), "
                           "whose composition has none pfx can evaluate", key="filter.kind")
-    if isinstance(density, ValueError) or not density.identity_gain:
-        raise ConfigError(f"the histogram filter needs additive process noise (x' = f(x, u) + w); "
-                          f"model {model.kind}'s noise does not enter additively", key="filter.kind")
+    density = model.transition_density()
+    if isinstance(density, ValueError):
+        raise ConfigError(f"the histogram filter needs additive process noise (x' = f(x, u) + L w); "
+                          f"model {model.kind} {density.reason}", key="filter.kind")
+    return density
 
 
 def _prior_box(prior) -> tuple[np.ndarray, np.ndarray]:
@@ -198,6 +214,5 @@ def plan_grid(model, prior, parameters: Optional[GridParameters]) -> Grid:
     if kernel_bytes > MAX_KERNEL_BYTES:
         raise ConfigError(f"a grid of {'x'.join(map(str, cells))} cells needs a {kernel_bytes / 1024**3:.1f} GiB "
                           "transition kernel; use fewer cells", key="filter.grid.cells")
-    _check_additive(model)
     return grid
 
