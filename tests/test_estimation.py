@@ -279,3 +279,24 @@ def test_a_value_the_filter_refuses_is_rejected_not_an_error(monkeypatch):
     monkeypatch.setattr(FILTERS["kf"], "plan", refusing)
     values = target.log_likelihoods(np.array([[15099.0, 1469.1], [15099.0, 60000.0]]), [1, 2])
     assert np.isfinite(values[0]) and values[1] == -np.inf
+
+
+def test_set_reaches_the_settings_of_an_estimated_parameter():
+    """A parameter's key is itself a dotted path, so `--set` enters `estimation.parameters` at
+    the longest key the path continues with."""
+    from pfx.config.overrides import apply_overrides
+
+    path = "estimation.parameters.model.process_noise.variance"
+    raw, notes = apply_overrides(nile_config(), [f"{path}.proposal_sd=0.8", f"{path}.prior.upper=50000",
+                                                 "estimation.chains=2"], "nile.yaml")
+    assert notes == []
+    plan = build_plan(raw, "nile.yaml")
+    settings = plan.experiment.estimation.parameters["model.process_noise.variance"]
+    assert settings.proposal_sd == 0.8 and settings.prior.upper == 50000.0
+    assert plan.experiment.estimation.parameters["model.measurement_noise.variance"].proposal_sd == 0.3
+    assert set(raw["estimation"]["parameters"]) == {"model.measurement_noise.variance",
+                                                    "model.process_noise.variance"}
+    misspelt, _ = apply_overrides(nile_config(), [f"{path}x.proposal_sd=0.8"], "nile.yaml")
+    with pytest.raises(ConfigError, match="dotted path into the model") as error:
+        build_plan(misspelt, "nile.yaml")
+    assert error.value.key == "estimation.parameters.model"

@@ -18,21 +18,39 @@ def split_path(dotted: str) -> list[str]:
 
 
 def set_path(config: dict, dotted: str, value: Any) -> None:
-    """Set ``config[a][b][c] = value`` for ``dotted = 'a.b.c'``, creating mappings on the way."""
+    """Set ``config[a][b][c] = value`` for ``dotted = 'a.b.c'``, creating mappings on the way.
+
+    A mapping whose keys hold dots themselves (``estimation.parameters``, keyed by model paths
+    such as ``model.mu``) is entered at its longest key the path continues with, so
+    ``estimation.parameters.model.mu.proposal_sd`` reaches the ``proposal_sd`` of ``model.mu``."""
     parts = split_path(dotted)
     node = config
-    for index, part in enumerate(parts[:-1]):
-        child = node.get(part)
+    index = 0
+    while True:
+        key, index = _next_key(node, parts, index)
+        if index == len(parts):
+            node[key] = value
+            return
+        child = node.get(key)
         if child is None:
-            child = node[part] = {}
-        elif isinstance(child, str) and index + 1 < len(parts):
+            child = node[key] = {}
+        elif isinstance(child, str):
             # shorthand such as `weighting: gaussian` becomes a mapping when a field is set
-            child = node[part] = {"kind": child}
+            child = node[key] = {"kind": child}
         if not isinstance(child, dict):
-            raise ConfigError(f"cannot set {dotted}: {'.'.join(parts[:index + 1])} is not a mapping",
+            raise ConfigError(f"cannot set {dotted}: {'.'.join(parts[:index])} is not a mapping",
                               key=dotted)
         node = child
-    node[parts[-1]] = value
+
+
+def _next_key(node: dict, parts: list[str], index: int) -> tuple[str, int]:
+    """The key of ``node`` that ``parts[index:]`` begins with (the longest existing dotted key,
+    else the next part) and the index of the part after it."""
+    for end in range(len(parts), index + 1, -1):
+        joined = ".".join(parts[index:end])
+        if joined in node:
+            return joined, end
+    return parts[index], index + 1
 
 
 def deep_merge(base: dict, override: dict) -> dict:

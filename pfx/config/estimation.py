@@ -78,11 +78,21 @@ class EstimationConfig(BaseModel):
                                                                    "estimate, for its log-likelihood and standard "
                                                                    "error (maximum_likelihood.csv)")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _model_paths(cls, data):
+        # before the parameters' own settings are read: `--set estimation.parameters.model.misspelt.x=1`
+        # makes a key `model` whose settings are all missing, and the path is what is wrong
+        parameters = data.get("parameters") if isinstance(data, dict) else None
+        for path in parameters if isinstance(parameters, dict) else ():
+            if not isinstance(path, str) or not path.startswith("model.") or path == "model.":
+                raise ValueError(f"@parameters.{path}: give a dotted path into the model, e.g. model.mu (with "
+                                 "--set, a path that names none of the estimated parameters makes a new key)")
+        return data
+
     @model_validator(mode="after")
     def _check(self):
         for path, parameter in self.parameters.items():
-            if not path.startswith("model.") or len(path) == len("model."):
-                raise ValueError(f"@parameters.{path}: give a dotted path into the model, e.g. model.mu")
             if isinstance(parameter.start, list) and len(parameter.start) != self.chains:
                 raise ValueError(f"@parameters.{path}.start: {len(parameter.start)} values for {self.chains} chains")
         names = [self.column(path) for path in self.parameters]
