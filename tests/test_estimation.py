@@ -162,6 +162,9 @@ def test_if2_resumes_to_the_same_numbers(tmp_path):
     (lambda e: e["parameters"]["model.process_noise.variance"].update(transform="logit",
                                                                        prior={"law": "gamma", "shape": 2.0}),
      "estimation"),
+    (lambda e: e["parameters"]["model.process_noise.variance"].update(start="prior",
+                                                                       prior={"law": "flat", "lower": 0.0}),
+     "estimation.parameters.model.process_noise.variance.start"),
 ])
 def test_bad_estimation_settings_name_their_key(change, key):
     config = nile_config()

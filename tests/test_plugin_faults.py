@@ -140,6 +140,16 @@ def test_a_model_inconsistent_with_itself_is_refused_naming_the_plugin(run_pfx, 
         "measurement_dimension says 2: give one per component")
 
 
+
+def test_a_vectorised_parameter_that_is_not_a_number_of_the_model_is_refused(run_pfx, tmp_path):
+    """vectorised_parameters (parameter estimation's batched chains) naming a field the model
+    does not have: refused at plan time, naming the plugin, whatever the config runs."""
+    source = plugin_source(mean=MEAN + '    vectorised_parameters = ("a", "b")\n')
+    result = run_pfx("validate", setup_case(tmp_path, source), cwd=tmp_path)
+    assert the_error_line(result, 2) == (
+        "walk.py: model hidden_walk: vectorised_parameters names 'b', which is not a number of the model; "
+        "expected its scalar fields or process_noise.variance or measurement_noise.variance")
+
 # -- during the run: exit 1, the finished cells kept --------------------------------------------------
 
 RAISES_ON_THE_REAL_BATCH = '''    def propagate(self, state, control, noise):

@@ -41,6 +41,9 @@ class EstimatedParameter(BaseModel):
     @model_validator(mode="after")
     def _check(self):
         transform = make_transform(self.transform, self.prior.support)      # ValueError('@transform: ...')
+        if self.start == "prior" and self.prior.law == "flat":
+            raise ValueError("@start: a flat prior cannot be drawn from (start: prior, the default); give the "
+                             "chains a start: one number, or one per chain")
         starts = [self.start] if isinstance(self.start, float) else self.start if isinstance(self.start, list) else []
         for value in starts:
             if not math.isfinite(float(self.prior.log_density(value))):

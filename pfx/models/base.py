@@ -81,6 +81,9 @@ from pfx.laws.noise import Noise
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
+# The two noise parameters a model may take as arrays (Model.vectorised_parameters)
+NOISE_VARIANCES = ("process_noise.variance", "measurement_noise.variance")
+
 
 class Model(BaseModel):
     """Base class of all models (see the module docstring)."""
@@ -486,6 +489,11 @@ class Model(BaseModel):
                                  f"(integers 0..{d - 1}, e.g. (0,) for {self.state_names[0]})")
         if not tuple(self.position_components):
             raise ValueError("position_components returned no component; expected at least one index")
+        for path in type(self).vectorised_parameters:
+            value = getattr(self, path, None) if path not in NOISE_VARIANCES else 0.0
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"vectorised_parameters names {path!r}, which is not a number of the model; "
+                                 f"expected its scalar fields or {' or '.join(NOISE_VARIANCES)}")
         cloud = np.asarray(self.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
         truth = cloud[:, 0, :].copy()
         noise = np.zeros((trials, particles, self.process_noise_dimension))
@@ -573,7 +581,7 @@ class Model(BaseModel):
             if path not in type(self).vectorised_parameters:
                 raise ValueError(f"model {self.kind} does not take {path} as an array (its vectorised_parameters: "
                                  f"{', '.join(type(self).vectorised_parameters) or 'none'})")
-            if path in ("process_noise.variance", "measurement_noise.variance"):
+            if path in NOISE_VARIANCES:
                 name = path.split(".")[0]
                 copy_.__dict__[name] = getattr(self, name).with_row_variances(value)
             else:
