@@ -110,6 +110,9 @@ class StochasticVolatility(pfx.Model):
                              "for gaussian v_k")
 
     time_unit = "step"
+    # propagate broadcasts mu, phi and sigma of shape (R, 1, 1) or (R, N, 1) against the state
+    # (R, N, 1): parameter estimation runs many chains in one batch (docs/estimation.md)
+    vectorised_parameters = ("mu", "phi", "sigma")
 
     @property
     def state_names(self):
