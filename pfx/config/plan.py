@@ -180,10 +180,6 @@ def identity_dump(value: Any) -> Any:
     return value
 
 
-def _as_data(value: Any) -> Any:
-    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
-
-
 def sweep_column(key: str) -> str:
     return _KNOWN_COLUMNS.get(key, key.replace(".", "_"))
 
@@ -197,9 +193,8 @@ def _filter_model(truth: Model, raw_model: dict, overrides: dict, file: str, pre
     ``variant`` of ``falling_body``) carries through to them.
     """
     if overrides:
-        presets = truth.presets()
-        raw_model = {key: value for key, value in raw_model.items()
-                     if key not in presets or _as_data(getattr(truth, key)) != _as_data(presets[key])}
+        derived = truth.preset_fields()
+        raw_model = {key: value for key, value in raw_model.items() if key not in derived}
     merged = deep_merge(raw_model, overrides)
     if merged.get("kind") != raw_model.get("kind"):
         raise ConfigError("the filter's model must be of the same kind as the true model",
@@ -424,9 +419,7 @@ def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:
     if estimation.method != "if2":
         return
     settings = cell.filter
-    if settings.kind != "particle" or settings.proposal.guided or settings.auxiliary or not \
-            settings.weighting.is_likelihood or settings.move.kind != "none" or settings.adaptive is not None or \
-            settings.injection is not None:
+    if settings.kind != "particle" or not settings.bootstrap_stages:
         raise ConfigError(f"IF2 runs the bootstrap particle filter (kind particle, the transition as proposal, the "
                           f"likelihood as weight, no auxiliary stage, move, adaptive count or injection){where}",
                           file=file, key="estimation.method")

@@ -195,6 +195,15 @@ def _build(plugins: frozenset) -> ConfigSchema:
         def uses_particles(self) -> bool:
             return FILTERS[self.kind].carries_particles
 
+        @property
+        def bootstrap_stages(self) -> bool:
+            """Whether a particle filter of these settings reads of the model only its transition
+            and its likelihood: the transition as proposal, the likelihood as weight, no auxiliary
+            stage, move, adaptive count or injection (parameter estimation batches such a filter
+            over per-row parameters)."""
+            return (not self.proposal.guided and not self.auxiliary and self.weighting.is_likelihood
+                    and self.move.kind == "none" and self.adaptive is None and self.injection is None)
+
         def applicable_dump(self, kinds) -> dict:
             """The settings as config data, without those that none of ``kinds`` reads and that
             hold their default (a setting given explicitly is always kept)."""

@@ -68,9 +68,7 @@ class PerturbedParameters:
         return parameters + self.perturbation_sd(step) * random.standard_normal(parameters.shape[1:])
 
     def at(self, parameters: np.ndarray):
-        natural = self.target.to_natural(parameters)        # (R, N, p)
-        arrays = {path[len("model."):]: natural[..., j:j + 1] for j, path in enumerate(self.target.paths)}
-        return self.model.with_parameter_arrays(arrays)
+        return self.model.with_parameter_arrays(self.target.parameter_arrays(self.target.to_natural(parameters)))
 
     def compiled_step(self):
         return None

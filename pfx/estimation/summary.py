@@ -51,11 +51,13 @@ def _diagnostics(values: np.ndarray) -> dict:
                 "mcse_mean": float(array_stats.mcse(values, method="mean", **options))}
 
 
-def prior_grid(target, draws: pd.DataFrame) -> pd.DataFrame:
-    """priors.csv: each parameter's prior density on GRID_POINTS points spanning its draws (widened
-    by a quarter of their range each side, clipped to the prior's support)."""
+def prior_grid(estimation, draws: pd.DataFrame) -> pd.DataFrame:
+    """priors.csv: each parameter's prior density (``estimation``: the config's section) on
+    GRID_POINTS points spanning its draws (widened by a quarter of their range each side, clipped
+    to the prior's support)."""
     frames = []
-    for name, prior in zip(target.columns, target.priors):
+    for name, parameter in zip(estimation.columns, estimation.parameters.values()):
+        prior = parameter.prior
         values = draws[name].to_numpy(dtype=float) if name in draws else np.array([])
         if values.size == 0:
             continue

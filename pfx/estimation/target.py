@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import ValidationError
 
+from pfx.config.dotted_paths import set_path
 from pfx.config.estimation import EstimationConfig
 from pfx.config.plan import Cell
 from pfx.config.validation import validate
@@ -67,18 +68,14 @@ class EstimationTarget:
         self.transforms = [make_transform(parameters[path].transform, prior.support)
                            for path, prior in zip(self.paths, self.priors)]
         model = self.cell.filter_model
-        presets = model.presets()
-        # The model's own settings, without the values its presets filled (derived again at each θ).
-        self.raw_model = {name: copy.deepcopy(getattr(model, name)) for name in type(model).model_fields
-                          if name not in presets or _plain(getattr(model, name)) != _plain(presets[name])}
-        self.raw_model = {name: _plain(value) for name, value in self.raw_model.items()}
+        derived = model.preset_fields()       # derived again at each θ (a stationary initial law)
+        self.raw_model = {name: _plain(copy.deepcopy(getattr(model, name))) for name in type(model).model_fields
+                          if name not in derived}
         self.recorded_times = model._recorded_times
         settings = self.cell.filter
         declared = type(model).vectorised_parameters
-        self.batched = (settings.kind in ("particle", "sis") and not settings.proposal.guided and not
-                        settings.auxiliary and settings.weighting.is_likelihood and settings.move.kind == "none"
-                        and getattr(settings, "adaptive", None) is None and getattr(settings, "injection", None)
-                        is None and all(path[len("model."):] in declared for path in self.paths))
+        self.batched = (settings.kind in ("particle", "sis") and settings.bootstrap_stages
+                        and all(path[len("model."):] in declared for path in self.paths))
 
     @property
     def dimension(self) -> int:
@@ -117,6 +114,12 @@ class EstimationTarget:
                     values[chain, j] = start[chain] if isinstance(start, list) else start
         return values
 
+    def parameter_arrays(self, values: np.ndarray) -> dict[str, np.ndarray]:
+        """The values (R, p), one per row, or (R, N, p), one per particle, as the arrays
+        :meth:`pfx.models.base.Model.with_parameter_arrays` takes: (R, 1, 1) or (R, N, 1) per path."""
+        values = values if values.ndim == 3 else values[:, None, :]
+        return {path[len("model."):]: values[..., j:j + 1] for j, path in enumerate(self.paths)}
+
     # -- models at given parameters ---------------------------------------------------------------
 
     def model_at(self, values: np.ndarray):
@@ -124,11 +127,7 @@ class EstimationTarget:
         again, checks run); None if the model refuses them (outside its domain)."""
         raw = copy.deepcopy(self.raw_model)
         for path, value in zip(self.paths, values):
-            node = raw
-            parts = path.split(".")[1:]
-            for part in parts[:-1]:
-                node = node.setdefault(part, {})
-            node[parts[-1]] = float(value)
+            set_path(raw, path[len("model."):], float(value))
         try:
             model = validate(MODELS[raw["kind"]], raw, file="<estimation>", prefix="model")
         except (ConfigError, ValueError, ValidationError):       # a value the model refuses
@@ -151,8 +150,7 @@ class EstimationTarget:
         if not valid:
             return result
         if self.batched:
-            arrays = {path[len("model."):]: values[valid, j][:, None, None] for j, path in enumerate(self.paths)}
-            stacked = models[valid[0]].with_parameter_arrays(arrays)
+            stacked = models[valid[0]].with_parameter_arrays(self.parameter_arrays(values[valid]))
             prior = RowPriors([self.prior_of(models[r]) for r in valid])
             bound = bind_particle_filter(self.cell.filter.kind, stacked, self.cell.filter, prior)
             data = np.broadcast_to(self.measurements, (len(valid),) + self.measurements.shape)

@@ -85,6 +85,11 @@ from pfx.registry import Registry
 NOISE_VARIANCES = ("process_noise.variance", "measurement_noise.variance")
 
 
+def _as_data(value: Any) -> Any:
+    """A field's value as plain data (pydantic models dumped), for comparing."""
+    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
+
+
 class Model(BaseModel):
     """Base class of all models (see the module docstring)."""
 
@@ -109,6 +114,12 @@ class Model(BaseModel):
     def presets(self) -> dict[str, Any]:
         """Default values for the fields left None (may depend on other fields)."""
         return {}
+
+    def preset_fields(self) -> set[str]:
+        """The fields holding what :meth:`presets` derives (left out, or given equal to it): a
+        model rebuilt from the other fields derives them again, so that they follow a changed
+        parameter (a filter's model with its own overrides, a PMMH chain's stationary initial law)."""
+        return {name for name, value in self.presets().items() if _as_data(getattr(self, name)) == _as_data(value)}
 
     def check(self) -> None:
         """Cross-field checks; raise ValueError('@key: reason')."""

@@ -190,25 +190,25 @@ def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray,
 def _assemble(plan: Plan, out: Path) -> None:
     """The tables of every cell, from the progress files (labels first, as in trials.csv)."""
     estimation = plan.experiment.estimation
+    columns = estimation.columns
     frames, summaries, finals = [], [], []
     for cell in plan.cells:
         rows = read_table(_progress_file(out, cell))
         rows = rows[rows["iteration"] <= estimation.iterations]
         labelled = pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=rows.index), rows], axis=1)
         frames.append(labelled)
-        target = EstimationTarget(cell, estimation, np.zeros((1, cell.filter_model.measurement_dimension)))
         if estimation.method == "pmmh":
-            summary = posterior_summary(rows, target.columns, estimation.warm_up)
+            summary = posterior_summary(rows, columns, estimation.warm_up)
             summaries.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=summary.index),
                                         summary], axis=1))
         else:
             method = IteratedFiltering(EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed)),
                                        plan.experiment.seed, cell.stream_key)
             last = rows[rows["iteration"] == rows["iteration"].max()].sort_values("replicate")
-            estimates = last[target.columns].to_numpy(dtype=float)
+            estimates = last[columns].to_numpy(dtype=float)
             log_likelihood, standard_error = method.evaluate(estimates)
             final = pd.DataFrame({"cell": cell.key, **cell.labels, "replicate": last["replicate"].to_numpy(),
-                                  **{name: estimates[:, j] for j, name in enumerate(target.columns)},
+                                  **{name: estimates[:, j] for j, name in enumerate(columns)},
                                   "log_likelihood": log_likelihood, "log_likelihood_se": standard_error})
             finals.append(final)
     table = pd.concat(frames, ignore_index=True)
@@ -216,7 +216,7 @@ def _assemble(plan: Plan, out: Path) -> None:
         write_csv(table, out / "chains.csv")
         write_csv(pd.concat(summaries, ignore_index=True), out / "posterior.csv")
         draws = table[~table["warm_up"].astype(bool)]
-        write_csv(prior_grid(EstimationTarget(plan.cells[0], estimation, np.zeros((1, 1))), draws), out / "priors.csv")
+        write_csv(prior_grid(estimation, draws), out / "priors.csv")
     else:
         write_csv(table, out / "if2.csv")
         write_csv(pd.concat(finals, ignore_index=True), out / "maximum_likelihood.csv")
