@@ -287,7 +287,7 @@ def figures(
 ):
     """Re-render a result folder's figures from its CSV files alone (or add one with --figure)."""
     from pfx.figures import FIGURES, render_figures
-    from pfx.result_folder import check_writable, finished_manifest, record_figures
+    from pfx.result_folder import FIGURES_PENDING, check_writable, finished_manifest, record_figures, write_manifest
 
     manifest = finished_manifest(result_dir)
     formats = tuple(manifest.get("formats", ["png"]))
@@ -305,6 +305,8 @@ def figures(
                 typer.echo(f"{name}: nothing to draw from this folder's tables (not added)", err=True)
         if add:
             record_figures(result_dir, [name for name in add if name in drawn])
+        elif manifest.pop(FIGURES_PENDING, False):       # every figure is drawn now
+            write_manifest(manifest, result_dir)
     except OSError as error:          # what the checks cannot see (a read-only file system for root)
         raise ConfigError(f"cannot write {error.filename or 'a figure'}: {error.strerror or error}",
                           file=str(result_dir)) from None

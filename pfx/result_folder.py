@@ -55,6 +55,10 @@ if TYPE_CHECKING:          # pandas and numpy are imported where a table is read
 
 MANIFEST = "manifest.json"
 CELLS = "cells"
+# A finished folder's manifest carries this flag while its figures are being drawn: a run stopped
+# then (Ctrl-C, SIGTERM) leaves a complete folder whose rerun draws them, never one that says
+# "up to date" with figures missing.
+FIGURES_PENDING = "figures_pending"
 MAX_MANIFEST_BYTES = 100 * 1024 * 1024
 
 
@@ -299,6 +303,11 @@ def finished_manifest(out: Path, *, needs: tuple[str, ...] = ()) -> dict:
         wanted = " and ".join(["a complete manifest.json", *missing])
         raise ConfigError(f"not a finished pfx result folder (it needs {wanted})", file=str(out))
     return manifest
+
+
+def write_manifest(manifest: dict, out: Path) -> None:
+    """Write the folder's manifest.json (atomically, as every file)."""
+    write_text(json.dumps(manifest, indent=2), Path(out) / MANIFEST)
 
 
 def record_figures(out: Path, names: list[str]) -> None:

@@ -48,6 +48,7 @@ from pfx.folder_lock import folder_lock
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
     CELLS,
+    FIGURES_PENDING,
     MANIFEST,
     FolderState,
     ResultFolder,
@@ -56,6 +57,7 @@ from pfx.result_folder import (
     read_table,
     write_bytes,
     write_csv,
+    write_manifest,
     write_text,
 )
 from pfx.run.batch import BatchResult, run_batch
@@ -206,8 +208,10 @@ def _keep_what_finished(plan: Plan, out: Path, earlier_record: dict[str, str]) -
 
 def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Callable[[str], None]) -> None:
     """A finished folder with the same results: bring its record (config.yaml, the manifest's
-    name, description and outputs) up to the config, and render the figures it lacks."""
-    if manifest.get("config_hash") == plan.config_hash:
+    name, description and outputs) up to the config, and render the figures it lacks (all of
+    them when the run that finished it stopped while drawing them)."""
+    pending = bool(manifest.get(FIGURES_PENDING))
+    if manifest.get("config_hash") == plan.config_hash and not pending:
         report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
         return
     outputs = plan.experiment.outputs
@@ -221,12 +225,27 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
     manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
                     config_hash=plan.config_hash, figures=figures, formats=formats)
     write_record_config(plan, out)
-    write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-    wanted = figures if formats != old_formats else [name for name in figures if name not in old_figures]
-    render_figures(out, wanted, tuple(formats))
+    redrawn = pending or formats != old_formats
+    wanted = figures if redrawn else [name for name in figures if name not in old_figures]
+    _render_then_mark_drawn(out, manifest, wanted, tuple(formats))
+    if pending:
+        report(f"{out}: figures drawn ({', '.join(wanted) or 'none asked for'}): the run that finished "
+               "the tables stopped before it had drawn them")
+        return
     report(f"{out}: results up to date (same results hash {plan.results_hash}); record updated"
            + (f", figures rendered: {', '.join(wanted)}" if wanted else "")
            + (f", figures removed: {', '.join(removed)}" if removed else ""))
+
+
+def _render_then_mark_drawn(out: Path, manifest: dict, figures: list[str], formats: tuple[str, ...]) -> None:
+    """Write the finished manifest flagged ``figures_pending``, draw the figures, then write it
+    without the flag: a run stopped while drawing leaves a folder whose rerun draws them
+    (:func:`update_record`), not one whose manifest says complete with figures missing."""
+    manifest[FIGURES_PENDING] = True
+    write_manifest(manifest, out)
+    render_figures(out, figures, formats)
+    manifest.pop(FIGURES_PENDING)
+    write_manifest(manifest, out)
 
 
 def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
@@ -251,8 +270,8 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
             write_csv(table, out / f"{name}.csv")
         manifest.update(tables=list(tables), finished=_now(), complete=True,
                         wall_time_s=time.perf_counter() - started)
-        write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-        render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
+        _render_then_mark_drawn(out, manifest, plan.experiment.outputs.figures,
+                                tuple(plan.experiment.outputs.formats))
     return out
 
 
@@ -476,7 +495,7 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     if state.kept_trials:
         manifest["started"] = state.manifest.get("started", manifest["started"])
         wall_time += state.manifest.get("wall_time_s") or 0.0
-    manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)
-    write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-    render_figures(out, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
+    # cells/ goes before the manifest says complete: a complete folder never holds stale cells.
     shutil.rmtree(out / CELLS, ignore_errors=True)
+    manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)
+    _render_then_mark_drawn(out, manifest, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))
