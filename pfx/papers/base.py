@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 from typing import Callable, Iterable, Literal, NamedTuple, Optional, Sequence, Union, get_args
 
@@ -183,10 +184,21 @@ def format_number(value, digits: int = 3) -> str:
     if math.isinf(value):
         return "∞" if value > 0 else "-∞"
     if value != 0 and (abs(value) >= 1e6 or abs(value) < 1e-3):
-        return f"{value:.{digits - 1}e}"
+        return f"{shown(value, digits):.{digits - 1}e}"
     if abs(value) >= 10 ** digits:
-        return f"{value:,.0f}"
-    return f"{value:.{digits}g}"
+        return f"{shown(value, len(str(int(abs(value))))):,.0f}"
+    return f"{shown(value, digits):.{digits}g}"
+
+
+def shown(value: float, digits: int) -> float:
+    """``value`` rounded to ``digits`` significant digits, half up, from its 12-digit decimal form:
+    the last bits two machines differ by (1.1649999999999998 on one, 1.1650000000000000 on the
+    other) then show the same digits (1.17), where formatting the binary value directly would
+    show 1.16 on one and 1.17 on the other."""
+    decimal = Decimal(f"{value:.12g}")
+    if decimal == 0:
+        return 0.0
+    return float(decimal.quantize(Decimal(1).scaleb(decimal.adjusted() - digits + 1), rounding=ROUND_HALF_UP))
 
 
 def markdown_table(frame, digits: int = 3, formats: Optional[dict[str, Callable]] = None) -> str:

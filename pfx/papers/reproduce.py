@@ -4,10 +4,16 @@ Each paper has a folder ``configs/papers/<short-name>/`` of ordinary configs (th
 and their documents: ``docs/papers/<short-name>.md``) and a ``paper.yaml`` holding the
 document's own numbers; reproducing a paper is running its configs, copying ``paper.yaml``
 beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.papers.gallery`).
+
+``results/`` is committed, so a fresh reproduction is computed beside a finished folder and
+compared with it (:mod:`pfx.papers.record`): where the numbers agree, the committed tables and
+manifest stay as they are, and a fresh clone's ``make reproduce-papers`` leaves ``git status``
+clean; where they differ, the new results replace the old and the report says what moved.
 """
 
 from __future__ import annotations
 
+import shutil
 import time
 from pathlib import Path
 from typing import Callable
@@ -17,8 +23,9 @@ import yaml
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.papers.gallery import write_gallery
+from pfx.papers.record import settle, staging_folder
 from pfx.registry import closest_name
-from pfx.result_folder import check_writable, write_text
+from pfx.result_folder import check_writable, read_manifest, write_text
 from pfx.run.runner import check_folder, run_plan
 from pfx.safe_yaml import load_config_file
 
@@ -79,8 +86,30 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name
-        run_plan(plan, target, fresh=fresh, report=report, progress=progress)
-        report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}")
+        outcome = _reproduce(plan, target, fresh=fresh, report=report, progress=progress)
+        report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}{outcome}")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
     report(f"gallery: {write_gallery(out)}")
+
+
+def finished_manifest_or_none(folder: Path):
+    """The manifest of a finished result folder, or None."""
+    manifest = read_manifest(folder) if folder.is_dir() else None
+    return manifest if manifest and manifest.get("complete") else None
+
+
+def _reproduce(plan, target: Path, *, fresh: bool, report: Callable[[str], None], progress: bool) -> str:
+    """Run one experiment into ``target``; a fresh run over a finished folder goes through a
+    staging folder and keeps the committed record where the numbers agree. Returns what
+    happened to the record, in words (empty when there was none to compare with)."""
+    if not (fresh and finished_manifest_or_none(target)):
+        run_plan(plan, target, fresh=fresh, report=report, progress=progress)
+        return ""
+    staging = staging_folder(target)
+    shutil.rmtree(staging, ignore_errors=True)      # a reproduction stopped before it settled
+    run_plan(plan, staging, fresh=True, report=report, progress=progress)
+    difference = settle(target, staging)
+    if difference is None:
+        return " (the same numbers as the folder held: its tables and manifest kept)"
+    return f" (new numbers: {difference})"
