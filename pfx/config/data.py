@@ -489,11 +489,20 @@ def _ordered(table: DataTable, accepted: list[tuple[str, ...]], what: str) -> np
     for names in accepted:
         if sorted(table.columns) == sorted(names):
             return table.values[:, [table.columns.index(name) for name in names]]
+    # Name both sides: the columns found, the columns expected, and how they differ (measured
+    # against the accepted list the header comes closest to).
     alternatives = " or ".join(", ".join(names) for names in accepted)
+    closest = max(accepted, key=lambda names: len(set(names) & set(table.columns)))
     unknown = [name for name in table.columns if all(name not in names for names in accepted)]
-    column = unknown[0] if unknown else None
-    raise table.column_error(f"{len(table.columns)} column(s) after `{table.index_name}`, the model needs the "
-                             f"{len(accepted[0])} {what}: {alternatives}", column)
+    missing = [name for name in closest if name not in table.columns]
+    differences = []
+    if unknown:
+        differences.append(f"{', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not among them")
+    if missing:
+        differences.append(f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} missing")
+    raise table.column_error(f"found {', '.join(table.columns)} after `{table.index_name}`, expected the "
+                             f"{len(accepted[0])} {what}: {alternatives} ({'; '.join(differences)})",
+                             unknown[0] if unknown else None)
 
 
 def _cell_arrays(model, data: RecordedData) -> CellData:
