@@ -62,6 +62,7 @@ import hashlib
 import io
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -430,6 +431,11 @@ def _fill_covariates(model: dict, covariates: DataTable, file: Optional[str]) ->
         validate(MODELS[kind], model, file=file, prefix="model")
     except ConfigError as error:
         if error.key and error.key.startswith("model.covariates"):
+            # A value's row and column (model.covariates.NAME[ROW]), else the header
+            cell = re.fullmatch(r"model\.covariates\.([^.\[]+)\[(\d+)\]", error.key)
+            if cell and cell.group(1) in covariates.columns and int(cell.group(2)) < len(covariates.lines):
+                raise ConfigError(error.reason, file=covariates.file, line=covariates.lines[int(cell.group(2))],
+                                  key=f"column {cell.group(1)}") from None
             raise ConfigError(error.reason, file=covariates.file, line=covariates.header_line) from None
 
 

@@ -17,9 +17,9 @@ one line: it would apply to some cells and not others. Every arm or sweep axis a
 replaces is reported, so nothing is changed unseen.
 
 A config that an override made invalid is the override's fault, not the file's: a typo in
-``--set filter.particels=10`` is reported as ``--set filter.particels=10: unknown key
-filter.particels (did you mean filter.particles?)`` (:func:`blame_override`), never as a
-problem of the config file, which holds no such key.
+``--set filter.particels=10`` is reported as ``exp.yaml: --set filter.particels=10: unknown key
+filter.particels (did you mean filter.particles?)`` (:func:`blame_override`), the override in
+place of the key path, never as a key of the config file, which holds no such key.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import re
 from typing import Any
 
 from pfx.config.dotted_paths import set_path, split_path
-from pfx.errors import ConfigError, UsageError
+from pfx.errors import ConfigError
 from pfx.safe_yaml import parse_yaml
 
 SWEEP = "sweep"
@@ -135,7 +135,7 @@ def blame_override(error: ConfigError, config: dict, assignments: list[str], fil
         dotted = dotted.strip()
         if _from_override(error.key, dotted, config):
             value = " ".join(value.split()).removesuffix(" ...")    # a YAML document's end marker (pfx.run)
-            return UsageError(_restated(error, dotted), key=f"{label} {dotted}={value}")
+            return ConfigError(_restated(error, dotted), file=file, key=f"{label} {dotted}={value}")
     return error
 
 

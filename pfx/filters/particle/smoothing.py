@@ -118,7 +118,7 @@ def _check_density(kind: str, model) -> None:
         raise ValueError(f"@smoothers: the {kind} smoother weighs the backward step by the transition density "
                          f"p(x_k+1 | x_k); model {model.kind}'s process noise covariance L Q L' is singular: "
                          f"{_DENSITY_FREE_SMOOTHERS}, or give the model a process noise of full rank "
-                         "(a variance on every state component)")
+                         "(L Q L' positive definite)")
 
 
 def transition_log_densities(model, following: np.ndarray, current: np.ndarray, step: int) -> np.ndarray:
