@@ -106,10 +106,12 @@ def degenerate_cells(folder: Path) -> dict[str, Degeneracy]:
         return {}
     if "cell" not in trials:
         return {}
-    degenerate = trials["degenerate_steps"] if "degenerate_steps" in trials else pd.Series(0, index=trials.index)
-    degenerate = degenerate.fillna(0).astype(int)
-    impossible = trials["log_likelihood"] == -math.inf if "log_likelihood" in trials else degenerate < 0
-    steps = trials["steps"] if "steps" in trials else pd.Series(0, index=trials.index)
+    def column(name: str, otherwise) -> pd.Series:
+        return trials[name] if name in trials else pd.Series(otherwise, index=trials.index)
+
+    degenerate = column("degenerate_steps", 0).fillna(0).astype(int)
+    impossible = column("log_likelihood", math.nan) == -math.inf
+    steps = column("steps", 0).fillna(0)
     cells = {}
     for cell, rows in trials.groupby("cell", sort=False).groups.items():
         counts = degenerate[rows]
