@@ -257,7 +257,7 @@ def _plan(config: ConfigSource, overrides: Overrides, report: Callable[[str], No
     """The validated plan of a config file or dict with the overrides applied (pfx/cli.py
     `_load_plan`: the same three steps), or the ConfigError the command would print; each arm
     value or sweep axis an override replaced is reported, as ``--set`` reports it."""
-    from pfx.config.overrides import apply_overrides
+    from pfx.config.overrides import apply_overrides, blame_override
     from pfx.config.plan import build_plan
     from pfx.safe_yaml import load_config_file
 
@@ -269,8 +269,12 @@ def _plan(config: ConfigSource, overrides: Overrides, report: Callable[[str], No
         raw = load_config_file(config)
     else:
         raise UsageError(f"expected a config file's path or a dict, not {type(config).__name__}", key="config")
-    raw, notes = apply_overrides(raw, _assignments(overrides, file), file)
-    plan = build_plan(raw, file)
+    assignments = _assignments(overrides, file)
+    changed, notes = apply_overrides(raw, assignments, file)
+    try:
+        plan = build_plan(changed, file)
+    except ConfigError as error:            # a typo in an override is the override's, not the config's
+        raise blame_override(error, raw, assignments, file, label="overrides") from None
     for note in notes:
         report(f"{file}: {note}")
     return plan

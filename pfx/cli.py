@@ -111,12 +111,16 @@ def _show_progress(quiet: bool) -> bool:
 
 
 def _load_plan(path: Path, assignments: list[str], trials: Optional[int], report=None):
-    from pfx.config.overrides import apply_overrides
+    from pfx.config.overrides import apply_overrides, blame_override
     from pfx.config.plan import build_plan
     from pfx.safe_yaml import load_config_file
 
-    raw, notes = apply_overrides(load_config_file(path), assignments, str(path))
-    plan = build_plan(raw, str(path), trials=trials)
+    original = load_config_file(path)
+    raw, notes = apply_overrides(original, assignments, str(path))
+    try:
+        plan = build_plan(raw, str(path), trials=trials)
+    except ConfigError as error:            # a --set typo is the command line's, not the file's
+        raise blame_override(error, original, assignments, str(path)) from None
     for note in notes if report else []:
         report(f"{path}: {note}")
     return plan

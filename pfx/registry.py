@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import difflib
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Annotated, Callable, Collection, Generic, Iterator, Literal, Optional, TypeVar, Union
 
 T = TypeVar("T")
@@ -66,14 +67,46 @@ def closest_name(name: str, candidates) -> str | None:
     return matches[0] if matches else None
 
 
+# Words that start with a vowel letter but the sound of a consonant ("a ukf": you-kay-eff, "a
+# uniform law", "a one-step move"), and the letters whose spoken name starts with a vowel sound
+# ("an rts smoother": ar-tee-ess; "a kf": kay-eff), for names spelled out letter by letter;
+# Python's "str" is said as a word (string) although it has no vowel.
+_VOWEL_LETTER_CONSONANT_SOUND = ("uk", "uni", "usa", "use", "usu", "uti", "eu", "one", "once")
+_LETTERS_SPOKEN_WITH_A_VOWEL = "aefhilmnorsx"
+_SAID_AS_WORDS = ("str",)
+
+
+def with_article(phrase: str) -> str:
+    """``phrase`` after its indefinite article: "an ekf", "a ukf", "a kf", "an rts smoother",
+    "an int", "a list". pfx builds messages from names ("a {kind} filter"); the article goes
+    by how the first word sounds. A word without a vowel is read letter by letter (kf, rts,
+    mcmc), any other as a word, with the few exceptions above."""
+    word = phrase.split(" ", 1)[0].lower()
+    if not any(letter in "aeiouy" for letter in word) and word not in _SAID_AS_WORDS:
+        vowel_sound = word[:1] in _LETTERS_SPOKEN_WITH_A_VOWEL
+    else:
+        vowel_sound = word[:1] in "aeiou" and not word.startswith(_VOWEL_LETTER_CONSONANT_SOUND)
+    return f"{'an' if vowel_sound else 'a'} {phrase}"
+
+
 def kind_shorthand(value):
     """Let a config write ``weighting: gaussian`` for ``weighting: {kind: gaussian}``."""
     return {"kind": value} if isinstance(value, str) else value
 
 
-def kind_union(*members):
+@dataclass(frozen=True)
+class ComponentName:
+    """What a :func:`kind_union` chooses ("smoother", "move"), carried in its type's metadata so
+    that an unknown kind in a list (``filter.smoothers[0]``) is reported as "unknown smoother
+    kind", not by the list index (pfx.config.validation)."""
+
+    what: str
+
+
+def kind_union(*members, what: str | None = None):
     """The config type of a component chosen by ``kind``: one of ``members`` (pydantic models
-    with a ``kind`` literal), written ``{kind: name, ...}`` or, for its defaults, just ``name``.
+    with a ``kind`` literal), written ``{kind: name, ...}`` or, for its defaults, just ``name``;
+    ``what`` names the component in messages (a registry's ``what``).
 
     The JSON Schema (``pfx schema``) says both forms, so editors accept the shorthand too.
     """
@@ -81,7 +114,9 @@ def kind_union(*members):
 
     union = Annotated[Union[members], Field(discriminator="kind")]
     names = tuple(member.model_fields["kind"].default for member in members)
-    return Annotated[union, BeforeValidator(kind_shorthand, json_schema_input_type=Union[Literal[names], union])]
+    shorthand = BeforeValidator(kind_shorthand, json_schema_input_type=Union[Literal[names], union])
+    metadata = (shorthand, ComponentName(what)) if what else (shorthand,)
+    return Annotated[(union, *metadata)]
 
 
 def list_form(minimum: int, maximum: int):
@@ -134,7 +169,7 @@ class Registry(Generic[T]):
     def kind_union(self, plugins: Collection[str] = ()):
         """The config type choosing one of the registered components by ``kind`` (see
         :func:`kind_union`): the built-in ones and those of ``plugins``."""
-        return kind_union(*self.visible(plugins).values())
+        return kind_union(*self.visible(plugins).values(), what=self.what)
 
     def visible(self, plugins: Collection[str] = ()) -> dict[str, T]:
         """The components a config naming ``plugins`` may use: pfx's own, then the plugins'

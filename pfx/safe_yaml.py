@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from pfx.errors import ConfigError
+from pfx.registry import with_article
 from pfx.user_files import UnreadableFile, read_user_file
 
 MAX_EXPANDED_NODES = 100_000
@@ -190,7 +191,7 @@ def load_config_file(path: str | Path) -> dict:
         raise ConfigError(f"not UTF-8 text (byte {error.start})", file=file) from None
     document = parse_yaml(text, file)
     if not isinstance(document, dict):
-        kind = "a list" if isinstance(document, list) else f"a {type(document).__name__}"
+        kind = "a list" if isinstance(document, list) else with_article(type(document).__name__)
         if document is None:
             raise ConfigError("file holds no settings (expected a YAML mapping)", file=file)
         raise ConfigError(f"top level must be a mapping of sections, not {kind}", file=file)

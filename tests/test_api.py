@@ -284,7 +284,7 @@ def test_a_bad_override_raises_the_line_pfx_run_prints(runs, monkeypatch):
     (42, None, "config: expected a config file's path or a dict, not int"),
     (CONFIG, 3, "overrides: expected a dict"),
     (CONFIG, {"trials=3": 4}, "overrides: a key must be a dotted path without '='"),
-    (CONFIG, {"filter.particles": "many"}, "<dict>: filter.particles: input should be a valid integer"),
+    (CONFIG, {"filter.particles": "many"}, "<dict>: overrides filter.particles=many: input should be a valid integer"),
     ("missing.yaml", None, "missing.yaml: no such file"),
 ])
 def test_a_mistake_raises_one_line_and_writes_nothing(tmp_path, monkeypatch, config, overrides, message):

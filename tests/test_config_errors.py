@@ -102,7 +102,8 @@ def _tiny_yaml() -> str:
 COMMAND_LINE = [
     Entry("set-without-equals", "exp.yaml", None, ("--set", "key.path=value"),
           extra_args=("--set", "filter.particles"), content=_tiny_yaml()),
-    Entry("set-unknown-key", "exp.yaml", "filter.particels", ("unknown key", "did you mean 'particles'"),
+    Entry("set-unknown-key", "exp.yaml", "--set filter.particels=50",
+          ("unknown key filter.particels", "did you mean filter.particles"),
           extra_args=("--set", "filter.particels=50"), content=_tiny_yaml()),
 ]
 RUN_SUBSET.add("set-unknown-key")

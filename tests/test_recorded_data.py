@@ -360,15 +360,15 @@ BAD_DATA = {
     "nan text": ("step,z1\n1,nan\n", None, "measurements.csv:2: column z1: 'nan' is not a finite number"),
     "ragged row": ("step,z1\n1,1\n2,2,3\n", None, "measurements.csv:3: 3 cells, the header has 2 columns"),
     "column count": ("step,z1,z2\n1,1,2\n", None,
-                     "measurements.csv:1: column z2: 2 column(s) after `step`, the model needs the 1 measurement"),
-    "unknown column": ("step,flow\n1,1\n", None, "measurements.csv:1: column flow: 1 column(s) after `step`"),
+                     "measurements.csv:1: column z2: found z1, z2 after `step`, expected the 1 measurement"),
+    "unknown column": ("step,flow\n1,1\n", None, "measurements.csv:1: column flow: found flow after `step`, expected"),
     "partial row": ("step,z1,z2\n1,1,\n", None, "measurements.csv:2: column z2: a partly blank measurement"),
     "truth shorter": ("step,z1\n1,1\n2,2\n", "step,x1\n1,0\n",
                       "truth.csv:2: column step: 1 rows, the measurements (measurements.csv) 2: the file ends before step 2"),
     "truth longer": ("step,z1\n1,1\n", "step,x1\n1,0\n2,0\n",
                      "truth.csv:3: column step: 2 rows, the measurements (measurements.csv) 1: step 2 has no measurement row"),
     "truth blank": ("step,z1\n1,1\n", "step,x1\n1,\n", "truth.csv:2: column x1: a blank cell"),
-    "truth names": ("step,z1\n1,1\n", "step,level\n1,0\n", "truth.csv:1: column level: 1 column(s) after `step`, the model needs the 1 state"),
+    "truth names": ("step,z1\n1,1\n", "step,level\n1,0\n", "truth.csv:1: column level: found level after `step`, expected the 1 state"),
     "truth time vs step": ("step,z1\n1,1\n", "time,x1\n1,0\n", "truth.csv:1: column 1: the first column is `time`"),
 }
 

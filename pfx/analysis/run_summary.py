@@ -8,16 +8,33 @@ Wilson interval for the share of converged trials), or ``[no CI]`` where the cel
 values for one. Headings carry the unit the manifest records for the position; a share is in
 percent, its interval too. On a terminal the table is drawn by rich (as plain text: a unit in
 square brackets is not markup); elsewhere (CI, a pipe, a log file) it is plain aligned text.
+
+Two things a reader could not see from the means alone are said in the table and in a line:
+
+* **The convergence radius.** The share converged depends wholly on ``metrics.convergence.radius``
+  (1.0 unless the config sets it, in the model's position units): 1 m, 1 ft and 1 cm are
+  different criteria. The heading says the radius, and whether it is the default (read from the
+  folder's ``config.yaml``); when every cell converged 0% (or 100%) with the default, a line
+  suggests setting the radius in the model's units.
+* **Degenerate steps.** A step at which every particle weight was zero (underflowed) is reset
+  to uniform weights and counted (trials.csv ``degenerate_steps``, docs/filters-and-models.md):
+  the estimates there follow the model alone, and the log-likelihood of such a trial is -inf,
+  which summary.csv's statistics, over finite values only, leave out. A cell with such steps
+  gets a ``degenerate steps`` column, its log-likelihood shown as ``-inf``, and one line saying
+  what happened and what to try (read from trials.csv).
 """
 
 from __future__ import annotations
 
 import math
 import shlex
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
+import yaml
 
+from pfx.analysis.metrics import ConvergenceCriterion
 from pfx.analysis.summary import MINIMUM_VALUES
 
 # (summary.csv metric, heading, scale, unit): the metrics a reader looks at first. The unit is
@@ -28,6 +45,7 @@ MAIN_METRICS = (("rmse_position", "position RMSE", 1.0, POSITION),
                 ("converged", "converged", 100.0, "%"),
                 ("log_likelihood", "log-likelihood", 1.0, None))
 NO_INTERVAL = "no CI"
+DEFAULT_RADIUS = ConvergenceCriterion.model_fields["radius"].default
 
 
 def _number(value: float) -> str:
@@ -52,25 +70,131 @@ def _cell_value(row: pd.Series, metric: str, scale: float, suffix: str) -> str:
     return text
 
 
+def convergence_radius(folder: Path) -> tuple[float, bool] | None:
+    """(the convergence radius, whether it is pfx's default) from the folder's config.yaml;
+    None where it cannot be said in one heading (no config.yaml, or a sweep of the convergence
+    settings: each cell's value is then in its own label column)."""
+    try:
+        config = yaml.safe_load((folder / "config.yaml").read_text(encoding="utf-8"))
+        radius = float(config["metrics"]["convergence"]["radius"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
+    if any(str(key).startswith("metrics.convergence") for key in (config.get("sweep") or {})):
+        return None
+    return radius, radius == DEFAULT_RADIUS
+
+
+@dataclass
+class Degeneracy:
+    """A cell's trials whose weights all underflowed at some step, or whose log-likelihood is -inf."""
+
+    trials: int                    # the cell's trials
+    affected: int                  # of them, with at least one degenerate step
+    fewest: int                    # degenerate steps in an affected trial: the fewest and the most
+    most: int
+    steps: int                     # steps per trial (T)
+    impossible: int                # trials whose log-likelihood is -inf
+
+
+def degenerate_cells(folder: Path) -> dict[str, Degeneracy]:
+    """Per cell key, its :class:`Degeneracy`, for the cells with degenerate steps or a -inf
+    log-likelihood (read from trials.csv; none where it is missing)."""
+    wanted = ("cell", "steps", "degenerate_steps", "log_likelihood")
+    try:
+        trials = pd.read_csv(folder / "trials.csv", usecols=lambda column: column in wanted, dtype={"cell": str})
+    except (OSError, ValueError, pd.errors.EmptyDataError):
+        return {}
+    if "cell" not in trials:
+        return {}
+    def column(name: str, otherwise) -> pd.Series:
+        return trials[name] if name in trials else pd.Series(otherwise, index=trials.index)
+
+    degenerate = column("degenerate_steps", 0).fillna(0).astype(int)
+    impossible = column("log_likelihood", math.nan) == -math.inf
+    steps = column("steps", 0).fillna(0)
+    cells = {}
+    for cell, rows in trials.groupby("cell", sort=False).groups.items():
+        counts = degenerate[rows]
+        hit = counts[counts > 0]
+        if hit.empty and not impossible[rows].any():
+            continue
+        cells[cell] = Degeneracy(trials=len(rows), affected=len(hit), fewest=int(hit.min()) if len(hit) else 0,
+                                 most=int(hit.max()) if len(hit) else 0, steps=int(steps[rows].max()),
+                                 impossible=int(impossible[rows].sum()))
+    return cells
+
+
 def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str]]]:
     """The table: a header and one row of text per cell. A heading names its unit as the
-    manifest records it (``position RMSE [m]``), a share its percent sign in the values."""
-    summary = pd.read_csv(folder / "summary.csv")
+    manifest records it (``position RMSE [m]``), a share its percent sign in the values; the
+    share converged its radius; cells with degenerate steps add a column (module docstring)."""
+    summary = pd.read_csv(folder / "summary.csv", dtype={"cell": str})
     label_columns = [c for c in manifest.get("legend_columns", []) if c in summary] or ["arm"]
     position_unit = manifest.get("units", {}).get("position", "")
+    degenerate = degenerate_cells(folder)
+    impossible = {cell for cell, found in degenerate.items() if found.impossible}
+    radius = convergence_radius(folder)
     metrics = []
     for metric, heading, scale, unit in MAIN_METRICS:
-        if f"{metric}_mean" not in summary or not summary[f"{metric}_mean"].notna().any():
+        shown = f"{metric}_mean" in summary and summary[f"{metric}_mean"].notna().any()
+        if not shown and not (metric == "log_likelihood" and impossible):
             continue
         if unit == POSITION:
             metrics.append((metric, heading + (f" [{position_unit}]" if position_unit else ""), scale, ""))
+        elif metric == "converged" and radius is not None:
+            value, default = radius
+            within = f"r = {value:g}" + (f" {position_unit}" if position_unit else "")
+            metrics.append((metric, f"{heading} ({within}{', default' if default else ''})", scale, unit or ""))
         else:
             metrics.append((metric, heading, scale, unit or ""))
+    if any(found.affected for found in degenerate.values()):
+        metrics.append(("degenerate_steps", "degenerate steps", 1.0, ""))
     header = [*label_columns, "trials", *(heading for _, heading, _, _ in metrics)]
-    rows = [[str(row[c]) for c in label_columns] + [str(int(row["trials"]))]
-            + [_cell_value(row, metric, scale, suffix) for metric, _, scale, suffix in metrics]
-            for _, row in summary.iterrows()]
+    rows = []
+    for _, row in summary.iterrows():
+        values = [_cell_value(row, metric, scale, suffix) for metric, _, scale, suffix in metrics]
+        if row.get("cell") in impossible:      # the mean of values with a -inf among them is -inf
+            values[[metric for metric, _, _, _ in metrics].index("log_likelihood")] = "-inf"
+        rows.append([str(row[c]) for c in label_columns] + [str(int(row["trials"]))] + values)
     return header, rows
+
+
+def summary_notes(folder: Path, manifest: dict) -> list[str]:
+    """The lines below the table: one per cell with degenerate steps or a -inf log-likelihood
+    (what happened and what to try), and one when the default convergence radius told no cell
+    from another (every cell 0%, or every cell 100%)."""
+    summary = pd.read_csv(folder / "summary.csv", dtype={"cell": str})
+    label_columns = [c for c in manifest.get("legend_columns", []) if c in summary] or ["arm"]
+    notes = []
+    for cell, found in degenerate_cells(folder).items():
+        rows = summary[summary["cell"] == cell] if "cell" in summary else summary.iloc[:0]
+        name = (", ".join(f"{c}={rows.iloc[0][c]}" for c in label_columns) if len(rows) else cell)
+        notes.append(f"cell {name}: {_degeneracy_text(found)}")
+    radius = convergence_radius(folder)
+    if radius is not None and radius[1] and "converged_mean" in summary:
+        shares = summary["converged_mean"].dropna()
+        if len(shares) and (shares.eq(0).all() or shares.eq(1).all()):
+            unit = manifest.get("units", {}).get("position", "")
+            notes.append(f"converged: every cell {100 * shares.iloc[0]:.0f}% with the default radius r = "
+                         f"{radius[0]:g}{' ' + unit if unit else ''}, which may not suit this model's scale: set "
+                         "metrics.convergence.radius in its position units (docs/configuration.md)")
+    return notes
+
+
+def _degeneracy_text(found: Degeneracy) -> str:
+    """What happened in a cell (:class:`Degeneracy`) and what to try, in one line."""
+    which = "in every trial" if found.affected == found.trials else f"in {found.affected} of {found.trials} trials"
+    impossible = ("its log-likelihood is -inf" if found.impossible == found.trials
+                  else f"the log-likelihood is -inf in {found.impossible} of {found.trials} trials")
+    if not found.affected:
+        return (f"{impossible}: the measurements had zero likelihood under the filter's model; check the "
+                "measurement noise the filter assumes (filter.model.measurement_noise) and the measurements' units")
+    steps = f"{found.most}" if found.fewest == found.most else f"{found.fewest} to {found.most}"
+    return (f"every particle weight was zero at {steps} of {found.steps} steps {which} (reset to uniform, counted "
+            "in degenerate_steps): the estimates there follow the model, not the measurements"
+            + (f", and {impossible}" if found.impossible else "")
+            + "; try more particles, a wider or heavier-tailed assumed measurement noise "
+            "(filter.model.measurement_noise), or check the measurements' units")
 
 
 def next_command(folder: Path, manifest: dict) -> str | None:
@@ -112,6 +236,8 @@ def print_run_summary(folder: Path, manifest: dict, echo, rich_console: bool, co
     if any(f"[{NO_INTERVAL}]" in text for row in rows for text in row):
         echo(f"{NO_INTERVAL}: fewer than {MINIMUM_VALUES} values, too few for a 95% interval "
              "(docs/output-files.md, summary.csv)")
+    for note in summary_notes(folder, manifest):
+        echo(note)
     command = next_command(folder, manifest)
     if command:
         columns = manifest.get("legend_columns", [])

@@ -62,6 +62,7 @@ import hashlib
 import io
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -430,6 +431,11 @@ def _fill_covariates(model: dict, covariates: DataTable, file: Optional[str]) ->
         validate(MODELS[kind], model, file=file, prefix="model")
     except ConfigError as error:
         if error.key and error.key.startswith("model.covariates"):
+            # A value's row and column (model.covariates.NAME[ROW]), else the header
+            cell = re.fullmatch(r"model\.covariates\.([^.\[]+)\[(\d+)\]", error.key)
+            if cell and cell.group(1) in covariates.columns and int(cell.group(2)) < len(covariates.lines):
+                raise ConfigError(error.reason, file=covariates.file, line=covariates.lines[int(cell.group(2))],
+                                  key=f"column {cell.group(1)}") from None
             raise ConfigError(error.reason, file=covariates.file, line=covariates.header_line) from None
 
 
@@ -489,11 +495,20 @@ def _ordered(table: DataTable, accepted: list[tuple[str, ...]], what: str) -> np
     for names in accepted:
         if sorted(table.columns) == sorted(names):
             return table.values[:, [table.columns.index(name) for name in names]]
+    # Name both sides: the columns found, the columns expected, and how they differ (measured
+    # against the accepted list the header comes closest to).
     alternatives = " or ".join(", ".join(names) for names in accepted)
+    closest = max(accepted, key=lambda names: len(set(names) & set(table.columns)))
     unknown = [name for name in table.columns if all(name not in names for names in accepted)]
-    column = unknown[0] if unknown else None
-    raise table.column_error(f"{len(table.columns)} column(s) after `{table.index_name}`, the model needs the "
-                             f"{len(accepted[0])} {what}: {alternatives}", column)
+    missing = [name for name in closest if name not in table.columns]
+    differences = []
+    if unknown:
+        differences.append(f"{', '.join(unknown)} {'is' if len(unknown) == 1 else 'are'} not among them")
+    if missing:
+        differences.append(f"{', '.join(missing)} {'is' if len(missing) == 1 else 'are'} missing")
+    raise table.column_error(f"found {', '.join(table.columns)} after `{table.index_name}`, expected the "
+                             f"{len(accepted[0])} {what}: {alternatives} ({'; '.join(differences)})",
+                             unknown[0] if unknown else None)
 
 
 def _cell_arrays(model, data: RecordedData) -> CellData:

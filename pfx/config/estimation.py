@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, Stri
 
 from pfx.errors import ConfigError
 from pfx.laws.priors import Prior, TransformName, make_transform
+from pfx.registry import with_article
 
 
 class EstimatedParameter(BaseModel):
@@ -124,7 +125,7 @@ def check_estimated_paths(estimation: EstimationConfig, model, file: str, cell_t
             if value is None:
                 break
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            found = "nothing" if value is None else f"a {type(value).__name__}"
+            found = "nothing" if value is None else with_article(type(value).__name__)
             raise ConfigError(f"{path} names {found} in model {model.kind}{cell_text}; an estimated parameter is "
                               "a number of the model (a scalar variance, a coefficient)", file=file,
                               key=f"estimation.parameters.{path}")

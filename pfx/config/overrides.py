@@ -15,11 +15,17 @@ axis name, dots and all); ``--set sweep.KEY=null`` removes one. An override belo
 (``--set filter.weighting.form=paper`` while the sweep lists whole weightings) is refused with
 one line: it would apply to some cells and not others. Every arm or sweep axis an override
 replaces is reported, so nothing is changed unseen.
+
+A config that an override made invalid is the override's fault, not the file's: a typo in
+``--set filter.particels=10`` is reported as ``exp.yaml: --set filter.particels=10: unknown key
+filter.particels (did you mean filter.particles?)`` (:func:`blame_override`), the override in
+place of the key path, never as a key of the config file, which holds no such key.
 """
 
 from __future__ import annotations
 
 import copy
+import re
 from typing import Any
 
 from pfx.config.dotted_paths import set_path, split_path
@@ -108,3 +114,59 @@ def _sets(arm: Any, parts: list[str]) -> bool:
 def _values(values: Any) -> str:
     text = ", ".join(map(str, values)) if isinstance(values, list) else str(values)
     return f"[{text}]" if len(text) <= 60 else f"{len(values)} values"
+
+
+# validation's words for an unknown key (pfx.config.validation), to restate with whole key paths
+_UNKNOWN_KEY = re.compile(r"unknown key '([^']*)'(?: \(did you mean '([^']*)'\?\))?(.*)", re.S)
+
+
+def blame_override(error: ConfigError, config: dict, assignments: list[str], file: str,
+                   label: str = "--set") -> ConfigError:
+    """``error`` (found validating ``file``'s config, ``config`` as read, after ``assignments``)
+    told as the override's where an override put the value it is about: one at the error's key
+    or above it (the value came from the command line), or below it when the key itself was
+    made by the override (``--set filtr.particles=10`` creates ``filtr``). Any other error,
+    and an error in another file (a data file, a plugin), is returned as it is. ``label`` is
+    how the user wrote the overrides (``--set``; ``overrides`` for :func:`pfx.run`)."""
+    if error.file != file or not error.key:
+        return error
+    for assignment in reversed(assignments):         # the last override of a key is the one that counts
+        dotted, _, value = assignment.partition("=")
+        dotted = dotted.strip()
+        if _from_override(error.key, dotted, config):
+            value = " ".join(value.split()).removesuffix(" ...")    # a YAML document's end marker (pfx.run)
+            return ConfigError(_restated(error, dotted), file=file, key=f"{label} {dotted}={value}")
+    return error
+
+
+def _from_override(key: str, dotted: str, config: dict) -> bool:
+    """Whether the value at ``key`` (an error's key path) came from ``--set dotted=...``."""
+    arm = re.match(r"arms\.[^.\[]+\.(.*)", key)
+    if arm and dotted.startswith("filter."):        # --set filter.KEY also sets the arms that set KEY
+        key = f"filter.{arm.group(1)}"
+    if key == dotted or key.startswith((dotted + ".", dotted + "[")):
+        return True
+    return dotted.startswith(key + ".") and not _holds(config, key.split("."))
+
+
+def _holds(config: Any, parts: list[str]) -> bool:
+    """Whether the config data has a value at this key path (through mappings)."""
+    for part in parts:
+        if not isinstance(config, dict) or part not in config:
+            return False
+        config = config[part]
+    return True
+
+
+def _restated(error: ConfigError, dotted: str) -> str:
+    """The reason for a line that the override leads: with the error's key path where it is not
+    the override's own, and an unknown key by its whole path ("unknown key filter.particels (did
+    you mean filter.particles?)"), as the user typed it."""
+    match = _UNKNOWN_KEY.fullmatch(error.reason)
+    parent, _, last = error.key.rpartition(".")
+    if match and last == match.group(1):
+        name, hint, rest = match.groups()
+        prefix = f"{parent}." if parent else ""
+        suggestion = f" (did you mean {prefix}{hint}?)" if hint else ""
+        return f"unknown key {prefix}{name}{suggestion}{rest}"
+    return error.reason if error.key == dotted else f"{error.key}: {error.reason}"

@@ -16,7 +16,7 @@ from typing import Any, Union
 from pydantic import BaseModel, ValidationError
 
 from pfx.errors import ConfigError, split_location
-from pfx.registry import closest_name
+from pfx.registry import ComponentName, closest_name
 
 
 def format_path(parts) -> str:
@@ -107,6 +107,18 @@ def _allowed_keys(annotation) -> list[str]:
     return names
 
 
+def _component_name(root: type[BaseModel], location: tuple) -> str:
+    """What the union at ``location`` chooses: the name its registry gives it (``smoother`` for
+    an entry of ``filter.smoothers``), else the key that holds it (``move``), never a list index."""
+    annotation = _walk(root, location)[1]
+    if typing.get_origin(annotation) is typing.Annotated:
+        for metadata in typing.get_args(annotation)[1:]:
+            if isinstance(metadata, ComponentName):
+                return metadata.what
+    keys = [str(part) for part in location if not isinstance(part, int)]
+    return keys[-1] if keys else "component"
+
+
 def _short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
@@ -129,8 +141,7 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
         expected = re.findall(r"'([^']*)'", str(context.get("expected_tags", "")))
         hint = closest_name(context.get("tag"), expected)
         suggestion = f" (did you mean {hint!r}?)" if hint else f" (known: {', '.join(expected)})"
-        what = str(location[-1]) if location else "kind"
-        return location + ("kind",), f"unknown {what} kind {context.get('tag')!r}{suggestion}"
+        return location + ("kind",), f"unknown {_component_name(root, location)} kind {context.get('tag')!r}{suggestion}"
     if kind == "union_tag_not_found":
         annotation = _unwrap(_walk(root, location)[1])
         kinds = [_kind_of(m) for m in _union_members(annotation)

@@ -41,7 +41,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from pfx.registry import Registry
+from pfx.registry import Registry, with_article
 
 
 @dataclass
@@ -71,8 +71,10 @@ class Smoother(BaseModel):
     def check(self, filter_kind: str, model, settings) -> None:
         """Raise ValueError('@smoothers: reason') when it cannot run after this filter on this model."""
         if filter_kind not in self.filter_kinds:
-            kinds = " or ".join(sorted(self.filter_kinds))
-            raise ValueError(f"@smoothers: the {self.kind} smoother runs after a {kinds} filter, not {filter_kind}")
+            *others, last = sorted(self.filter_kinds)
+            kinds = f"{', '.join(others)} or {last}" if others else last
+            raise ValueError(f"@smoothers: the {self.kind} smoother runs after {with_article(kinds)} filter, "
+                             f"not {filter_kind}")
 
 
 SMOOTHERS: Registry[type[Smoother]] = Registry("smoother")

@@ -653,7 +653,19 @@ def _covariate_table(model: Model) -> Optional[tuple[np.ndarray, np.ndarray]]:
     if lengths:
         name, length = next(iter(lengths.items()))
         raise ValueError(f"@covariates.{name}: {length} values for {times.size} times")
-    return times, np.column_stack([np.asarray(table[name], dtype=float) for name in names])
+    values = np.column_stack([np.asarray(table[name], dtype=float) for name in names])
+    # Interpolation steps from one row to the next by their difference; a difference that
+    # overflows (values of opposite signs near the largest float, 1.8e308) would give inf and
+    # NaN between the rows, and the model would be blamed for them.
+    with np.errstate(over="ignore", invalid="ignore"):
+        jumps = np.diff(values, axis=0)
+    if not np.isfinite(jumps).all():
+        row, column = (int(index) for index in np.argwhere(~np.isfinite(jumps))[0])
+        raise ValueError(f"@covariates.{names[column]}[{row + 1}]: {values[row + 1, column]:g} after "
+                         f"{values[row, column]:g}: the change between the two rows is too large to be represented "
+                         "as a number, so the values between them cannot be interpolated; use smaller values "
+                         "(other units)")
+    return times, values
 
 
 def _check_result(method: str, value, shape: tuple) -> np.ndarray:

@@ -132,16 +132,19 @@ def gaussian_transition(model) -> AdditiveTransition:
     guided proposal here needs (:meth:`pfx.models.base.Model.transition_density`);
     ValueError('@proposal: ...') when the model's transition density is not that."""
     density = model.transition_density()
+    remedy = "use the bootstrap proposal, which needs no transition density"
     if isinstance(density, ValueError):
         reason = density.reason
     elif density.noise.family != "gaussian":
         reason = f"has {density.noise.family} process noise"
     elif density.factor is None:
         reason = "has no transition density: its process noise covariance L Q L' is singular"
+        remedy += ", or give the model a process noise of full rank (L Q L' positive definite)"
     else:
         return density
     raise ValueError(f"@proposal: a guided proposal needs the transition density "
-                     f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}")
+                     f"N(x_k; f(x_prev), Q) of additive gaussian process noise; model {model.kind} {reason}: "
+                     f"{remedy}")
 
 
 class _GaussianProposal(ProposalBase):

@@ -102,16 +102,23 @@ def _has_own_density(model) -> bool:
     return owner.__module__ != "pfx.models.base"
 
 
+# What to do instead when the backward step has no density to weigh by: the smoothers that
+# follow the particles' ancestry need none.
+_DENSITY_FREE_SMOOTHERS = "use the fixed_lag or genealogy smoother, which need no transition density"
+
+
 def _check_density(kind: str, model) -> None:
     density = model.transition_density()
     if isinstance(density, ValueError):
         if _has_own_density(model):
             return
         raise ValueError(f"@smoothers: the {kind} smoother weighs the backward step by the transition density "
-                         f"p(x_k+1 | x_k); model {model.kind} {density.reason}")
+                         f"p(x_k+1 | x_k); model {model.kind} {density.reason}: {_DENSITY_FREE_SMOOTHERS}")
     if not density.has_density:
         raise ValueError(f"@smoothers: the {kind} smoother weighs the backward step by the transition density "
-                         f"p(x_k+1 | x_k); model {model.kind}'s process noise covariance L Q L' is singular")
+                         f"p(x_k+1 | x_k); model {model.kind}'s process noise covariance L Q L' is singular: "
+                         f"{_DENSITY_FREE_SMOOTHERS}, or give the model a process noise of full rank "
+                         "(L Q L' positive definite)")
 
 
 def transition_log_densities(model, following: np.ndarray, current: np.ndarray, step: int) -> np.ndarray:
