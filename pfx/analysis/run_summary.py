@@ -14,8 +14,8 @@ Two things a reader could not see from the means alone are said in the table and
 * **The convergence radius.** The share converged depends wholly on ``metrics.convergence.radius``
   (1.0 unless the config sets it, in the model's position units): 1 m, 1 ft and 1 cm are
   different criteria. The heading says the radius, and whether it is the default (read from the
-  folder's ``config.yaml``); when every cell converged 0% (or 100%) with the default, a line
-  suggests setting the radius in the model's units.
+  folder's ``config.yaml``); when no cell converged with the default radius, a line suggests
+  setting the radius in the model's units.
 * **Degenerate steps.** A step at which every particle weight was zero (underflowed) is reset
   to uniform weights and counted (trials.csv ``degenerate_steps``, docs/filters-and-models.md):
   the estimates there follow the model alone, and the log-likelihood of such a trial is -inf,
@@ -161,8 +161,8 @@ def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str
 
 def summary_notes(folder: Path, manifest: dict) -> list[str]:
     """The lines below the table: one per cell with degenerate steps or a -inf log-likelihood
-    (what happened and what to try), and one when the default convergence radius told no cell
-    from another (every cell 0%, or every cell 100%)."""
+    (what happened and what to try), and one when no cell converged with the default convergence
+    radius (in metres or feet it is often too small to mean anything)."""
     summary = pd.read_csv(folder / "summary.csv", dtype={"cell": str})
     label_columns = [c for c in manifest.get("legend_columns", []) if c in summary] or ["arm"]
     notes = []
@@ -173,9 +173,9 @@ def summary_notes(folder: Path, manifest: dict) -> list[str]:
     radius = convergence_radius(folder)
     if radius is not None and radius[1] and "converged_mean" in summary:
         shares = summary["converged_mean"].dropna()
-        if len(shares) and (shares.eq(0).all() or shares.eq(1).all()):
+        if len(shares) and shares.eq(0).all():
             unit = manifest.get("units", {}).get("position", "")
-            notes.append(f"converged: every cell {100 * shares.iloc[0]:.0f}% with the default radius r = "
+            notes.append(f"converged: every cell 0% with the default radius r = "
                          f"{radius[0]:g}{' ' + unit if unit else ''}, which may not suit this model's scale: set "
                          "metrics.convergence.radius in its position units (docs/configuration.md)")
     return notes

@@ -212,7 +212,7 @@ def plan_grid(model, prior, parameters: Optional[GridParameters]) -> Grid:
                               "there, or a narrower grid", key="filter.grid.cells")
     kernel_bytes = 8 * (grid.size ** 2 if d == 1 else 2 * grid.size * max(cells))
     if kernel_bytes > MAX_KERNEL_BYTES:
-        raise ConfigError(f"a grid of {'x'.join(map(str, cells))} cells needs a {kernel_bytes / 1024**3:.1f} GiB "
-                          "transition kernel; use fewer cells", key="filter.grid.cells")
+        raise ConfigError(f"a grid of {'x'.join(map(str, cells))} cells needs a transition kernel of "
+                          f"{kernel_bytes / 1024**3:.1f} GiB; use fewer cells", key="filter.grid.cells")
     return grid
 

@@ -274,7 +274,9 @@ class ResampleMove(_Move):
                              f"additive process noise; model {model.kind} {density.reason}")
         if not density.has_density:
             raise ValueError("@move: the mcmc move evaluates the transition density, which needs a positive-definite "
-                             f"process noise covariance L Q L' (model {model.kind}'s is singular)")
+                             f"process noise covariance L Q L' (model {model.kind}'s is singular); use a move that "
+                             "needs no transition density (diffusion, roughening, regularisation), or give the model "
+                             "a process noise of full rank")
         return BoundResampleMove(self, density)
 
 
