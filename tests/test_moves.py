@@ -203,7 +203,8 @@ def _config(filter_settings: dict, model: dict | None = None, **extra) -> dict:
      "its propagate)"),
     ({"move": "mcmc"}, {"kind": "growth", "process_noise": {"variance": 0.0}},
      "filter.move: the mcmc move evaluates the transition density, which needs a positive-definite process noise "
-     "covariance L Q L' (model growth's is singular)"),
+     "covariance L Q L' (model growth's is singular); use a move that needs no transition density (diffusion, "
+     "roughening, regularisation), or give the model a process noise of full rank"),
 ])
 def test_invalid_moves_are_refused_in_one_line(settings, model, message):
     with pytest.raises(ConfigError) as caught:
