@@ -14,7 +14,8 @@ uses::
 
 * :func:`model` builds a model as a config's ``model:`` section does (its presets filled in,
   its checks run), for a built-in kind or a registered plugin's; a model class can also be
-  instantiated directly.
+  instantiated directly. :func:`load_plugin` loads a plugin's components for it, as a config's
+  ``plugins:`` entry would.
 * :func:`particle_filter` binds the filter once: the settings are a config's ``filter:`` keys,
   with the same names, defaults and checks (``proposal="ekf"``, ``move={"kind": "mcmc"}``,
   ``kind="ukf"`` for any other filter kind); ``prior`` is the filter's initial law (default: the
@@ -33,13 +34,16 @@ what no config holds (measurements, trials, seeds, a model or prior object) are
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
-from typing import Any, Optional, Sequence
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
 from pfx import python_arguments as arguments
-from pfx.config.plugins import loaded_plugins
+from pfx.config.plugins import LoadedPlugin, python_origins
+from pfx.config.plugins import load_plugin as load_plugin_entry
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, located_value_error
@@ -80,6 +84,14 @@ def model(kind: str, **parameters: Any) -> Model:
         raise ConfigError(MODELS.unknown_message(kind), file=CALLER, key="model.kind")
     return validate(MODELS[kind], {"kind": kind, **arguments.plain_numbers(parameters)}, file=CALLER,
                     prefix="model")
+
+
+def load_plugin(path: Union[str, "os.PathLike[str]"]) -> LoadedPlugin:
+    """Load a plugin from Python, as a config's ``plugins:`` entry is loaded: a ``.py`` file
+    (relative to the working directory) or an importable module's name. Its components are then
+    known to :func:`model` and :func:`particle_filter`, and a config naming the same file later
+    runs the same loaded code. Returns what was loaded (``.registered``: ``("model cv_radar",)``)."""
+    return load_plugin_entry(arguments.plugin_entry(path), Path("."), config_file=CALLER, key="path")
 
 
 class Filter:
@@ -126,7 +138,7 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
     config's ``filter.initial`` (default: the ``initial`` setting, else the model's
     ``default_prior()``)."""
     model = arguments.model_argument(model)
-    schema = config_schema([plugin.origin for plugin in loaded_plugins()])     # plugins' components too
+    schema = config_schema(python_origins())          # the loaded plugins' components too
     filter_settings = arguments.validate_settings(schema, kind, settings)
     given = arguments.prior_argument(
         prior, settings.get("initial"),

@@ -26,7 +26,9 @@ The rules are the config path's:
 from __future__ import annotations
 
 import numbers
+import os
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, Optional, Sequence
 
 import numpy as np
@@ -140,6 +142,28 @@ def bind_prior(law: Any, model: Model, given: bool) -> Any:
     except ValueError as error:
         sub, reason = split_location(str(error))
         raise refuse(reason, sub or "prior") from None
+
+
+# -- a plugin ---------------------------------------------------------------------------------------
+
+def plugin_entry(path: Any) -> str:
+    """``pfx.load_plugin``'s argument as a config's ``plugins:`` entry: a ``.py`` file's path
+    (a ``Path``, or text ending in ``.py`` or holding a ``/``) or an importable module's name.
+    Something at the path that is not a ``.py`` file (a folder, a data file) is refused here;
+    a missing file, a module that cannot be found or a plugin that raises, by the loading."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise refuse(f"must be a plugin file's path (.py) or a module's name, not {_shown(path)}", "path")
+    entry = os.fspath(path)
+    if not isinstance(entry, str) or not entry.strip():
+        raise refuse(f"must be a plugin file's path (.py) or a module's name, not {_shown(path)}", "path")
+    found = Path(entry)
+    if not entry.endswith(".py") and (isinstance(path, os.PathLike) or found.exists()):
+        if found.is_dir():
+            raise refuse(f"{entry} is a folder: give the plugin's .py file", "path")
+        if found.exists():
+            raise refuse(f"{entry} is not a Python file: a plugin file's name ends in .py", "path")
+        raise refuse(f"plugin file not found: {entry}", "path")
+    return entry
 
 
 # -- measurements ----------------------------------------------------------------------------------

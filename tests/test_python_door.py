@@ -1,5 +1,5 @@
 """The Python door (pfx/filtering.py, pfx/python_arguments.py, docs/python-api.md): every
-argument checked as a config's keys are.
+argument checked as a config's keys are, plugins loaded from Python.
 
 * A bad argument of ``pfx.model``, ``pfx.particle_filter``, ``pfx.filter`` or a bound filter's
   call raises ``pfx.ConfigError``, one line naming ``<python>`` and the argument, before
@@ -7,12 +7,20 @@ argument checked as a config's keys are.
   dropped whole, ``trials=0`` ran one trial), never an error from inside numpy.
 * A prior may be a dict, read as a config's ``filter.initial``: the same numbers as the object.
 * A model with per-step controls filters at most the steps it has controls for.
+* ``pfx.load_plugin`` loads a plugin for ``pfx.model``; a config naming the same file then runs
+  that code. A plugin module imported by hand is its module's, not "a built-in model of pfx":
+  a config naming its file runs, importing it again replaces it, and a config that does not
+  name it is told which module registered the name.
 """
 
 from __future__ import annotations
 
+import importlib
+import textwrap
+
 import numpy as np
 import pytest
+from conftest import tiny_config_dict
 
 import pfx
 
@@ -189,3 +197,121 @@ def test_measurements_beyond_a_models_controls_are_refused_naming_both():
     assert bound(np.zeros((5, 1))).estimates.shape == (1, 5, 1)      # the steps it has controls for: fine
     constant = controlled.model_copy(update={"controls": [[1.0]]})   # one control for every step
     assert pfx.particle_filter(constant, particles=20)(np.zeros((9, 1))).estimates.shape == (1, 9, 1)
+
+
+# -- plugins from Python -------------------------------------------------------------------------------
+
+def plugin_source(kind: str, class_name: str = "Walk") -> str:
+    """A one-dimensional walk registered as model ``kind``."""
+    return textwrap.dedent(f'''
+        from typing import Literal
+
+        import pfx
+
+
+        @pfx.register_model
+        class {class_name}(pfx.Model):
+            kind: Literal["{kind}"] = "{kind}"
+            a: float = 0.9
+
+            def presets(self):
+                return {{"steps": 5, "process_noise": pfx.Noise(variance=1.0),
+                        "measurement_noise": pfx.Noise(variance=1.0),
+                        "initial": pfx.GaussianLaw(mean=[0.0], covariance=1.0)}}
+
+            @property
+            def state_names(self):
+                return ("x",)
+
+            @property
+            def measurement_dimension(self):
+                return 1
+
+            def propagate(self, state, control, noise):
+                return self.a * state + noise
+
+            def measurement_mean(self, state):
+                return state
+    ''')
+
+
+def plugin_config(kind: str, plugins: list[str]) -> dict:
+    return tiny_config_dict(name=kind.replace("_", "-"), plugins=plugins, model={"kind": kind},
+                            outputs={"figures": [], "trace_trials": 0})
+
+
+def test_load_plugin_then_a_config_naming_the_same_file(tmp_path, monkeypatch):
+    (tmp_path / "door_radar.py").write_text(plugin_source("door_radar"))
+    monkeypatch.chdir(tmp_path)
+    loaded = pfx.load_plugin("door_radar.py")
+    assert loaded.registered == ("model door_radar",)
+    run = pfx.filter(pfx.model("door_radar", a=0.5), np.zeros((5, 1)), particles=20, seed=1)
+    assert np.isfinite(run.log_likelihood).all()
+    result = pfx.run(plugin_config("door_radar", ["door_radar.py"]), out=tmp_path / "out")
+    assert len(result.trials) == 4
+    assert [entry["sha256"] for entry in result.manifest["plugins"]] == [loaded.sha256]
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("missing.py", "<python>: path: plugin file not found: missing.py"),
+    ("folder", "<python>: path: folder is a folder: give the plugin's .py file"),
+    ("notes.txt", "<python>: path: notes.txt is not a Python file: a plugin file's name ends in .py"),
+    ("no_such_module_of_pfx", "<python>: path: no plugin module or installed plugin named 'no_such_module_of_pfx'"),
+    (3, "<python>: path: must be a plugin file's path (.py) or a module's name, not 3 (int)"),
+])
+def test_load_plugin_refuses_a_bad_path_in_one_line(name, expected, tmp_path, monkeypatch):
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "notes.txt").write_text("not a plugin\n")
+    monkeypatch.chdir(tmp_path)
+    assert refusal(lambda: pfx.load_plugin(name)).startswith(expected)
+
+
+def test_load_plugin_names_the_line_of_a_plugin_that_raises(tmp_path, monkeypatch):
+    (tmp_path / "broken_door.py").write_text("import pfx\n\nraise RuntimeError('no radar here')\n")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(pfx.ConfigError) as caught:
+        pfx.load_plugin("broken_door.py")
+    assert str(caught.value) == "broken_door.py:3: RuntimeError: no radar here"
+
+
+def test_a_plugin_imported_by_hand_then_a_config_naming_its_file(tmp_path, monkeypatch):
+    """The notebook imports its plugin module itself: the model is the module's (today's main
+    called it "a built-in model of pfx" and refused the config that names the file)."""
+    (tmp_path / "hand_radar.py").write_text(plugin_source("hand_radar", "HandRadar"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("hand_radar")
+    assert type(pfx.model("hand_radar")) is module.HandRadar
+    assert np.isfinite(pfx.filter(pfx.model("hand_radar"), np.zeros((5, 1)), particles=20).log_likelihood).all()
+
+    # a config that does not name the plugin does not see it, and says what to do
+    line = refusal_of_config(lambda: pfx.run(plugin_config("hand_radar", []), out=tmp_path / "unnamed"))
+    assert line.startswith("<dict>: model.kind: unknown model kind 'hand_radar'")
+    assert line.endswith("a config sees only the plugins it names, not model hand_radar (module hand_radar, "
+                         "imported outside pfx: name hand_radar.py in plugins:)")
+    assert not (tmp_path / "unnamed").exists()
+
+    # a config naming its file loads and runs it
+    result = pfx.run(plugin_config("hand_radar", [str(tmp_path / "hand_radar.py")]), out=tmp_path / "named")
+    assert len(result.trials) == 4
+    # importing it again (a notebook's reload) replaces pfx's load of the same file, without a clash
+    module = importlib.reload(module)
+    assert type(pfx.model("hand_radar")) is module.HandRadar
+    assert len(pfx.run(plugin_config("hand_radar", [str(tmp_path / "hand_radar.py")]),
+                       out=tmp_path / "named").trials) == 4
+
+
+def test_a_config_run_then_its_plugin_imported_and_reloaded_by_hand(tmp_path, monkeypatch):
+    (tmp_path / "later_radar.py").write_text(plugin_source("later_radar", "LaterRadar"))
+    assert len(pfx.run(plugin_config("later_radar", [str(tmp_path / "later_radar.py")]),
+                       out=tmp_path / "out").trials) == 4
+    monkeypatch.syspath_prepend(str(tmp_path))
+    module = importlib.import_module("later_radar")          # main: "taken by plugin ...; choose another name"
+    assert type(pfx.model("later_radar")) is module.LaterRadar
+    module = importlib.reload(module)                        # main: "is a built-in model of pfx"
+    assert type(pfx.model("later_radar")) is module.LaterRadar
+
+
+def refusal_of_config(call) -> str:
+    with pytest.raises(pfx.ConfigError) as caught:
+        call()
+    return str(caught.value)
