@@ -1,5 +1,5 @@
 """The Python door (pfx/filtering.py, pfx/python_arguments.py, docs/python-api.md): every
-argument checked as a config's keys are, plugins loaded from Python.
+argument checked as a config's keys are, plugins loaded from Python, numba's cache in a plugin.
 
 * A bad argument of ``pfx.model``, ``pfx.particle_filter``, ``pfx.filter`` or a bound filter's
   call raises ``pfx.ConfigError``, one line naming ``<python>`` and the argument, before
@@ -11,16 +11,21 @@ argument checked as a config's keys are, plugins loaded from Python.
   that code. A plugin module imported by hand is its module's, not "a built-in model of pfx":
   a config naming its file runs, importing it again replaces it, and a config that does not
   name it is told which module registered the name.
+* ``@numba.njit(cache=True)`` in a plugin file: a fresh process loads pfx's cached code, and the
+  same file imported by hand (the module under another name) neither breaks it nor is broken.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
+import subprocess
+import sys
 import textwrap
 
 import numpy as np
 import pytest
-from conftest import tiny_config_dict
+from conftest import REPO_ROOT, tiny_config_dict
 
 import pfx
 
@@ -315,3 +320,79 @@ def refusal_of_config(call) -> str:
     with pytest.raises(pfx.ConfigError) as caught:
         call()
     return str(caught.value)
+
+
+# -- numba's cache in a plugin ---------------------------------------------------------------------------
+
+NUMBA_PLUGIN = textwrap.dedent('''
+    from typing import Literal
+
+    import numba
+    import numpy as np
+
+    import pfx
+
+
+    @numba.njit(cache=True)
+    def damped(state, a):
+        out = np.empty_like(state)
+        for i in range(state.size):
+            out.flat[i] = a * state.flat[i]
+        return out
+
+
+    @pfx.register_model
+    class CachedWalk(pfx.Model):
+        kind: Literal["cached_walk"] = "cached_walk"
+        a: float = 0.9
+
+        def presets(self):
+            return {"steps": 5, "process_noise": pfx.Noise(variance=1.0), "measurement_noise": pfx.Noise(variance=1.0),
+                    "initial": pfx.GaussianLaw(mean=[0.0], covariance=1.0)}
+
+        @property
+        def state_names(self):
+            return ("x",)
+
+        @property
+        def measurement_dimension(self):
+            return 1
+
+        def propagate(self, state, control, noise):
+            return damped(np.ascontiguousarray(state), self.a) + noise
+
+        def measurement_mean(self, state):
+            return state
+''')
+
+
+def test_numba_cache_in_a_plugin_survives_the_same_file_imported_by_hand(tmp_path):
+    """Three fresh processes on one numba cache (the plugin's, in tmp_path/__pycache__; pfx's
+    own loops keep theirs, warm): a run (compiles, caches), the plugin imported by hand (main:
+    ModuleNotFoundError: pfx_plugin_cached_walk_<hash>, the run's cache entry naming pfx's
+    module), a run from another folder (main would load the hand import's entry, naming the
+    module cached_walk); the last loads the first run's compiled code from the cache."""
+    import yaml
+
+    (tmp_path / "cached_walk.py").write_text(NUMBA_PLUGIN)
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(plugin_config("cached_walk", ["cached_walk.py"])))
+    (tmp_path / "elsewhere").mkdir()
+    environment = {**os.environ, "NUMBA_DEBUG_CACHE": "1",
+                   "CI": "1", "PYTHONPATH": str(REPO_ROOT)}
+
+    def fresh(arguments, cwd):
+        done = subprocess.run([sys.executable, *arguments], cwd=cwd, env=environment, capture_output=True,
+                              text=True, timeout=300, stdin=subprocess.DEVNULL)
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+        return done.stdout + done.stderr
+
+    first = fresh(["-m", "pfx", "run", "config.yaml", "--out", "first", "--quiet"], tmp_path)
+    assert "data saved" in first and "cached_walk.damped" in first
+    # the arguments' types of the run's calls (trials x particles x 1), so that numba looks for their entry
+    by_hand = fresh(["-c", "import numpy as np, cached_walk; print(cached_walk.damped(np.ones((2, 3, 1)), 0.5).sum())"],
+                    tmp_path)
+    assert "3.0" in by_hand
+    last = fresh(["-m", "pfx", "run", "../config.yaml", "--out", "../last", "--quiet"], tmp_path / "elsewhere")
+    loaded = [line for line in last.splitlines() if "data loaded" in line and "cached_walk.damped" in line]
+    assert loaded and all("pfx_plugin_cached_walk_" in line for line in loaded), last[-2000:]
+    assert "cached_walk.damped" not in " ".join(line for line in last.splitlines() if "data saved" in line)

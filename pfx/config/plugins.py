@@ -55,6 +55,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Optional
 
 from pfx.errors import ConfigError, ExecutorError, UsageError
+from pfx.numerics.compiled import keep_cache_apart
 from pfx.registry import RegistrationClash, registering_for, registering_origin
 from pfx.user_files import UnreadableFile, read_user_file
 
@@ -410,6 +411,8 @@ def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
     """Run a file plugin's code (the hashed bytes) as its module, its registrations owned by it."""
     _prepare_registries()
     _forget(plugin.origin)                   # an earlier version of the same file, in this process
+    if b"numba" in plugin.source:            # numba's cache, apart from the file imported by hand
+        keep_cache_apart(MODULE_PREFIX)
     module = types.ModuleType(plugin.module)
     module.__file__ = plugin.code_file
     sys.modules[plugin.module] = module      # classes pickle by module name: workers find it too
