@@ -279,6 +279,21 @@ def test_load_plugin_names_the_line_of_a_plugin_that_raises(tmp_path, monkeypatc
     assert str(caught.value) == "broken_door.py:3: RuntimeError: no radar here"
 
 
+@pytest.fixture
+def imported_by_hand():
+    """Forget, after the test, what the modules it imports by hand registered (the registries
+    outlive a test; a later test in this process should not find them)."""
+    from pfx.config import plugins
+
+    yield
+    for module in list(plugins._IMPORTED_BY_HAND):
+        if module.startswith(("hand_radar", "later_radar")):
+            plugins._forget(module)
+            del plugins._IMPORTED_BY_HAND[module]
+            sys.modules.pop(module, None)
+
+
+@pytest.mark.usefixtures("imported_by_hand")
 def test_a_plugin_imported_by_hand_then_a_config_naming_its_file(tmp_path, monkeypatch):
     """The notebook imports its plugin module itself: the model is the module's (today's main
     called it "a built-in model of pfx" and refused the config that names the file)."""
@@ -305,6 +320,7 @@ def test_a_plugin_imported_by_hand_then_a_config_naming_its_file(tmp_path, monke
                        out=tmp_path / "named").trials) == 4
 
 
+@pytest.mark.usefixtures("imported_by_hand")
 def test_a_config_run_then_its_plugin_imported_and_reloaded_by_hand(tmp_path, monkeypatch):
     (tmp_path / "later_radar.py").write_text(plugin_source("later_radar", "LaterRadar"))
     assert len(pfx.run(plugin_config("later_radar", [str(tmp_path / "later_radar.py")]),

@@ -290,7 +290,7 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     except ConfigError as error:
         # a name none of the config's plugins registered: what they did register, and what
         # code imported by hand registered, which the config does not name
-        hint = unknown_name_hint(plugins) if error.reason.startswith("unknown ") else ""
+        hint = unknown_name_hint(plugins, error.reason) if error.reason.startswith("unknown ") else ""
         if hint:
             raise ConfigError(error.reason + hint, file=error.file, key=error.key,
                               line=error.line, column=error.column) from None

@@ -507,14 +507,15 @@ def ensure_loaded(plugins: Iterable[LoadedPlugin]) -> None:
                                 f"({type(error).__name__}: {error}); install it there, as pfx itself") from None
 
 
-def unknown_name_hint(plugins: list[LoadedPlugin]) -> str:
-    """For an unknown component name: which plugins were loaded and what they registered, and
-    what code imported by hand registered, which a config sees only by naming it."""
+def unknown_name_hint(plugins: list[LoadedPlugin], reason: str = "") -> str:
+    """For an unknown component name (``reason``: the message that names it, quoted): which
+    plugins were loaded and what they registered, and which code imported by hand registered
+    that very name, which a config sees only by naming it."""
     hint = "; plugins loaded: " + ", ".join(plugin.summary() for plugin in plugins) if plugins else ""
     by_hand = []
     for module, file in _IMPORTED_BY_HAND.items():
         names = [f"{registry.what} {name}" for registry in registries() for name in registry
-                 if registry.origin(name) == module]
+                 if registry.origin(name) == module and repr(name) in reason]
         if names:
             remedy = f"name {Path(file).name} in plugins:" if file else "move it to a .py file named in plugins:"
             by_hand.append(f"{', '.join(names)} (module {module}, imported outside pfx: {remedy})")
