@@ -251,9 +251,8 @@ def check_horizon(model: Model, steps: int) -> None:
         try:
             model.control(step)
         except (LookupError, ValueError) as error:
-            where, reason = split_location(str(error))
-            inputs = f"{where}: {reason}" if where else f"its control for step {step} raised {type(error).__name__}: " \
-                                                         f"{reason}"
+            where, reason = split_location(str(error))       # a model that says which input: "@controls: ..."
+            inputs = f"{where}: {reason}" if where else f"its control(step={step}) raised {type(error).__name__}"
             raise refuse(f"{steps} steps, and model {model.kind} has inputs for steps 1..{model.steps} only "
                          f"({inputs}): give at most {model.steps} rows, or build the model with steps={steps} "
                          "and an input for every step", "measurements") from None

@@ -202,6 +202,10 @@ def test_measurements_beyond_a_models_controls_are_refused_naming_both():
     assert bound(np.zeros((5, 1))).estimates.shape == (1, 5, 1)      # the steps it has controls for: fine
     constant = controlled.model_copy(update={"controls": [[1.0]]})   # one control for every step
     assert pfx.particle_filter(constant, particles=20)(np.zeros((9, 1))).estimates.shape == (1, 9, 1)
+    robot = pfx.model("planar_robot", steps=5)                        # commands for 5 steps: an IndexError on main
+    assert refusal(lambda: pfx.filter(robot, np.zeros((8, robot.measurement_dimension)), particles=20)).startswith(
+        "<python>: measurements: 8 steps, and model planar_robot has inputs for steps 1..5 only (its "
+        "control(step=6) raised IndexError)")
 
 
 # -- plugins from Python -------------------------------------------------------------------------------
