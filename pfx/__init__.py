@@ -53,6 +53,8 @@ _LAZY_NAMES = {
     "particle_filter": "pfx.filtering",
     "filter": "pfx.filtering",
     "FilterResult": "pfx.filtering",
+    # a plugin loaded from Python, as a config's plugins: entry loads it (docs/python-api.md)
+    "load_plugin": "pfx.filtering",
 }
 
 # Running configs and reading results from Python (pfx/api.py, which imports nothing heavy until

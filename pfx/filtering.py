@@ -14,7 +14,8 @@ uses::
 
 * :func:`model` builds a model as a config's ``model:`` section does (its presets filled in,
   its checks run), for a built-in kind or a registered plugin's; a model class can also be
-  instantiated directly.
+  instantiated directly. :func:`load_plugin` loads a plugin's components for it, as a config's
+  ``plugins:`` entry would.
 * :func:`particle_filter` binds the filter once: the settings are a config's ``filter:`` keys,
   with the same names, defaults and checks (``proposal="ekf"``, ``move={"kind": "mcmc"}``,
   ``kind="ukf"`` for any other filter kind); ``prior`` is the filter's initial law (default: the
@@ -24,26 +25,34 @@ uses::
   path, to the last bit); ``seed`` derives one per trial from a root seed. It returns a
   :class:`FilterResult`: arrays with the trial axis first, always.
 * :func:`filter` binds and calls in one go.
+
+Every argument is checked before anything runs, as a config's keys are, and a bad one raises
+:class:`~pfx.errors.ConfigError` naming it (``<python>: measurements[3]: ...``): the checks of
+what no config holds (measurements, trials, seeds, a model or prior object) are
+:mod:`pfx.python_arguments`.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
-from typing import Any, Optional, Sequence
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
-from pfx.config.plugins import loaded_plugins
+from pfx import python_arguments as arguments
+from pfx.config.plugins import LoadedPlugin, python_origins
+from pfx.config.plugins import load_plugin as load_plugin_entry
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, located_value_error
 from pfx.filters import FILTERS
 from pfx.filters.trace import FilterTrace
 from pfx.models import MODELS
-from pfx.models.base import Model, bind_law
+from pfx.models.base import Model
 from pfx.numerics.seeding import TrialStreams, filter_seed
-
-CALLER = "<python>"          # what a refusal names as its "file"
+from pfx.python_arguments import CALLER
 
 
 @dataclass
@@ -68,10 +77,21 @@ class FilterResult:
 
 
 def model(kind: str, **parameters: Any) -> Model:
-    """The model ``kind`` with ``parameters``, validated as a config's ``model:`` section."""
+    """The model ``kind`` with ``parameters``, validated as a config's ``model:`` section (NumPy
+    numbers and arrays read as plain numbers and lists)."""
+    kind = arguments.model_kind(kind)
     if kind not in MODELS:
         raise ConfigError(MODELS.unknown_message(kind), file=CALLER, key="model.kind")
-    return validate(MODELS[kind], {"kind": kind, **parameters}, file=CALLER, prefix="model")
+    return validate(MODELS[kind], {"kind": kind, **arguments.plain_numbers(parameters)}, file=CALLER,
+                    prefix="model")
+
+
+def load_plugin(path: Union[str, "os.PathLike[str]"]) -> LoadedPlugin:
+    """Load a plugin from Python, as a config's ``plugins:`` entry is loaded: a ``.py`` file
+    (relative to the working directory) or an importable module's name. Its components are then
+    known to :func:`model` and :func:`particle_filter`, and a config naming the same file later
+    runs the same loaded code. Returns what was loaded (``.registered``: ``("model cv_radar",)``)."""
+    return load_plugin_entry(arguments.plugin_entry(path), Path("."), config_file=CALLER, key="path")
 
 
 class Filter:
@@ -81,26 +101,23 @@ class Filter:
     def __init__(self, model: Model, kind: str, settings, prior, planned):
         self.model, self.kind, self.settings, self.prior, self.planned = model, kind, settings, prior, planned
 
-    def __call__(self, measurements, *, seeds: Optional[Sequence[int]] = None, seed: int = 0,
+    def __call__(self, measurements, *, seeds: Optional[Sequence[int]] = None, seed: Optional[int] = None,
                  trials: Optional[int] = None, genealogy: bool = False, consistency: bool = False,
                  traced: bool = False) -> FilterResult:
         """Run on ``measurements``, (T, m) for one trial (or ``trials`` of them on the same data)
-        or (trials, T, m); NaN rows are missing measurements. ``seeds``: one filter seed per
-        trial; else trial t's is derived from ``seed``. ``genealogy``: record the ancestor indices
-        (particle kinds). ``consistency``: the posterior covariances and NIS. ``traced``: the spread
-        and posterior standard deviations of every trial (steps.csv's traced-trial columns)."""
-        data = np.asarray(measurements, dtype=float)
-        if data.ndim == 2:
-            data = data[None]
-        if data.ndim != 3 or data.shape[-1] != self.model.measurement_dimension:
-            raise ConfigError(f"measurements of shape {np.shape(measurements)}: expected (T, m) or (trials, T, m) "
-                              f"with m = {self.model.measurement_dimension}", file=CALLER, key="measurements")
-        count = len(seeds) if seeds is not None else trials or len(data)
-        if len(data) == 1 and count > 1:
-            data = np.repeat(data, count, axis=0)
-        if len(data) != count:
-            raise ConfigError(f"{len(data)} rows of measurements for {count} trials", file=CALLER, key="measurements")
-        seeds = [int(s) for s in seeds] if seeds is not None else [filter_seed(seed, 0, t) for t in range(count)]
+        or (trials, T, m); a row of NaN is a missing measurement. ``seeds``: one filter seed per
+        trial; else trial t's is derived from ``seed`` (default 0). ``genealogy``: record the
+        ancestor indices (particle kinds). ``consistency``: the posterior covariances and NIS.
+        ``traced``: the spread and posterior standard deviations of every trial (steps.csv's
+        traced-trial columns). Every argument is checked first (:mod:`pfx.python_arguments`)."""
+        data = arguments.measurement_array(measurements, self.model.measurement_dimension)
+        data, seeds, root = arguments.trial_plan(data, seeds, seed, trials)
+        genealogy = arguments.flag(genealogy, "genealogy")
+        consistency = arguments.flag(consistency, "consistency")
+        traced = arguments.flag(traced, "traced")
+        arguments.check_horizon(self.model, data.shape[1])
+        count = len(data)
+        seeds = seeds if seeds is not None else [filter_seed(root, 0, t) for t in range(count)]
         options = {"consistency": consistency}
         if traced and self.planned.takes_trace_rows:
             options["trace_rows"] = np.arange(count)
@@ -117,19 +134,25 @@ class Filter:
 
 def particle_filter(model: Model, *, kind: str = "particle", prior=None, **settings: Any) -> Filter:
     """Bind a filter to ``model`` once: ``settings`` are a config's ``filter:`` keys (module
-    docstring); ``prior`` the filter's initial law (default: the model's ``default_prior()``)."""
-    schema = config_schema([plugin.origin for plugin in loaded_plugins()])     # plugins' components too
-    filter_settings = validate(schema.FilterConfig, {"kind": kind, **settings}, file=CALLER, prefix="filter")
-    chosen = prior if prior is not None else filter_settings.initial or model.default_prior()
+    docstring); ``prior`` the filter's initial law, an initial law object or a dict read as a
+    config's ``filter.initial`` (default: the ``initial`` setting, else the model's
+    ``default_prior()``)."""
+    model = arguments.model_argument(model)
+    schema = config_schema(python_origins())          # the loaded plugins' components too
+    filter_settings = arguments.validate_settings(schema, kind, settings)
+    given = arguments.prior_argument(
+        prior, settings.get("initial"),
+        lambda initial: arguments.validate_settings(schema, kind, {"initial": initial}).initial)
+    chosen = given if given is not None else filter_settings.initial or model.default_prior()
+    arguments.bind_prior(chosen, model, given is not None)
     try:
-        bind_law(chosen, model.state_dimension, "initial")
-        planned = FILTERS[kind].plan(model, filter_settings, chosen)
+        planned = FILTERS[filter_settings.kind].plan(model, filter_settings, chosen)
     except ValueError as error:
         raise located_value_error(error, prefix="filter", file=CALLER) from None
-    return Filter(model, kind, filter_settings, chosen, planned)
+    return Filter(model, filter_settings.kind, filter_settings, chosen, planned)
 
 
-def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None, seed: int = 0,
+def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None, seed: Optional[int] = None,
            trials: Optional[int] = None, genealogy: bool = False, consistency: bool = False,
            traced: bool = False, kind: str = "particle", prior=None, **settings: Any) -> FilterResult:
     """:func:`particle_filter` and its call in one go."""

@@ -35,6 +35,11 @@ def changes() -> int:
     return _changes
 
 
+def registering_origin() -> Optional[str]:
+    """The plugin whose registrations are under way (:func:`registering_for`), None outside one."""
+    return _current_origin
+
+
 @contextmanager
 def registering_for(origin: str):
     """Within this block, registrations belong to the plugin ``origin`` (see the module docstring)."""

@@ -81,7 +81,7 @@ def test_settings_are_checked_as_a_configs_are():
         pfx.particle_filter(model, resampler="systematc")
     with pytest.raises(pfx.ConfigError, match="filter.proposal: a guided proposal's importance weight needs"):
         pfx.particle_filter(model, proposal="ukf", weighting="euclidean")
-    with pytest.raises(pfx.ConfigError, match="measurements of shape"):
+    with pytest.raises(pfx.ConfigError, match="measurements: shape"):
         pfx.particle_filter(model)(np.zeros((5, 2)))
 
 

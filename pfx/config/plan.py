@@ -288,8 +288,11 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     try:
         plan = _expand(raw, file, trials, schema, tuple(plugins))
     except ConfigError as error:
-        if plugins and error.reason.startswith("unknown "):     # a name none of the plugins registered
-            raise ConfigError(error.reason + unknown_name_hint(plugins), file=error.file, key=error.key,
+        # a name none of the config's plugins registered: what they did register, and what
+        # code imported by hand registered, which the config does not name
+        hint = unknown_name_hint(plugins, error.reason) if error.reason.startswith("unknown ") else ""
+        if hint:
+            raise ConfigError(error.reason + hint, file=error.file, key=error.key,
                               line=error.line, column=error.column) from None
         raise
     except Exception as error:          # raised by a plugin's code (presets(), a property, ...)

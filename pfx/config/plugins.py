@@ -10,7 +10,8 @@ one of three ways:
   point of an installed package (below). :func:`load_config_plugins` imports exactly these,
   before the config is validated, and nothing else: **a config naming a plugin runs its code**,
   and a config without ``plugins:`` runs none;
-* ``pfx list --plugin FILE`` and ``pfx schema --plugin FILE`` load the files given;
+* ``pfx list --plugin FILE`` and ``pfx schema --plugin FILE`` load the files given, and
+  ``pfx.load_plugin(path)`` from Python (:mod:`pfx.filtering`) loads one as a config would;
 * installed packages offer plugins through the entry-point group ``pfx.plugins`` (in their
   ``pyproject.toml``: ``[project.entry-points."pfx.plugins"] name = "package.module"``).
   These are loaded only by ``pfx list``, which shows what is installed, and when a config names
@@ -28,6 +29,12 @@ A file plugin is executed from the very bytes that were hashed, as the module
 and execute them the same way (:func:`ensure_loaded`), so no shared file system is needed.
 Module plugins must be installed on the workers, like pfx itself.
 
+Code may also register components without pfx loading it: a plugin module imported by hand
+(``import cv_radar`` in a notebook), a class defined in a notebook cell. What it registers
+belongs to its module (:func:`_owner`), never passes for pfx's own: ``pfx.model`` and the
+filters on arrays see it (:func:`python_origins`), a config does only by naming its file or
+module, and loading that file replaces the hand-imported registrations with the plugin's.
+
 Every failure is one :class:`~pfx.errors.ConfigError` line naming the plugin: a missing file or
 module, an exception while importing it (located at its last line in the plugin's own file,
 ``plugin.py:12: NameError: ...``), a name that clashes with a built-in component, a model class
@@ -42,12 +49,14 @@ import importlib.util
 import re
 import sys
 import types
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Optional
 
 from pfx.errors import ConfigError, ExecutorError, UsageError
-from pfx.registry import RegistrationClash, registering_for
+from pfx.numerics.compiled import keep_cache_apart
+from pfx.registry import RegistrationClash, registering_for, registering_origin
 from pfx.user_files import UnreadableFile, read_user_file
 
 ENTRY_POINT_GROUP = "pfx.plugins"
@@ -122,7 +131,8 @@ def register_model(model_class):
     for name, line in methods_meant_as_properties(model_class):     # the most common slip
         raise PluginError(f"model {kind} (class {model_class.__name__}): {name} is a method, and pfx reads it "
                           f"as a property: write @property on the line above `def {name}`", line=line)
-    return MODELS.register_kind(model_class)
+    with _owner(MODELS, kind, model_class):
+        return MODELS.register_kind(model_class)
 
 
 def register_weighting(weighting_class):
@@ -130,12 +140,13 @@ def register_weighting(weighting_class):
     ``log_weights(model, measurement, particles, weights) -> (trials, N)``; docs/extending.md)."""
     from pfx.filters.particle.weighting import WEIGHTINGS
 
-    _declared_kind(weighting_class, "register_weighting")
+    kind = _declared_kind(weighting_class, "register_weighting")
     if not callable(getattr(weighting_class, "log_weights", None)):
         raise PluginError(f"weighting class {weighting_class.__name__} does not define log_weights")
     if not callable(getattr(weighting_class, "label", None)):      # the tables' name for it
         weighting_class.label = lambda self: self.kind
-    return WEIGHTINGS.register_kind(weighting_class)
+    with _owner(WEIGHTINGS, kind, weighting_class):
+        return WEIGHTINGS.register_kind(weighting_class)
 
 
 def register_resampler(name: str, *, unbiased: bool, description: Optional[str] = None) -> Callable:
@@ -144,7 +155,8 @@ def register_resampler(name: str, *, unbiased: bool, description: Optional[str] 
     from pfx.filters.particle.resampling import RESAMPLERS, Resampler
 
     def decorate(function):
-        RESAMPLERS.add(name, Resampler(function, unbiased=unbiased), description)
+        with _owner(RESAMPLERS, name, function):
+            RESAMPLERS.add(name, Resampler(function, unbiased=unbiased), description)
         return function
 
     return decorate
@@ -165,7 +177,8 @@ def register_proposal(proposal_class):
     if proposal_class.propose is ProposalBase.propose and proposal_class.bind is ProposalBase.bind:
         raise PluginError(f"proposal {kind} (class {proposal_class.__name__}) does not define propose(model, "
                           "previous, step, measurement, observed, random)")
-    return PROPOSALS.register_kind(proposal_class)
+    with _owner(PROPOSALS, kind, proposal_class):
+        return PROPOSALS.register_kind(proposal_class)
 
 
 def register_filter_kind(kind_class):
@@ -177,7 +190,48 @@ def register_filter_kind(kind_class):
                           "is not a subclass of pfx.filters.base.FilterKind")
     if not isinstance(getattr(kind_class, "kind", None), str):
         raise PluginError(f"filter kind class {kind_class.__name__} needs a class attribute kind = '<name>'")
-    return FILTERS.register_kind(kind_class)
+    with _owner(FILTERS, kind_class.kind, kind_class):
+        return FILTERS.register_kind(kind_class)
+
+
+@contextmanager
+def _owner(registry, name: str, definition):
+    """Who owns a registration by the decorators above (the registries' *origin*).
+
+    While pfx loads a plugin (a config's ``plugins:``, :func:`pfx.load_plugin`, ``--plugin``),
+    that plugin does. Otherwise the code was imported by hand (``import cv_radar`` in a
+    notebook, a class defined in a notebook cell): its module owns what it registers, so that
+    nothing of it passes for a built-in component, and a config sees it only by naming it.
+    Importing by hand the code pfx loaded already (the same file, or the same module) takes its
+    place; importing a module again (``importlib.reload``, a cell run twice) replaces its
+    earlier definitions rather than clashing with them.
+    """
+    if registering_origin() is not None:
+        yield
+        return
+    module = getattr(definition, "__module__", None) or "__main__"
+    source = _source_file(module)
+    _IMPORTED_BY_HAND[module] = source
+    for loaded in {source, module} & _LOADED.keys():
+        _forget(loaded)
+        del _LOADED[loaded]
+    if name in registry and registry.origin(name) == module and \
+            _definition(registry[name]) == _definition(definition):
+        _forget(module)
+    with registering_for(module):
+        yield
+
+
+def _source_file(module: str) -> Optional[str]:
+    """The resolved path of a module's source file (None: none, a notebook's ``__main__``)."""
+    file = getattr(sys.modules.get(module), "__file__", None)
+    return str(Path(file).resolve()) if file else None
+
+
+def _definition(component) -> tuple:
+    """Where a component was defined: its module and qualified name (a resampler by its function)."""
+    component = getattr(component, "function", component)
+    return getattr(component, "__module__", None), getattr(component, "__qualname__", None)
 
 
 def _declared_kind(component_class, decorator: str) -> str:
@@ -240,7 +294,11 @@ def _check_copies(plugins: list[LoadedPlugin], config_file: str) -> None:
 
 # -- loading ---------------------------------------------------------------------------------------
 
+MODULE_PREFIX = "pfx_plugin_"                # a file plugin runs as the module pfx_plugin_<stem>_<hash>
 _LOADED: dict[str, LoadedPlugin] = {}        # origin -> the plugin as last loaded in this process
+# module -> its source file (resolved; None for a notebook's __main__): code imported by hand that
+# registered components (_owner)
+_IMPORTED_BY_HAND: dict[str, Optional[str]] = {}
 
 
 def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
@@ -321,7 +379,11 @@ def _load_file(name: str, path: Path, source: bytes) -> LoadedPlugin:
         earlier = next((plugin for plugin in _LOADED.values() if plugin.is_file and plugin.sha256 == digest), None)
     if earlier is not None and earlier.sha256 == digest:
         return _renamed(earlier, name, str(path))
-    module = f"pfx_plugin_{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest[:12]}"
+    for module, file in list(_IMPORTED_BY_HAND.items()):     # this file imported by hand: pfx's load replaces it
+        if file == origin:
+            _forget(module)
+            del _IMPORTED_BY_HAND[module]
+    module = f"{MODULE_PREFIX}{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest[:12]}"
     plugin = LoadedPlugin(name=name, origin=origin, path=str(path), sha256=digest, module=module, source=source)
     return _remember(_execute(plugin))
 
@@ -337,10 +399,11 @@ def _load_module(name: str, module: str) -> LoadedPlugin:
     _prepare_registries()
     with registering_for(plugin.origin):
         try:
-            importlib.import_module(module)
+            importlib.import_module(module)      # imported by hand already: its registrations are the module's
         except Exception as error:
             _forget(plugin.origin)
             raise import_failure(error, plugin) from None
+    _IMPORTED_BY_HAND.pop(module, None)
     return _remember(plugin)
 
 
@@ -348,6 +411,8 @@ def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
     """Run a file plugin's code (the hashed bytes) as its module, its registrations owned by it."""
     _prepare_registries()
     _forget(plugin.origin)                   # an earlier version of the same file, in this process
+    if b"numba" in plugin.source:            # numba's cache, apart from the file imported by hand
+        keep_cache_apart(MODULE_PREFIX)
     module = types.ModuleType(plugin.module)
     module.__file__ = plugin.code_file
     sys.modules[plugin.module] = module      # classes pickle by module name: workers find it too
@@ -397,6 +462,12 @@ def loaded_plugins() -> list[LoadedPlugin]:
     return list(_LOADED.values())
 
 
+def python_origins() -> list[str]:
+    """The owners of the components the Python door sees (:mod:`pfx.filtering`): every plugin
+    loaded in this process, and the code imported by hand that registered components."""
+    return [plugin.origin for plugin in _LOADED.values()] + list(_IMPORTED_BY_HAND)
+
+
 def registries() -> list:
     """Every registry a plugin may add to (:mod:`pfx.config.components`, the one list)."""
     from pfx.config.components import all_registries
@@ -436,8 +507,18 @@ def ensure_loaded(plugins: Iterable[LoadedPlugin]) -> None:
                                 f"({type(error).__name__}: {error}); install it there, as pfx itself") from None
 
 
-def unknown_name_hint(plugins: list[LoadedPlugin]) -> str:
-    """For an unknown component name: which plugins were loaded and what they registered."""
-    if not plugins:
-        return ""
-    return "; plugins loaded: " + ", ".join(plugin.summary() for plugin in plugins)
+def unknown_name_hint(plugins: list[LoadedPlugin], reason: str = "") -> str:
+    """For an unknown component name (``reason``: the message that names it, quoted): which
+    plugins were loaded and what they registered, and which code imported by hand registered
+    that very name, which a config sees only by naming it."""
+    hint = "; plugins loaded: " + ", ".join(plugin.summary() for plugin in plugins) if plugins else ""
+    by_hand = []
+    for module, file in _IMPORTED_BY_HAND.items():
+        names = [f"{registry.what} {name}" for registry in registries() for name in registry
+                 if registry.origin(name) == module and repr(name) in reason]
+        if names:
+            remedy = f"name {Path(file).name} in plugins:" if file else "move it to a .py file named in plugins:"
+            by_hand.append(f"{', '.join(names)} (module {module}, imported outside pfx: {remedy})")
+    if by_hand:
+        hint += "; a config sees only the plugins it names, not " + "; ".join(by_hand)
+    return hint

@@ -110,7 +110,12 @@ class LinearGaussian(Model):
     def control(self, step):
         if self._U is None:
             return None
-        return self._B @ self._U[0 if len(self._U) == 1 else step - 1]
+        if len(self._U) == 1:
+            return self._B @ self._U[0]
+        if not 1 <= step <= len(self._U):      # ValueError, not numpy's IndexError: the step is the user's
+            raise ValueError(f"@controls: {len(self._U)} control vectors, for steps 1..{len(self._U)}; "
+                             f"none for step {step}")
+        return self._B @ self._U[step - 1]
 
     def propagate(self, state, control, noise):
         moved = state @ self._A.T

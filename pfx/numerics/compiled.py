@@ -58,3 +58,51 @@ def _jit(function: Callable):
 
     # nogil: a compiled loop releases the GIL, so threads (a Dask worker's, say) can overlap.
     return numba.njit(cache=True, nogil=True)(function)
+
+
+# -- numba's cache for code that runs under a module name of pfx's (plugin files) -------------------
+
+@functools.lru_cache(maxsize=None)
+def keep_cache_apart(module_prefix: str) -> None:
+    """Cache the compiled functions of modules named ``<module_prefix>...`` apart from those of
+    the same source file under any other module name.
+
+    numba finds a function's cache entry by its source file, name and line; the entry's code
+    names the module the function was compiled in, and loading it imports that module by name.
+    pfx runs a plugin file as the module ``pfx_plugin_<stem>_<hash>`` (pfx/config/plugins.py),
+    and ``import stem`` makes the same file the module ``stem``: each process found the other's
+    entry and failed to import its module (``ModuleNotFoundError: pfx_plugin_...``, or the
+    plugin imported a second time under its own name). Here the entries of such modules carry
+    the module's name in their file names (``walk.step-12-pfx_plugin_walk_0123456789ab.py311.nbi``),
+    in numba's usual folders (``NUMBA_CACHE_DIR``, ``__pycache__`` beside the file, the user's
+    cache): every version of a plugin file has its own entries, and a file imported by hand keeps
+    numba's usual ones. Called before such a module runs (numba picks a function's cache folder
+    when ``@njit(cache=True)`` decorates it); once per process.
+    """
+    from numba.core import caching
+
+    def apart(locator):
+        class ModuleApart(locator):
+            """numba's ``locator``, for the functions of the prefixed modules only, their module's
+            name added to the entries' names."""
+
+            def __init__(self, py_func, py_file):
+                super().__init__(py_func, py_file)
+                self._module = py_func.__module__
+
+            def get_disambiguator(self):
+                return f"{super().get_disambiguator()}-{self._module}"
+
+            @classmethod
+            def from_function(cls, py_func, py_file):
+                if not str(getattr(py_func, "__module__", "")).startswith(module_prefix):
+                    return None
+                return super().from_function(py_func, py_file)
+
+        ModuleApart.__name__ = ModuleApart.__qualname__ = f"ModuleApart{locator.__name__}"
+        return ModuleApart
+
+    # numba tries its locators in order and keeps the first that applies; these come first and
+    # apply only to the prefixed modules, each in the folder numba's own locator would choose.
+    caching.CacheImpl._locator_classes[:0] = [apart(locator) for locator in (
+        caching.UserProvidedCacheLocator, caching.InTreeCacheLocator, caching.UserWideCacheLocator)]
