@@ -160,7 +160,6 @@ def test_sigterm_stops_a_run_that_the_same_command_resumes(tmp_path, run_pfx):
     deadline = time.monotonic() + 120
     while not (out / "manifest.json").exists() and process.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)              # the manifest is written once the starts are checked, as the chains begin
-    time.sleep(0.3)                   # well inside the chains' seconds
     process.send_signal(signal.SIGTERM)
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 128 + signal.SIGTERM, stderr

@@ -115,10 +115,10 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                     item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out)
                 finally:
                     cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
+            _assemble(plan, out, work, report)
         except BaseException as error:
             error.add_note(_keep_what_ran(out, manifest, _summed(cell_times, earlier), earlier_record))
             raise
-        _assemble(plan, out, work, report)
         manifest.update(finished=now(), complete=True, batched={item.cell.key: item.target.batched for item in work})
         # Times add up over the runs that made the folder (a resumed or extended run's own time
         # plus the earlier ones', an interrupted run's included), as a filter run's do.
