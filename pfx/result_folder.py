@@ -24,6 +24,10 @@ finished, more trials than asked       refused (the extra trials would be droppe
 interrupted (``cells/`` kept)          resumes the same run; another trial count is refused
 =====================================  ==========================================================
 
+An estimation folder has iterations instead of trials (:func:`_estimation_contents`): a
+finished one with more iterations than asked is refused, an interrupted one is resumed (with
+more iterations than it holds, extended).
+
 A folder with another results hash, or not made by pfx, is refused unless ``--fresh``. A
 folder this process could not create or write into (under a regular file, read-only) is
 refused before anything is written (:func:`check_writable`; every command that writes runs it).
@@ -112,6 +116,23 @@ def read_table(path: str | Path) -> pd.DataFrame:
         return pd.DataFrame()
 
 
+# The tables of an estimation folder, by method (besides config.yaml, manifest.json, estimation/, figures/).
+ESTIMATION_TABLES = {"pmmh": ("chains", "posterior", "priors"), "if2": ("if2", "maximum_likelihood")}
+
+
+def estimation_kind(method: str) -> str:
+    """"a PMMH estimation folder", "an IF2 estimation folder"."""
+    return f"{'an' if method == 'if2' else 'a'} {method.upper()} estimation folder"
+
+
+class MissingTable(FileNotFoundError):
+    """A table the folder does not have (a figure of a filter run asked of an estimation folder)."""
+
+    def __init__(self, name: str, path: Path):
+        super().__init__(2, f"no {name}.csv", str(path))
+        self.name = name
+
+
 class ResultFolder:
     """A result folder as figures see it: its CSV tables and its manifest, nothing else."""
 
@@ -119,7 +140,31 @@ class ResultFolder:
         self.path = Path(path)
 
     def table(self, name: str) -> pd.DataFrame:
-        return read_table(self.path / f"{name}.csv")
+        """A table of the folder; :class:`MissingTable` if it has none of that name."""
+        path = self.path / f"{name}.csv"
+        if not path.is_file():
+            raise MissingTable(name, path)
+        return read_table(path)
+
+    @property
+    def tables(self) -> set[str]:
+        """The names of the tables the folder holds (its CSV files, without ``.csv``)."""
+        return {path.stem for path in self.path.glob("*.csv")}
+
+    @property
+    def is_estimation(self) -> bool:
+        """Whether an estimation run made the folder (its manifest says so)."""
+        return "estimation" in (read_manifest(self.path) or {})
+
+    @property
+    def kind(self) -> str:
+        """What made the folder, in words: "a PMMH estimation folder", "a filter run's folder", ..."""
+        manifest = read_manifest(self.path) or {}
+        if "estimation" in manifest:
+            return estimation_kind(str(manifest["estimation"].get("method", "")))
+        if "study" in manifest:
+            return f"a study's folder ({manifest['study']})"
+        return "a filter run's folder"
 
     @cached_property
     def trials(self) -> pd.DataFrame:
@@ -409,6 +454,8 @@ def _contents(plan, out: Path, fresh: bool) -> FolderState:
                           "replace them or --out for another folder", file=str(out))
     if not plan.cells:                       # a study: no trials
         return FolderState(manifest=manifest)
+    if plan.experiment.estimation is not None:
+        return _estimation_contents(plan, out, manifest)
     asked, held = plan.experiment.trials, int(manifest.get("trials", 0))
     if manifest.get("complete"):
         if asked < held:
@@ -421,6 +468,19 @@ def _contents(plan, out: Path, fresh: bool) -> FolderState:
                           f"first (--trials {held}), or use --fresh", file=str(out))
     done = {path.name.split(".")[0] for path in (out / CELLS).glob("*.trials.csv")}
     return FolderState(manifest=manifest, kept_trials=int(manifest.get("extending_from", 0)), done=done)
+
+
+def _estimation_contents(plan, out: Path, manifest: dict) -> FolderState:
+    """An estimation folder with the same results hash: it has no trials, but iterations. A
+    finished one holds the manifest's ``iterations`` (fewer asked would drop some: refused); an
+    unfinished one is resumed, and its progress files are the estimation run's to read and check
+    (:mod:`pfx.run.estimation`), before it writes anything."""
+    asked, held = plan.experiment.estimation.iterations, (manifest.get("estimation") or {}).get("iterations")
+    if manifest.get("complete") and isinstance(held, int) and asked < held:
+        raise ConfigError(f"result folder holds {held} iterations per chain and the config asks for {asked}, which "
+                          f"would drop {held - asked}; ask for {held} or more (more extend the chains), use --fresh "
+                          "to recompute, or --out for another folder", file=str(out), key="estimation.iterations")
+    return FolderState(manifest=manifest)
 
 
 def clear_outputs(out: Path, names) -> None:

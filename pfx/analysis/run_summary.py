@@ -245,6 +245,11 @@ def print_run_summary(folder: Path, manifest: dict, echo, rich_console: bool, co
              + (f"; --by any of: {', '.join(columns)})" if len(columns) > 1 else ")"))
 
 
+def _r_hat(value: float) -> str:
+    """R-hat to the third decimal (the 1.01 rule), a huge one (chains that never met) as a number."""
+    return f"{value:.3f}" if math.isfinite(value) and value < 1000 else _number(value)
+
+
 def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
     """What an estimation run prints at its end: per cell and parameter, the posterior mean and
     sd with R-hat and bulk ESS (PMMH, posterior.csv), or the best replicate's estimate and its
@@ -255,14 +260,15 @@ def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
         table = pd.read_csv(folder / "posterior.csv")
         header = [*labels, "parameter", "mean", "sd", "R-hat", "bulk ESS"]
         rows = [[*(str(row[c]) for c in labels), str(row["parameter"]), _number(row["mean"]), _number(row["sd"]),
-                 f"{row['r_hat']:.3f}" if math.isfinite(row["r_hat"]) else "-", _number(row["ess_bulk"])]
+                 _r_hat(row["r_hat"]), _number(row["ess_bulk"])]
                 for _, row in table.iterrows()]
         title = f"{manifest.get('name', '')}: posterior after the warm-up, chains pooled, per cell"
     elif method == "if2" and (folder / "maximum_likelihood.csv").is_file():
-        table = pd.read_csv(folder / "maximum_likelihood.csv")
+        table = pd.read_csv(folder / "maximum_likelihood.csv", dtype={"cell": str})
         parameters = [c for c in table.columns if c not in ("cell", "replicate", "log_likelihood", "log_likelihood_se")
                       and c not in manifest.get("label_columns", [])]
-        best = table.loc[table.groupby("cell", sort=False)["log_likelihood"].idxmax()]
+        # A cell whose every likelihood is zero (-inf) still has a row: its first replicate's, shown as -inf.
+        best = table.loc[table["log_likelihood"].fillna(-math.inf).groupby(table["cell"], sort=False).idxmax()]
         header = [*labels, "replicate", *parameters, "log-likelihood", "se"]
         rows = [[*(str(row[c]) for c in labels), str(int(row["replicate"])), *(_number(row[p]) for p in parameters),
                  f"{row['log_likelihood']:.3f}", _number(row["log_likelihood_se"])] for _, row in best.iterrows()]

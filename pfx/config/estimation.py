@@ -14,9 +14,14 @@ from typing import Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
 
+from pfx.config.estimation_tables import reserved_names, tables_with
 from pfx.errors import ConfigError
 from pfx.laws.priors import Prior, TransformName, make_transform
 from pfx.registry import with_article
+
+# The figures an estimation config draws unless its outputs name others (a filter run's defaults
+# draw trials, which it has none of).
+ESTIMATION_FIGURES = {"pmmh": ("chain_traces", "posterior_marginals", "posterior_pairs"), "if2": ("if2_convergence",)}
 
 
 class EstimatedParameter(BaseModel):
@@ -102,6 +107,12 @@ class EstimationConfig(BaseModel):
         names = [self.column(path) for path in self.parameters]
         if len(set(names)) != len(names):
             raise ValueError("@parameters: two parameters have the same column name; give one a `name`")
+        reserved = reserved_names()
+        for path in self.parameters:
+            name = self.column(path)
+            if name in reserved:
+                raise ValueError(f"@{self.name_key(path)}: {name!r} is a column of {', '.join(tables_with(name))}, "
+                                 "which the parameter's own column would overwrite; give it another `name`")
         if self.method == "pmmh" and self.warm_up >= self.iterations:
             raise ValueError(f"@warm_up: {self.warm_up} warm-up iterations leave none of the {self.iterations} for "
                              "the posterior")
@@ -111,9 +122,38 @@ class EstimationConfig(BaseModel):
         """The column name of the parameter at ``path``."""
         return self.parameters[path].name or path[len("model."):]
 
+    def name_key(self, path: str) -> str:
+        """The key (below ``estimation``) that gives the parameter at ``path`` its column name:
+        its ``name``, or the path itself."""
+        return f"parameters.{path}.name" if self.parameters[path].name else f"parameters.{path}"
+
     @property
     def columns(self) -> list[str]:
         return [self.column(path) for path in self.parameters]
+
+
+def check_figures_apply(figures: list[str], estimation: Optional[EstimationConfig], file: str) -> None:
+    """ConfigError for a figure the config names (``outputs.figures``) that the folder it makes
+    cannot draw: a filter run's figure in an estimation config, an estimation figure in a filter
+    run's (:func:`pfx.figures.registry.refusal_in_config`)."""
+    from pfx.figures.registry import refusal_in_config
+
+    for index, name in enumerate(figures):
+        reason = refusal_in_config(name, estimation.method if estimation is not None else None)
+        if reason:
+            raise ConfigError(f"{reason}; `pfx list figures` says what each figure draws", file=file,
+                              key=f"outputs.figures[{index}]")
+
+
+def check_column_names(estimation: EstimationConfig, labels: list[str], file: str, cell_text: str = "") -> None:
+    """ConfigError if a parameter's column name is one of the cell's columns (``arm``, ``n_particles``,
+    a swept key's column), which the tables put beside the parameters (:mod:`pfx.config.estimation_tables`)."""
+    for path in estimation.parameters:
+        name = estimation.column(path)
+        if name in labels:
+            raise ConfigError(f"{name!r} is one of the cell's label columns{cell_text}, which every estimation table "
+                              "has and the parameter's own column would overwrite; give it another `name`", file=file,
+                              key=f"estimation.{estimation.name_key(path)}")
 
 
 def check_estimated_paths(estimation: EstimationConfig, model, file: str, cell_text: str = "") -> None:

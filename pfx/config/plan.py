@@ -24,7 +24,12 @@ from pydantic_core import PydanticUndefined
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import CellData, attach_recorded_data, check_covariate_spans, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
-from pfx.config.estimation import check_estimated_paths
+from pfx.config.estimation import (
+    ESTIMATION_FIGURES,
+    check_column_names,
+    check_estimated_paths,
+    check_figures_apply,
+)
 from pfx.config.plugin_faults import locate, plan_time_fault
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, recorded_names, unknown_name_hint
 from pfx.config.schema import ConfigSchema, config_schema
@@ -386,7 +391,9 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                               "remove the repeated sweep value", file=file, key="sweep")
         seen[cell.key] = index
 
-    if "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
+    if "figures" not in experiment.outputs.model_fields_set and experiment.estimation is not None:
+        experiment.outputs.figures = list(ESTIMATION_FIGURES[experiment.estimation.method])
+    elif "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
         experiment.outputs.figures = ["rmse_vs_particles", *experiment.outputs.figures]
     resolved = resolved_config(experiment, raw, arms, cells, file, schema)
     files = {key: value for key, value in (resolved.get("data") or {}).items() if value is not None}
@@ -404,6 +411,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("datasets", None)     # nor is that of a config without datasets
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
+    if "figures" in experiment.outputs.model_fields_set:
+        check_figures_apply(experiment.outputs.figures, experiment.estimation, file)
     if experiment.estimation is None:
         resolved.pop("estimation", None)     # nor that of a config without estimation
     else:
@@ -414,11 +423,13 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
 
 
 def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:
-    """The estimated paths name numbers of the cell's filter model; IF2 perturbs every particle's
+    """The estimated paths name numbers of the cell's filter model, and their columns are not the
+    cell's label columns (:mod:`pfx.config.estimation_tables`); IF2 perturbs every particle's
     parameters, so it needs a bootstrap particle filter and a model that takes each of them as an
     array (``vectorised_parameters``)."""
     where = f" (cell {cell.labels})" if several else ""
     check_estimated_paths(estimation, cell.filter_model, file, where)
+    check_column_names(estimation, list(cell.labels), file, where)
     if estimation.method != "if2":
         return
     settings = cell.filter

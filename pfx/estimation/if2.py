@@ -111,8 +111,14 @@ class IteratedFiltering:
                 for replicate in range(self.replicates)]
 
     def start(self) -> np.ndarray:
-        """Iteration 0: every particle of replicate r at r's starting point (transformed), (R, N, p)."""
-        unconstrained = self.target.to_unconstrained(self.target.starting_values(self.root_seed, self.cell_key))
+        """Iteration 0: every particle of replicate r at r's starting point (transformed), (R, N, p).
+
+        Each start is checked as PMMH's are (:meth:`EstimationTarget.check_starts`): the model
+        must accept it and the unperturbed filter find a likelihood above zero there, in a run
+        on the replicate's iteration-0 stream, which no pass uses."""
+        values = self.target.starting_values(self.root_seed, self.cell_key)
+        self.target.check_starts(values, self.target.log_likelihoods(values, self.seeds(0)), "replicate")
+        unconstrained = self.target.to_unconstrained(values)
         return np.repeat(unconstrained[:, None, :], self.particles, axis=1)
 
     def estimates(self, swarm: np.ndarray) -> np.ndarray:
@@ -154,11 +160,19 @@ class IteratedFiltering:
         rows = np.repeat(estimates, runs, axis=0)
         seeds = [chain_seeds(self.root_seed, self.cell_key, replicate, EVALUATION_STREAMS + run)[0]
                  for replicate in range(self.replicates) for run in range(runs)]
-        log_likelihood = self.target.log_likelihoods(rows, seeds).reshape(self.replicates, runs)
-        top = log_likelihood.max(axis=1, keepdims=True)
-        ratios = np.exp(log_likelihood - top)
-        mean = ratios.mean(axis=1)
-        log_mean = top[:, 0] + np.log(mean)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            standard_error = ratios.std(axis=1, ddof=1) / mean / np.sqrt(runs) if runs > 1 else np.full(len(mean), np.nan)
-        return log_mean, standard_error
+        return log_mean_likelihood(self.target.log_likelihoods(rows, seeds).reshape(self.replicates, runs))
+
+
+def log_mean_likelihood(log_likelihood: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Per row of K log-likelihood estimates (R, K): :math:`\log \frac1K \sum_k \hat L_k` and its
+    standard error by the delta method (NaN for K = 1). A row whose every estimate is zero has
+    -inf, and no standard error."""
+    runs = log_likelihood.shape[1]
+    top = log_likelihood.max(axis=1, keepdims=True)
+    zero = ~np.isfinite(top[:, 0])
+    ratios = np.exp(log_likelihood - np.where(zero[:, None], 0.0, top))
+    mean = ratios.mean(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        log_mean = np.where(zero, -np.inf, top[:, 0] + np.log(mean))
+        standard_error = ratios.std(axis=1, ddof=1) / mean / np.sqrt(runs) if runs > 1 else np.full(len(mean), np.nan)
+    return log_mean, np.where(zero, np.nan, standard_error)

@@ -69,15 +69,13 @@ class ParticleMarginalMetropolisHastings:
 
     def start(self) -> Chains:
         """Iteration 0: each chain's starting point (fixed, or drawn from the prior with its own
-        generator) and the filter's estimate there."""
+        generator) and the filter's estimate there; a ConfigError naming the chain and the
+        parameters where the model refuses a start or the data have zero likelihood
+        (:meth:`EstimationTarget.check_starts`)."""
         filter_seeds, _ = self.seeds(0)
         values = self.target.starting_values(self.root_seed, self.cell_key)
         log_likelihood = self.target.log_likelihoods(values, filter_seeds)
-        bad = np.flatnonzero(~np.isfinite(log_likelihood))
-        if bad.size:
-            point = dict(zip(self.target.columns, values[bad[0]]))
-            raise ValueError(f"chain {bad[0]} starts where the model refuses the parameters or the data have zero "
-                             f"likelihood: {point}")
+        self.target.check_starts(values, log_likelihood)
         chains = Chains(values, log_likelihood, self.target.log_prior(values))
         chains.history.append(values.copy())
         return chains

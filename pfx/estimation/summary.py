@@ -14,17 +14,19 @@ import numpy as np
 import pandas as pd
 from arviz_stats.base import array_stats
 
-QUANTILES = {"quantile_2_5": 0.025, "quantile_25": 0.25, "median": 0.5, "quantile_75": 0.75, "quantile_97_5": 0.975}
+from pfx.config.estimation_tables import DIAGNOSTICS, POSTERIOR_COLUMNS, POSTERIOR_EXTRA_ROWS, PRIORS_COLUMNS, QUANTILES
+
 GRID_POINTS = 200
 
 
 def posterior_summary(rows: pd.DataFrame, columns: list[str], warm_up: int) -> pd.DataFrame:
-    """One row per parameter (and the log-likelihood) from a cell's chains table ``rows``."""
+    """One row per parameter (and the log-likelihood) from a cell's chains table ``rows``; the
+    columns of :data:`pfx.config.estimation_tables.POSTERIOR_COLUMNS`."""
     draws = rows[rows["iteration"] > warm_up].sort_values(["chain", "iteration"])
     chains = draws["chain"].nunique()
     length = draws.groupby("chain").size().min()
     summary = []
-    for name in [*columns, "log_likelihood"]:
+    for name in [*columns, *POSTERIOR_EXTRA_ROWS]:
         values = np.stack([group[name].to_numpy(dtype=float)[:length] for _, group in draws.groupby("chain")])
         pooled = values.ravel()
         row = {"parameter": name, "n": pooled.size, "mean": pooled.mean(), "sd": pooled.std(ddof=1) if pooled.size > 1
@@ -33,13 +35,13 @@ def posterior_summary(rows: pd.DataFrame, columns: list[str], warm_up: int) -> p
         row["acceptance_rate"] = float(draws["accepted"].astype(bool).mean())
         row["chains"] = chains
         summary.append(row)
-    return pd.DataFrame(summary)
+    return pd.DataFrame(summary)[list(POSTERIOR_COLUMNS)]
 
 
 def _diagnostics(values: np.ndarray) -> dict:
     """R-hat, bulk and tail ESS, MCSE of the mean for draws (chains, draws); NaN where too few."""
     if values.shape[1] < 4:
-        return {"r_hat": np.nan, "ess_bulk": np.nan, "ess_tail": np.nan, "mcse_mean": np.nan}
+        return dict.fromkeys(DIAGNOSTICS, np.nan)
     options = {"chain_axis": 0, "draw_axis": 1}
     with np.errstate(invalid="ignore", divide="ignore"):
         return {"r_hat": float(array_stats.rhat(values, **options)),
@@ -66,4 +68,4 @@ def prior_grid(estimation, draws: pd.DataFrame) -> pd.DataFrame:
         lower, upper = prior.support
         grid = np.linspace(max(low - margin, lower), min(high + margin, upper), GRID_POINTS)
         frames.append(pd.DataFrame({"parameter": name, "value": grid, "density": np.exp(prior.log_density(grid))}))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["parameter", "value", "density"])
+    return pd.concat(frames, ignore_index=True)[list(PRIORS_COLUMNS)] if frames else pd.DataFrame(columns=list(PRIORS_COLUMNS))

@@ -125,16 +125,53 @@ class EstimationTarget:
     def model_at(self, values: np.ndarray):
         """The filter model with the parameters set to ``values`` (p,), validated (presets derived
         again, checks run); None if the model refuses them (outside its domain)."""
+        model, _ = self._model_or_refusal(dict(zip(self.paths, values)))
+        return model
+
+    def _model_or_refusal(self, values: dict[str, float]) -> tuple[object, str]:
+        """The filter model with the parameters at ``values`` (path -> value) set, and "", or
+        None and the model's reason for refusing them."""
         raw = copy.deepcopy(self.raw_model)
-        for path, value in zip(self.paths, values):
+        for path, value in values.items():
             set_path(raw, path[len("model."):], float(value))
         try:
             model = validate(MODELS[raw["kind"]], raw, file="<estimation>", prefix="model")
-        except (ConfigError, ValueError, ValidationError):       # a value the model refuses
-            return None
+        except ConfigError as error:           # a value the model refuses
+            return None, f"{error.key}: {error.reason}" if error.key else error.reason
+        except (ValueError, ValidationError) as error:
+            return None, " ".join(str(error).split())
         if self.recorded_times is not None:
             model.use_recorded_times(self.recorded_times)
-        return model
+        return model, ""
+
+    def check_starts(self, values: np.ndarray, log_likelihood: np.ndarray, chain: str = "chain") -> None:
+        """ConfigError (its file left to the caller) for the first chain (or IF2 replicate:
+        ``chain``) whose start ``values`` (C, p) the model refuses, or where the log-likelihood
+        estimate ``log_likelihood`` (C,) is not finite (the data have zero likelihood there).
+        It names the parameters and their key: the start of the one parameter the model refuses
+        on its own (the others at the config's values), else ``estimation.parameters``."""
+        bad = np.flatnonzero(~np.isfinite(log_likelihood))
+        if not bad.size:
+            return
+        row = int(bad[0])
+        point = dict(zip(self.paths, values[row]))
+        model, reason = self._model_or_refusal(point)
+        if model is None:
+            blamed = [path for path in self.paths if self._model_or_refusal({path: point[path]})[0] is None]
+            what = f"where the model refuses {'it' if len(blamed) == 1 else 'them'}: {reason}"
+        else:
+            blamed = list(self.paths)
+            what = ("where the data have zero likelihood (the filter's estimate is 0 there: at some step no "
+                    "particle explains the measurement)" if log_likelihood[row] == -np.inf
+                    else f"where the filter's log-likelihood is {log_likelihood[row]}")
+        shown = blamed if len(blamed) == 1 else self.paths
+        drawn = any(self.estimation.parameters[path].start == "prior" for path in shown)
+        text = ", ".join(f"{self.estimation.column(path)}={point[path]:.6g}" for path in shown)
+        origin = " (drawn from the prior: start: prior)" if drawn else ""
+        remedy = (f"give each {chain} a start the model accepts, or a prior inside the model's range" if model is None
+                  else f"start each {chain} elsewhere, or use more particles")
+        key = f"estimation.parameters.{blamed[0]}.start" if len(blamed) == 1 else "estimation.parameters"
+        raise ConfigError(f"{chain} {row} starts at {text}{origin}, {what}; {remedy}", key=key)
 
     def prior_of(self, model):
         settings = self.cell.filter

@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 
 from pfx.figures.layout import CellLine, grid_columns, legend_outside, one_colour_per_cell
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, draws_from
 from pfx.result_folder import ResultFolder
 
 if TYPE_CHECKING:
@@ -158,6 +158,7 @@ def acceptance_text(rows: pd.DataFrame) -> str:
 
 
 @FIGURES.register("chain_traces")
+@draws_from("chains")
 def chain_traces(result: ResultFolder):
     """PMMH chain traces: each parameter and the log-likelihood estimate against the iteration, a line per chain, warm-up shaded; a column per cell.
 
@@ -240,6 +241,7 @@ def parameter_panels(count: int, panel_size=(3.6, 2.8)):
 
 
 @FIGURES.register("posterior_marginals")
+@draws_from("chains")
 def posterior_marginals(result: ResultFolder):
     """PMMH posterior of each parameter: histogram of the draws after warm-up (chains pooled) per cell, the prior dashed, the posterior mean marked.
 
@@ -317,6 +319,7 @@ def correlation(x: np.ndarray, y: np.ndarray) -> float:
 
 
 @FIGURES.register("posterior_pairs")
+@draws_from("chains")
 def posterior_pairs(result: ResultFolder):
     """PMMH posterior pair plot: the draws after warm-up of every pair of parameters, a colour per cell; histograms on the diagonal, correlations above.
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from pfx.figures.estimation_chains import axis_name, count_text, finite_or_nan, parameter_columns, parameter_panels
 from pfx.figures.layout import legend_outside, one_colour_per_cell
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, draws_from
 from pfx.result_folder import ResultFolder
 
 if TYPE_CHECKING:
@@ -57,6 +57,7 @@ def best_text(best: pd.Series) -> str:
 
 
 @FIGURES.register("if2_convergence")
+@draws_from("if2")
 def if2_convergence(result: ResultFolder):
     """IF2 convergence: each parameter's swarm mean and the log-likelihood estimate against the iteration, a line per replicate; the best replicate's estimate dashed.
 

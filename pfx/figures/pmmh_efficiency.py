@@ -28,7 +28,7 @@ import numpy as np
 
 from pfx.analysis.autocorrelation import ESTIMATORS, inefficiency_table, mean_over_parameters
 from pfx.figures.estimation_chains import read_chains
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, draws_from
 from pfx.result_folder import ResultFolder
 
 BOOTSTRAP_SEED = 2015       # the resampling of chains for the error bars: fixed, so the figure never changes
@@ -56,6 +56,7 @@ def particle_count_table(result: ResultFolder):
 
 
 @FIGURES.register("inefficiency_vs_particles")
+@draws_from("chains")
 def inefficiency_vs_particles(result: ResultFolder):
     """PMMH: integrated autocorrelation time x N against the particle count N (the work per effective draw).
 

@@ -4,6 +4,16 @@ A figure function returns a matplotlib Figure (saved in the config's formats), a
 ``matplotlib.animation.Animation`` (saved as an animated GIF with matplotlib's Pillow writer;
 an attribute ``frames_per_second`` on it sets the frame rate), or None when the folder has
 nothing for it to draw.
+
+A figure drawn from tables that a kind of folder does not write does not apply to it: a filter
+run's ``ess_over_time`` (steps_summary.csv) to an estimation folder (chains.csv), or
+``chain_traces`` to a filter run's folder. Such a figure is refused in one line naming it and
+why (:func:`applicability`), before anything is drawn: asked of a folder (``pfx figures``,
+:func:`render_figures`) or named in a config (:func:`refusal_in_config`). The estimation
+figures declare their tables (:func:`draws_from`); pfx's other figures draw a filter run's or a
+study's tables, never an estimation folder's. A figure that reads a table its folder lacks
+(:class:`~pfx.result_folder.MissingTable`, a plugin's figure say) is refused the same way when
+drawn.
 """
 
 from __future__ import annotations
@@ -13,10 +23,51 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Optional
 
+from pfx.errors import ConfigError
 from pfx.registry import Registry
-from pfx.result_folder import FILE_MODE, ResultFolder
+from pfx.result_folder import ESTIMATION_TABLES, FILE_MODE, MissingTable, ResultFolder, estimation_kind
 
 FIGURES: Registry[Callable] = Registry("figure")
+
+
+def draws_from(*tables: str) -> Callable[[Callable], Callable]:
+    """Decorator: the tables (names without ``.csv``) a figure cannot be drawn without."""
+    def declare(figure: Callable) -> Callable:
+        figure.tables = tables
+        return figure
+    return declare
+
+
+def applicability(name: str, tables: set[str], kind: str, estimation: bool) -> Optional[str]:
+    """Why figure ``name`` does not apply to a folder holding ``tables``, ``kind`` in words
+    (:attr:`ResultFolder.kind`), an estimation folder or not; None if it may (module docstring)."""
+    figure = FIGURES[name]
+    needed = getattr(figure, "tables", None)
+    if needed is not None:
+        missing = [table for table in needed if table not in tables]
+        if missing:
+            return (f"figure {name} draws {', '.join(table + '.csv' for table in missing)}, which {kind} does not "
+                    f"have: it is {_kind_of_tables(needed)}'s figure")
+    elif estimation and FIGURES.origin(name) is None:
+        return (f"figure {name} draws a filter run's (or a study's) tables, and {kind} has "
+                f"{', '.join(sorted(table + '.csv' for table in tables))} instead")
+    return None
+
+
+def _kind_of_tables(tables) -> str:
+    for method, written in ESTIMATION_TABLES.items():
+        if set(tables) <= set(written):
+            return estimation_kind(method)
+    return "another kind of folder"
+
+
+def refusal_in_config(name: str, estimation_method: Optional[str]) -> Optional[str]:
+    """Why a config's figure ``name`` would not apply to the folder the config makes (an
+    estimation method's, or a filter run's); None if it may."""
+    if estimation_method is None:
+        return applicability(name, set(), "a filter run's folder", estimation=False)
+    return applicability(name, set(ESTIMATION_TABLES[estimation_method]), estimation_kind(estimation_method),
+                         estimation=True)
 
 
 def figure_table() -> str:
@@ -81,11 +132,20 @@ def render_figures(result_dir: str | Path, names: Optional[list[str]] = None,
 
     result = ResultFolder(result_dir)
     names = names if names is not None else result.manifest.get("figures", [])
+    tables = result.tables
+    for name in names:                     # every refusal before anything is drawn
+        reason = applicability(name, tables, result.kind, result.is_estimation)
+        if reason:
+            raise ConfigError(f"{reason}; `pfx list figures` says what each figure draws", file=str(result.path))
     out = result.path / "figures"
     out.mkdir(exist_ok=True)
     written: list[Path] = []
     for name in names:
-        figure = FIGURES[name](result)
+        try:
+            figure = FIGURES[name](result)
+        except MissingTable as missing:
+            raise ConfigError(f"figure {name} draws {missing.name}.csv, which {result.kind} does not have; "
+                              "`pfx list figures` says what each figure draws", file=str(result.path)) from None
         if figure is None:
             continue
         for extension in ("gif",) if _is_animation(figure) else formats:

@@ -2,82 +2,128 @@
 
 Every cell runs the method (:mod:`pfx.estimation.pmmh`, :mod:`pfx.estimation.if2`) on its
 dataset. Progress is kept as it goes, in ``estimation/<cell>.csv`` (every chain's rows, or
-every IF2 iteration's estimates, with ``estimation/<cell>.swarm.npy``, IF2's particle swarm):
-an interrupted run resumes from them, and a finished one asked for more ``iterations`` extends
-its chains (each iteration's random numbers depend only on its chain and its index, so either
-way the numbers are those of one uninterrupted run). Then the tables: chains.csv,
-posterior.csv, priors.csv (PMMH); if2.csv, maximum_likelihood.csv (IF2); and the figures.
+every IF2 iteration's estimates, with ``estimation/<cell>.swarm.npy``, IF2's particle swarm;
+:mod:`pfx.run.estimation_progress`): an interrupted run resumes from them, and a finished one
+asked for more ``iterations`` extends its chains (each iteration's random numbers depend only on
+its chain and its index, so either way the numbers are those of one uninterrupted run). Then the
+tables: chains.csv, posterior.csv, priors.csv (PMMH); if2.csv, maximum_likelihood.csv (IF2); and
+the figures.
+
+A run does in two phases what it does to a folder. First it reads and checks everything it
+will build on, writing nothing: each cell's progress files (refused if damaged), the iterations
+they hold against those asked (never fewer), and the starts of the cells without progress (the
+model must accept each chain's start and the data have a likelihood above zero there). Any of
+these refused, the folder is as it was. Only then does it write. Stopped (Ctrl-C, SIGTERM, an
+error), it keeps what it computed: PMMH's rows are saved every :data:`CHECKPOINT_SECONDS` and at
+the stop, IF2's after every pass; the same command resumes.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Union
 
 import numpy as np
 import pandas as pd
 
+from pfx.config.estimation_tables import CHAINS, IF2, MAXIMUM_LIKELIHOOD
 from pfx.config.plan import Cell, Plan
+from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
 from pfx.estimation.summary import posterior_summary, prior_grid
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
-from pfx.result_folder import MANIFEST, read_table, write_bytes, write_csv, write_text
+from pfx.result_folder import (
+    ESTIMATION_TABLES,
+    MANIFEST,
+    FolderState,
+    clear_outputs,
+    write_bytes,
+    write_csv,
+    write_text,
+)
+from pfx.run.estimation_progress import (
+    PROGRESS,
+    damaged,
+    progress_file,
+    read_rows,
+    read_swarm,
+    save_swarm,
+    swarm_file,
+)
+from pfx.run.interrupts import raise_if_requested
 
-PROGRESS = "estimation"
 CHECKPOINT_SECONDS = 10.0
-DEFAULT_FIGURES = {"pmmh": ["chain_traces", "posterior_marginals", "posterior_pairs"], "if2": ["if2_convergence"]}
-TABLES = ("chains.csv", "posterior.csv", "priors.csv", "if2.csv", "maximum_likelihood.csv")
+TABLES = tuple(f"{name}.csv" for names in ESTIMATION_TABLES.values() for name in names)
+RECORD = ("config.yaml", MANIFEST)
 
 
-def figures_of(plan: Plan) -> list[str]:
-    outputs = plan.experiment.outputs
-    if "figures" in outputs.model_fields_set:
-        return list(outputs.figures)
-    return DEFAULT_FIGURES[plan.experiment.estimation.method]
+@dataclass
+class CellWork:
+    """One cell's estimation as a run takes it up: its rows so far (from the progress file, or
+    the starts), the state they end in, and the first iteration still to run."""
+
+    cell: Cell
+    target: EstimationTarget
+    rows: pd.DataFrame
+    state: Union[Chains, np.ndarray]    # PMMH's chains, or IF2's swarm, after the last row's iteration
+    first: int
+    started: bool                       # the rows are the starts, computed by this run (nothing kept)
+    seconds: float = 0.0                # time spent computing the starts
+    note: str = ""                      # what the run says when it takes the cell up
 
 
 def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str], None], progress: bool,
                    manifest_of: Callable, write_config: Callable, now: Callable) -> Path:
-    """Run (or resume, or extend) every cell's estimation into ``out``; tables and figures."""
+    """Run (or resume, or extend) every cell's estimation into ``out``; tables and figures
+    (module docstring: everything that may be refused is refused before anything is written)."""
     from pfx.result_folder import inspect_folder
 
-    inspect_folder(plan, out, fresh)              # refuse a folder of other results, early
+    state = inspect_folder(plan, out, fresh)      # refuse a folder of other results, early
+    work = _prepare(plan, out, state, {})         # and damaged progress, dropped iterations, bad starts
     with folder_lock(out, remove_if_unused=True):
-        inspect_folder(plan, out, fresh, locked=True)
+        # Read again: until this run held the lock, another one may have been writing the folder.
+        state = inspect_folder(plan, out, fresh, locked=True)
+        work = _prepare(plan, out, state, {item.cell.key: item for item in work})
+        earlier_record = {} if fresh else {name: (out / name).read_bytes() for name in RECORD if (out / name).is_file()}
         if fresh:
-            for name in TABLES:
-                (out / name).unlink(missing_ok=True)
-            for path in (out / PROGRESS).glob("*") if (out / PROGRESS).is_dir() else []:
-                path.unlink()
+            clear_outputs(out, TABLES + RECORD)
+            shutil.rmtree(out / PROGRESS, ignore_errors=True)
         (out / PROGRESS).mkdir(exist_ok=True)
         estimation = plan.experiment.estimation
         manifest = {**manifest_of(plan, now()), "estimation": {"method": estimation.method,
                                                                "iterations": estimation.iterations,
                                                                "chains": estimation.chains}}
-        manifest["figures"] = figures_of(plan)
+        manifest["figures"] = list(plan.experiment.outputs.figures)    # the method's, by default (pfx.config.plan)
         manifest.pop("trials", None)
-        earlier = _earlier_times(out, fresh)
+        earlier = {} if fresh else dict((state.manifest or {}).get("cell_wall_time_s") or {})
         write_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-        cell_times, batched = {}, {}
-        for cell in plan.cells:
-            cell_started = time.perf_counter()
-            target = EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
-            batched[cell.key] = target.batched
-            run = _run_pmmh if estimation.method == "pmmh" else _run_if2
-            run(plan, target, out, report)
-            cell_times[cell.key] = time.perf_counter() - cell_started
-        _assemble(plan, out)
+        cell_times: dict[str, float] = {}
+        try:
+            for item in work:
+                if item.note:
+                    report(f"{out}: cell {item.cell.key}: {item.note}")
+                started = time.perf_counter()
+                try:
+                    item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out)
+                finally:
+                    cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
+            _assemble(plan, out, work, report)
+        except BaseException as error:
+            error.add_note(_keep_what_ran(out, manifest, _summed(cell_times, earlier), earlier_record))
+            raise
+        manifest.update(finished=now(), complete=True, batched={item.cell.key: item.target.batched for item in work})
         # Times add up over the runs that made the folder (a resumed or extended run's own time
-        # plus the earlier ones'), as a filter run's do.
-        cell_times = {key: round(value + earlier.get(key, 0.0), 3) for key, value in cell_times.items()}
-        manifest.update(finished=now(), complete=True, wall_time_s=round(sum(cell_times.values()), 3),
-                        cell_wall_time_s=cell_times, batched=batched)
+        # plus the earlier ones', an interrupted run's included), as a filter run's do.
+        cell_times = _summed(cell_times, earlier)
+        manifest.update(wall_time_s=round(sum(cell_times.values()), 3), cell_wall_time_s=cell_times)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
     from pfx.figures.registry import render_figures
 
@@ -85,138 +131,230 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
     return out
 
 
-def _earlier_times(out: Path, fresh: bool) -> dict:
-    """The cells' wall times of the runs that made the folder so far: the finished manifest's
-    (a run stopped before its end records none, and its time is lost)."""
-    from pfx.result_folder import read_manifest
-
-    manifest = None if fresh else read_manifest(out)
-    return dict((manifest or {}).get("cell_wall_time_s") or {}) if (manifest or {}).get("complete") else {}
+def _summed(times: dict[str, float], earlier: dict[str, float]) -> dict[str, float]:
+    return {key: round(value + earlier.get(key, 0.0), 3) for key, value in times.items()}
 
 
-def _progress_file(out: Path, cell: Cell) -> Path:
-    return out / PROGRESS / f"{cell.key}.csv"
+def _keep_what_ran(out: Path, manifest: dict, cell_times: dict, earlier_record: dict[str, bytes]) -> str:
+    """After a stopped or failed run: with progress kept, the manifest records the time spent
+    (an unfinished manifest: the same command resumes); without, the folder is put back as the
+    run found it (so that no later run takes it for progress). Returns what was kept, in words."""
+    if any((out / PROGRESS).glob("*.csv")):
+        write_text(json.dumps({**manifest, "cell_wall_time_s": cell_times}, indent=2), out / MANIFEST)
+        return f"the chains so far are kept in {out / PROGRESS}; run the same command again to resume"
+    for name in RECORD:
+        if name in earlier_record:
+            write_bytes(earlier_record[name], out / name)
+        else:
+            (out / name).unlink(missing_ok=True)
+    if not earlier_record:
+        shutil.rmtree(out / PLUGIN_COPIES, ignore_errors=True)
+    if not any((out / PROGRESS).iterdir()):
+        (out / PROGRESS).rmdir()
+    return f"{out} holds its earlier results, unchanged" if earlier_record else "no iteration finished, so nothing was kept"
 
 
-def _kept(out: Path, cell: Cell, iterations: int) -> pd.DataFrame:
-    """A cell's rows kept from an earlier run (empty if none); refuses to drop iterations."""
-    path = _progress_file(out, cell)
+# -- what a run takes up: the rows kept, or the starts -------------------------------------------------
+
+def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellWork]) -> list[CellWork]:
+    """Every cell's work, read and checked (module docstring), writing nothing. ``state``: what
+    the folder holds (nothing, with --fresh); ``earlier``: the work found before the lock, whose
+    computed starts are reused (they do not depend on the folder)."""
+    estimation, work = plan.experiment.estimation, []
+    # A finished run's progress files hold every iteration its manifest records, no fewer.
+    finished = (state.manifest or {}).get("estimation", {}).get("iterations") if state.complete else None
+    for cell in plan.cells:
+        before = earlier.get(cell.key)
+        target = before.target if before else EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
+        item = None
+        if state.manifest is not None:
+            item = (_resumed_pmmh if estimation.method == "pmmh" else _resumed_if2)(plan, target, out)
+        if item is None and finished is not None:
+            raise damaged(progress_file(out, cell), "is missing, and the folder's manifest.json records a finished run")
+        if item is None:
+            item = before if before is not None and before.started else _started(plan, target)
+        held = int(item.rows["iteration"].iloc[-1])
+        if finished is not None and held != finished:
+            raise damaged(progress_file(out, cell), f"holds iterations 0 to {held}, and the folder's manifest.json "
+                                                    f"records a finished run of {finished}", len(item.rows) + 2)
+        if held > estimation.iterations:
+            raise ConfigError(f"{out} holds {held} iterations of cell {cell.key}; asking for {estimation.iterations} "
+                              "would drop some (ask for at least as many, or use --fresh)", file=str(out),
+                              key="estimation.iterations")
+        work.append(item)
+    return work
+
+
+def _started(plan: Plan, target: EstimationTarget) -> CellWork:
+    """A cell's iteration 0, its starts checked (a ConfigError naming the chain, the parameters
+    and the config's key otherwise)."""
+    started = time.perf_counter()
+    try:
+        if plan.experiment.estimation.method == "pmmh":
+            chains = _sampler(plan, target).start()
+            state, rows = chains, _chain_rows(chains, 0, np.zeros(len(chains.values), dtype=bool), target)
+        else:
+            method = _iterated_filtering(plan, target)
+            state = method.start()
+            rows = _if2_rows(method.estimates(state), 0, np.full(method.replicates, np.nan), target)
+    except ConfigError as error:
+        raise error.located(file=plan.file) from None
+    return CellWork(target.cell, target, rows, state, first=1, started=True, seconds=time.perf_counter() - started)
+
+
+def _resumed_pmmh(plan: Plan, target: EstimationTarget, out: Path) -> CellWork | None:
+    """The chains as the folder's progress file left them (None if it has none)."""
+    path = progress_file(out, target.cell)
     if not path.is_file():
-        return pd.DataFrame()
-    rows = read_table(path)
-    if not rows.empty and rows["iteration"].max() > iterations:
-        raise ConfigError(f"{out} holds {rows['iteration'].max()} iterations of cell {cell.key}; asking for "
-                          f"{iterations} would drop some (ask for at least as many, or use --fresh)",
-                          file=str(out), key="estimation.iterations")
-    return rows
+        return None
+    estimation, columns = target.estimation, target.columns
+    rows = read_rows(path, "pmmh", columns, estimation.chains, estimation.warm_up)
+    values = rows[columns].to_numpy(dtype=float).reshape(-1, estimation.chains, len(columns))
+    last = rows.iloc[-estimation.chains:]
+    chains = Chains(values=values[-1].copy(), log_likelihood=last["log_likelihood"].to_numpy(float),
+                    log_prior=last["log_prior"].to_numpy(float), history=list(values))
+    first = len(values)
+    note = f"continuing the chains from iteration {first}" if first <= estimation.iterations else ""
+    return CellWork(target.cell, target, rows, chains, first, started=False, note=note)
 
 
-def _run_pmmh(plan: Plan, target: EstimationTarget, out: Path, report: Callable[[str], None]) -> None:
-    estimation, cell, columns = target.estimation, target.cell, target.columns
-    sampler = ParticleMarginalMetropolisHastings(target, plan.experiment.seed, cell.stream_key)
-    kept = _kept(out, cell, estimation.iterations)
-    frames = [kept] if not kept.empty else []
-    if kept.empty:
-        chains = sampler.start()
-        frames.append(_chain_rows(chains, 0, np.zeros(estimation.chains, dtype=bool), columns, estimation.warm_up))
-        first = 1
+def _resumed_if2(plan: Plan, target: EstimationTarget, out: Path) -> CellWork | None:
+    """IF2's estimates and swarm as the folder's progress files left them (None if there are
+    none, or only a first pass whose swarm was never saved). The estimates of a pass are its
+    swarm's means, so the swarm file must give those of the table's last pass; or those of the
+    pass before, when a run stopped after writing the table and before the swarm (the last pass
+    is then computed again, to the same numbers)."""
+    path, swarm_path = progress_file(out, target.cell), swarm_file(out, target.cell)
+    if not path.is_file():
+        return None
+    columns, method = target.columns, _iterated_filtering(plan, target)
+    rows = read_rows(path, "if2", columns, method.replicates)
+    estimates = rows[columns].to_numpy(dtype=float).reshape(-1, method.replicates, len(columns))
+    last = len(estimates) - 1
+    if not swarm_path.is_file():
+        if last <= 1:
+            return None
+        raise damaged(swarm_path, f"is missing, and {path.name} holds {last} passes")
+    swarm = read_swarm(swarm_path, (method.replicates, method.particles, len(columns)))
+    means = method.estimates(swarm)
+    if np.array_equal(means, estimates[last]):
+        first, note = last + 1, f"continuing IF2 from iteration {last + 1}"
+    elif np.array_equal(means, estimates[last - 1]):
+        rows = rows[rows["iteration"] < last]
+        first, note = last, f"continuing IF2 from iteration {last} (computed again: a stopped run saved its estimates, " \
+                            "not its swarm)"
     else:
-        kept = kept.sort_values(["iteration", "chain"])
-        last = kept[kept["iteration"] == kept["iteration"].max()]
-        chains = Chains(values=last[columns].to_numpy(dtype=float), log_likelihood=last["log_likelihood"].to_numpy(float),
-                        log_prior=last["log_prior"].to_numpy(float),
-                        history=[rows[columns].to_numpy(dtype=float) for _, rows in kept.groupby("iteration", sort=True)])
-        first = int(last["iteration"].iloc[0]) + 1
-        if first <= estimation.iterations:
-            report(f"{out}: cell {cell.key}: continuing the chains from iteration {first}")
-    saved = time.perf_counter()
-    for iteration in range(first, estimation.iterations + 1):
-        accepted = sampler.iterate(chains, iteration)
-        frames.append(_chain_rows(chains, iteration, accepted, columns, estimation.warm_up))
-        if time.perf_counter() - saved > CHECKPOINT_SECONDS or iteration == estimation.iterations:
+        raise damaged(swarm_path, f"holds a swarm whose means are not the estimates of iteration {last} in {path.name}")
+    if first > target.estimation.iterations:
+        note = ""
+    return CellWork(target.cell, target, rows, swarm, first, started=False, note=note)
+
+
+def _sampler(plan: Plan, target: EstimationTarget) -> ParticleMarginalMetropolisHastings:
+    return ParticleMarginalMetropolisHastings(target, plan.experiment.seed, target.cell.stream_key)
+
+
+def _iterated_filtering(plan: Plan, target: EstimationTarget) -> IteratedFiltering:
+    return IteratedFiltering(target, plan.experiment.seed, target.cell.stream_key)
+
+
+# -- running the iterations -----------------------------------------------------------------------------
+
+def _run_pmmh(item: CellWork, plan: Plan, out: Path) -> pd.DataFrame:
+    """The cell's remaining iterations; its rows saved every CHECKPOINT_SECONDS, at the end, and
+    when the run stops (all complete iterations: a stopped run keeps its work)."""
+    estimation, target, chains = plan.experiment.estimation, item.target, item.state
+    sampler = _sampler(plan, target)
+    frames, unsaved, saved = [item.rows], item.started, time.perf_counter()
+    try:
+        for iteration in range(item.first, estimation.iterations + 1):
+            accepted = sampler.iterate(chains, iteration)
+            frames.append(_chain_rows(chains, iteration, accepted, target))
+            unsaved = True
+            if time.perf_counter() - saved > CHECKPOINT_SECONDS:
+                frames = [pd.concat(frames, ignore_index=True)]
+                write_csv(frames[0], progress_file(out, item.cell))
+                unsaved, saved = False, time.perf_counter()
+            raise_if_requested()           # a stop whose exception a finaliser swallowed
+    finally:
+        if unsaved:
             frames = [pd.concat(frames, ignore_index=True)]
-            write_csv(frames[0], _progress_file(out, cell))
-            saved = time.perf_counter()
+            write_csv(frames[0], progress_file(out, item.cell))
+    return frames[0]
 
 
-def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, columns: list[str], warm_up: int) -> pd.DataFrame:
-    count = len(chains.values)
-    return pd.DataFrame({"chain": np.arange(count), "iteration": iteration, "warm_up": iteration <= warm_up,
+def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, target: EstimationTarget) -> pd.DataFrame:
+    columns, count = target.columns, len(chains.values)
+    rows = pd.DataFrame({"chain": np.arange(count), "iteration": iteration,
+                         "warm_up": iteration <= target.estimation.warm_up,
                          **{name: chains.values[:, j] for j, name in enumerate(columns)},
                          "log_likelihood": chains.log_likelihood, "log_prior": chains.log_prior,
                          "accepted": accepted})
+    return rows[CHAINS.progress_columns(columns)]
 
 
-def _run_if2(plan: Plan, target: EstimationTarget, out: Path, report: Callable[[str], None]) -> None:
-    estimation, cell, columns = target.estimation, target.cell, target.columns
-    method = IteratedFiltering(target, plan.experiment.seed, cell.stream_key)
-    kept = _kept(out, cell, estimation.iterations)
-    swarm_file = out / PROGRESS / f"{cell.key}.swarm.npy"
-    if kept.empty or not swarm_file.is_file():
-        swarm = method.start()
-        frames = [_if2_rows(method.estimates(swarm), 0, np.full(method.replicates, np.nan), columns)]
-        first = 1
-    else:
-        import io
-
-        swarm = np.load(io.BytesIO(swarm_file.read_bytes()))
-        frames = [kept]
-        first = int(kept["iteration"].max()) + 1
-        if first <= estimation.iterations:
-            report(f"{out}: cell {cell.key}: continuing IF2 from iteration {first}")
-    for iteration in range(first, estimation.iterations + 1):
+def _run_if2(item: CellWork, plan: Plan, out: Path) -> pd.DataFrame:
+    """The cell's remaining passes, each saved as it ends: the table, then the swarm (a run
+    stopped between the two leaves the table a pass ahead, which the next run computes again)."""
+    estimation, target, swarm, rows = plan.experiment.estimation, item.target, item.state, item.rows
+    method = _iterated_filtering(plan, target)
+    for iteration in range(item.first, estimation.iterations + 1):
         swarm, log_likelihood = method.iterate(swarm, iteration)
-        frames.append(_if2_rows(method.estimates(swarm), iteration, log_likelihood, columns))
-        _save_swarm(swarm, swarm_file)
-        write_csv(pd.concat(frames, ignore_index=True), _progress_file(out, cell))
-    if first > estimation.iterations:
-        write_csv(pd.concat(frames, ignore_index=True), _progress_file(out, cell))
+        rows = pd.concat([rows, _if2_rows(method.estimates(swarm), iteration, log_likelihood, target)],
+                         ignore_index=True)
+        write_csv(rows, progress_file(out, item.cell))
+        save_swarm(swarm, swarm_file(out, item.cell))
+        raise_if_requested()
+    return rows
 
 
-def _save_swarm(swarm: np.ndarray, path: Path) -> None:
-    import io
-
-    buffer = io.BytesIO()
-    np.save(buffer, swarm)
-    write_bytes(buffer.getvalue(), path)
-
-
-def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray, columns: list[str]) -> pd.DataFrame:
-    return pd.DataFrame({"replicate": np.arange(len(estimates)), "iteration": iteration,
+def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray, target: EstimationTarget
+              ) -> pd.DataFrame:
+    columns = target.columns
+    rows = pd.DataFrame({"replicate": np.arange(len(estimates)), "iteration": iteration,
                          **{name: estimates[:, j] for j, name in enumerate(columns)},
                          "log_likelihood": log_likelihood})
+    return rows[IF2.progress_columns(columns)]
 
 
-def _assemble(plan: Plan, out: Path) -> None:
-    """The tables of every cell, from the progress files (labels first, as in trials.csv)."""
+# -- the tables ---------------------------------------------------------------------------------------------
+
+def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str], None]) -> None:
+    """The tables of every cell, from its rows (labels first, as in trials.csv)."""
     estimation = plan.experiment.estimation
-    columns = estimation.columns
+    columns, labels = estimation.columns, plan.label_columns
     frames, summaries, finals = [], [], []
-    for cell in plan.cells:
-        rows = read_table(_progress_file(out, cell))
-        rows = rows[rows["iteration"] <= estimation.iterations]
+    for item in work:
+        cell = item.cell
+        rows = item.rows[item.rows["iteration"] <= estimation.iterations]
         labelled = pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=rows.index), rows], axis=1)
         frames.append(labelled)
         if estimation.method == "pmmh":
             summary = posterior_summary(rows, columns, estimation.warm_up)
+            if (summary["acceptance_rate"] == 0).all():
+                report(f"{out}: cell {cell.key}: no chain accepted a proposal after the warm-up, so each chain's "
+                       "posterior draws are one point, repeated (posterior.csv: acceptance_rate 0); try a smaller "
+                       "proposal_sd, adapt, a longer warm-up or more particles")
             summaries.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=summary.index),
                                         summary], axis=1))
         else:
-            method = IteratedFiltering(EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed)),
-                                       plan.experiment.seed, cell.stream_key)
             last = rows[rows["iteration"] == rows["iteration"].max()].sort_values("replicate")
             estimates = last[columns].to_numpy(dtype=float)
-            log_likelihood, standard_error = method.evaluate(estimates)
+            log_likelihood, standard_error = _iterated_filtering(plan, item.target).evaluate(estimates)
             final = pd.DataFrame({"cell": cell.key, **cell.labels, "replicate": last["replicate"].to_numpy(),
                                   **{name: estimates[:, j] for j, name in enumerate(columns)},
                                   "log_likelihood": log_likelihood, "log_likelihood_se": standard_error})
-            finals.append(final)
+            finals.append(final[MAXIMUM_LIKELIHOOD.columns(labels, columns)])
+            if not np.isfinite(log_likelihood).any():
+                report(f"{out}: cell {cell.key}: every replicate's likelihood is zero at its final estimate "
+                       "(log_likelihood -inf in maximum_likelihood.csv): no particle explained some measurement; "
+                       "try other starts, a smaller random_walk_sd, more particles, or a wider measurement noise")
     table = pd.concat(frames, ignore_index=True)
     if estimation.method == "pmmh":
-        write_csv(table, out / "chains.csv")
+        write_csv(table[CHAINS.columns(labels, columns)], out / "chains.csv")
         write_csv(pd.concat(summaries, ignore_index=True), out / "posterior.csv")
         draws = table[~table["warm_up"].astype(bool)]
         write_csv(prior_grid(estimation, draws), out / "priors.csv")
     else:
-        write_csv(table, out / "if2.csv")
+        write_csv(table[IF2.columns(labels, columns)], out / "if2.csv")
         write_csv(pd.concat(finals, ignore_index=True), out / "maximum_likelihood.csv")
