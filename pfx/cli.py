@@ -82,8 +82,8 @@ def _guarded(command):
     def wrapper(*args, **kwargs):
         try:
             return command(*args, **kwargs)
-        except ConfigError as error:
-            _fail(str(error), error=error)
+        except ConfigError as error:         # one found while running also says what the run kept
+            _fail(_with_outcome(str(error), error), error=error)
         except (ModelNumericalError, ModelContractError, PluginFault, ExecutorError) as error:
             _fail(_with_outcome(str(error), error), status=1, error=error)
         except Interrupted as error:

@@ -491,3 +491,17 @@ def test_an_estimation_config_records_the_figures_it_draws(method):
     assert recorded == {"pmmh": ["chain_traces", "posterior_marginals", "posterior_pairs"],
                         "if2": ["if2_convergence"]}[method]
     assert build_plan(plan.resolved, "again.yaml").resolved == plan.resolved       # the record reruns
+
+
+def test_if2_whose_random_walk_leaves_the_models_range_names_the_parameter_and_the_transform(tmp_path):
+    """A normal prior on a variance with ``transform: none``: IF2's random walk soon carries some
+    particle's variance below zero, which the model refuses. One ConfigError naming the parameter's
+    transform key and what to use instead, never the model's ValueError from inside the filter."""
+    config = with_parameter(estimation_config("if2"), prior={"law": "normal", "mean": 1.0, "sd": 2.0},
+                            transform="none", start=[0.5, 1.0], random_walk_sd=0.5)
+    with pytest.raises(ConfigError) as caught:
+        pfx.run(config, out=tmp_path / "out")
+    message = str(caught.value)
+    assert message.startswith(f"<dict>: estimation.parameters.{PROCESS}.transform: IF2's random walk (transform: "
+                              f"none) moved {PROCESS} to -"), message
+    assert "transform: log" in message and len(message.splitlines()) == 1

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pfx.errors import ConfigError
 from pfx.estimation.target import EstimationTarget, RowPriors
 from pfx.filters.particle.bound import bind_particle_filter
 from pfx.filters.particle.engine import ParticleFilter
@@ -68,7 +69,33 @@ class PerturbedParameters:
         return parameters + self.perturbation_sd(step) * random.standard_normal(parameters.shape[1:])
 
     def at(self, parameters: np.ndarray):
-        return self.model.with_parameter_arrays(self.target.parameter_arrays(self.target.to_natural(parameters)))
+        natural = self.target.to_natural(parameters)
+        try:
+            return self.model.with_parameter_arrays(self.target.parameter_arrays(natural))
+        except ValueError as error:
+            raise self._outside_the_model(natural, error) from None
+
+    def _outside_the_model(self, natural: np.ndarray, error: ValueError) -> ConfigError:
+        """The random walk carried a particle's parameter where the model refuses it (a variance
+        below zero on the scale of ``transform: none``): one line naming the parameter, the value
+        and the transform that keeps it inside. The run stops; the passes before are kept."""
+        target = self.target
+        culprit = 0
+        for j in range(target.dimension):     # which parameter the model refuses on its own
+            try:
+                self.model.with_parameter_arrays({target.paths[j][len("model."):]: natural[..., j:j + 1]})
+            except ValueError:
+                culprit = j
+                break
+        path = target.paths[culprit]
+        transform = target.transforms[culprit].name
+        value = natural[..., culprit].min() if np.any(natural[..., culprit] <= 0) else natural[..., culprit].max()
+        reason = str(error).split(": ", 1)[-1] if str(error).startswith("@") else str(error)
+        return ConfigError(f"IF2's random walk (transform: {transform}) moved {path} to {value:.4g} in pass "
+                           f"{self.iteration}, where model {self.model.kind} refuses it ({reason}); estimate it on a "
+                           "scale that stays inside the model's range (transform: log for a positive value, logit "
+                           "for a bounded one, with a prior whose support is that range)",
+                           key=f"estimation.parameters.{path}.transform")
 
     def compiled_step(self):
         return None

@@ -117,7 +117,12 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                     cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
             _assemble(plan, out, work, report)
         except BaseException as error:
-            error.add_note(_keep_what_ran(out, manifest, _summed(cell_times, earlier), earlier_record))
+            kept = _keep_what_ran(out, manifest, _summed(cell_times, earlier), earlier_record)
+            if isinstance(error, ConfigError) and not error.file:     # found while running (IF2's random walk)
+                located = error.located(file=plan.file)
+                located.add_note(kept)
+                raise located from None
+            error.add_note(kept)
             raise
         manifest.update(finished=now(), complete=True, batched={item.cell.key: item.target.batched for item in work})
         # Times add up over the runs that made the folder (a resumed or extended run's own time
