@@ -33,6 +33,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from pfx.config.plan import check_plugin_model
 from pfx.config.plugins import loaded_plugins
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
@@ -118,6 +119,8 @@ class Filter:
 def particle_filter(model: Model, *, kind: str = "particle", prior=None, **settings: Any) -> Filter:
     """Bind a filter to ``model`` once: ``settings`` are a config's ``filter:`` keys (module
     docstring); ``prior`` the filter's initial law (default: the model's ``default_prior()``)."""
+    if isinstance(model, Model):        # a plugin's model: checked as a config's is
+        check_plugin_model(model, loaded_plugins())
     schema = config_schema([plugin.origin for plugin in loaded_plugins()])     # plugins' components too
     filter_settings = validate(schema.FilterConfig, {"kind": kind, **settings}, file=CALLER, prefix="filter")
     chosen = prior if prior is not None else filter_settings.initial or model.default_prior()
