@@ -34,6 +34,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from pfx.config.plan import check_plugin_model
+from pfx.config.plugin_faults import locate
 from pfx.config.plugins import loaded_plugins
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
@@ -127,8 +128,13 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
     try:
         bind_law(chosen, model.state_dimension, "initial")
         planned = FILTERS[kind].plan(model, filter_settings, chosen)
-    except ValueError as error:
-        raise located_value_error(error, prefix="filter", file=CALLER) from None
+    except Exception as error:
+        fault = locate(error)           # raised in a plugin's code, while the kind probed its model
+        if fault is not None:
+            raise fault.as_config_error() from error
+        if isinstance(error, ValueError):
+            raise located_value_error(error, prefix="filter", file=CALLER) from None
+        raise
     return Filter(model, kind, filter_settings, chosen, planned)
 
 

@@ -192,6 +192,17 @@ def test_a_plugins_exception_inside_the_probe_is_located_in_its_file(tmp_path):
     assert error.reason == f"model {kind}: log_likelihood raised ValueError: a bearing this far off"
 
 
+def test_a_plugins_exception_inside_the_probe_is_located_from_the_python_door_too(tmp_path):
+    from pfx.config.plugins import load_plugin
+
+    _, kind = plugin_case(tmp_path, RANGE_BEARING, REFUSING_LIKELIHOOD)
+    load_plugin(f"{kind}.py", tmp_path)
+    model = pfx.model(kind, **RANGE_BEARING_MODEL)
+    with pytest.raises(ConfigError, match=rf"{kind}\.py:\d+: model {kind}: log_likelihood raised ValueError: a "
+                                          "bearing this far off$"):
+        pfx.particle_filter(model, kind="ekf")
+
+
 def test_the_python_door_refuses_as_a_config_does(tmp_path):
     config, kind = plugin_case(tmp_path, RANGE_BEARING, WRAPPING_LIKELIHOOD)
     model = plan_of(config).cells[0].truth_model
