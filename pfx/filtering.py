@@ -42,7 +42,9 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from pfx import python_arguments as arguments
-from pfx.config.plugins import LoadedPlugin, python_origins
+from pfx.config.plan import check_plugin_model
+from pfx.config.plugin_faults import locate
+from pfx.config.plugins import LoadedPlugin, loaded_plugins, python_origins
 from pfx.config.plugins import load_plugin as load_plugin_entry
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
@@ -136,8 +138,10 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
     """Bind a filter to ``model`` once: ``settings`` are a config's ``filter:`` keys (module
     docstring); ``prior`` the filter's initial law, an initial law object or a dict read as a
     config's ``filter.initial`` (default: the ``initial`` setting, else the model's
-    ``default_prior()``)."""
+    ``default_prior()``). A plugin's model is checked as a config's is (its contract, no global
+    random generator)."""
     model = arguments.model_argument(model)
+    check_plugin_model(model, loaded_plugins())
     schema = config_schema(python_origins())          # the loaded plugins' components too
     filter_settings = arguments.validate_settings(schema, kind, settings)
     given = arguments.prior_argument(
@@ -147,8 +151,13 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
     arguments.bind_prior(chosen, model, given is not None)
     try:
         planned = FILTERS[filter_settings.kind].plan(model, filter_settings, chosen)
-    except ValueError as error:
-        raise located_value_error(error, prefix="filter", file=CALLER) from None
+    except Exception as error:
+        fault = locate(error)           # raised in a plugin's code, while the kind probed its model
+        if fault is not None:
+            raise fault.as_config_error() from error
+        if isinstance(error, ValueError):
+            raise located_value_error(error, prefix="filter", file=CALLER) from None
+        raise
     return Filter(model, filter_settings.kind, filter_settings, chosen, planned)
 
 

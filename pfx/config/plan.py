@@ -13,10 +13,11 @@ pfx's own components plus theirs. Their code's hashes join the config and result
 from __future__ import annotations
 
 import copy
+import inspect
 import itertools
 import json
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Optional
+from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
@@ -38,6 +39,7 @@ from pfx.errors import ConfigError, located_value_error
 from pfx.filters import FILTERS, FilterKind
 from pfx.models import MODELS
 from pfx.models.base import Model, bind_law
+from pfx.models.contract_checks import reproducibility_fault
 from pfx.numerics.hashing import canonical_hash
 
 if TYPE_CHECKING:       # the classes of the built-in components; a plan's own come from config_schema
@@ -230,8 +232,9 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         experiment = validate((schema or config_schema()).Experiment, cell_raw, file=file)
         settings = experiment.filter
         truth = experiment.model
-        _check_plugin_model(truth, plugins, file)
+        check_plugin_model(truth, plugins)
         filter_model = _filter_model(truth, cell_raw["model"], settings.model, file, "filter.model")
+        check_plugin_model(filter_model, plugins)
         if (filter_model.state_dimension, filter_model.measurement_dimension) != \
                 (truth.state_dimension, truth.measurement_dimension):
             raise ConfigError("the filter's model must have the true model's state and measurement sizes",
@@ -248,6 +251,9 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         try:        # the kind's checks, and what it fixes for the cell (the histogram grid)
             planned_filter = FILTERS[settings.kind].plan(filter_model, settings, prior)
         except ValueError as error:
+            fault = locate(error, plugins)      # a plugin's own ValueError, met while a check probed it
+            if fault is not None:
+                raise fault.as_config_error() from error
             raise located_value_error(error, prefix="filter", file=file) from None
         except ConfigError as error:
             raise error.located(file=file) from None
@@ -311,27 +317,39 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     return plan
 
 
-def _check_plugin_model(model: Model, plugins: tuple[LoadedPlugin, ...], file: str) -> None:
-    """A plugin's model, called once on a tiny batch before anything runs (its shapes and dtypes:
-    :meth:`Model.check_contract`); its mistakes are one line naming the plugin file."""
-    origin = MODELS.origin(model.kind)
-    plugin = next((plugin for plugin in plugins if plugin.origin == origin), None)
+def check_plugin_model(model: Model, plugins: Iterable[LoadedPlugin]) -> None:
+    """A plugin's model, checked before anything runs: called once on a tiny batch (its shapes,
+    dtypes and declared index lists: :meth:`Model.check_contract`), then probed for a global
+    random generator (the same inputs twice must give the same outputs:
+    :func:`~pfx.models.contract_checks.reproducibility_fault`). Its mistakes are one
+    :class:`ConfigError` line naming the plugin file (and the line, where known). A model whose
+    class none of ``plugins`` registered or defines (pfx's own) passes unchecked."""
+    model_class = type(model)
+    registered = model.kind in MODELS and MODELS[model.kind] is model_class
+    origin = MODELS.origin(model.kind) if registered else None     # the plugin that registered it, if one did
+    plugin = next((plugin for plugin in plugins
+                   if (origin is not None and plugin.origin == origin) or plugin.module == model_class.__module__),
+                  None)
     if plugin is None:
         return
     from pfx.numerics.seeding import TrialStreams
 
     try:
         model.check_contract(TrialStreams.from_seeds([0, 1]))
+        fault = reproducibility_fault(model)
+        if fault is not None:
+            raise ValueError(fault)
     except Exception as error:          # the plugin's own code: any exception is its mistake
-        fault = locate(error, [plugin])
-        if fault is not None:           # raised in the plugin's code: its line
-            raise fault.as_config_error() from error
+        located = locate(error, [plugin])
+        if located is not None:         # raised in the plugin's code: its line
+            raise located.as_config_error() from error
         # A result pfx's check refused: the line of the member's definition, where it has one.
         reason = " ".join(str(error).split())
-        member = getattr(type(model), reason.split(" ", 1)[0], None)
+        member = inspect.getattr_static(model_class, reason.split(" ", 1)[0], None)
         function = member.fget if isinstance(member, property) else member
         code = getattr(function, "__code__", None)
-        line = code.co_firstlineno if code is not None and code.co_filename == plugin.path else None
+        line = code.co_firstlineno if code is not None and code.co_filename in (plugin.path, plugin.code_file) \
+            else None
         raise ConfigError(f"model {model.kind}: {reason}", file=plugin.path, line=line) from error
 
 

@@ -118,7 +118,7 @@ def derive_transition_density(model) -> AdditiveTransition | TransitionDensityUn
     else:
         return TransitionDensityUnavailable(f"gives no process_noise_jacobian and has {q} noise component(s) for "
                                             f"{d} state components (it does not declare its process noise additive)")
-    if not _enters_additively(model, gain):
+    if not enters_additively(model, gain):
         return TransitionDensityUnavailable("has noise that does not enter additively (x' = f(x, u) + L w does not "
                                             "hold for its propagate)")
     identity = gain.shape == (d, d) and np.array_equal(gain, np.eye(d))
@@ -132,7 +132,7 @@ def derive_transition_density(model) -> AdditiveTransition | TransitionDensityUn
     return AdditiveTransition(gain=gain, noise=noise, covariance=covariance, factor=factor, identity_gain=identity)
 
 
-def _enters_additively(model, gain: np.ndarray) -> bool:
+def enters_additively(model, gain: np.ndarray) -> bool:
     """Whether propagate(x, u, w) - propagate(x, u, 0) = L w, checked numerically on seven states
     drawn from the initial law with a fixed pattern of noises w scaled by the per-component
     noise standard deviations (a model's code cannot be inspected, and a declared Jacobian may

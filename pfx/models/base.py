@@ -78,6 +78,8 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, Str
 
 from pfx.laws.initial import InitialLaw
 from pfx.laws.noise import Noise
+from pfx.models.contract_checks import check_component_indices
+from pfx.numerics.angles import wrap_components
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
@@ -177,6 +179,32 @@ class Model(BaseModel):
         return 2.0 * math.pi
 
     @property
+    def measurement_angular_components(self) -> tuple[int, ...]:
+        """Indices of the measurement components that are angles (bearings), in units of
+        :attr:`measurement_full_turn`; default none.
+
+        An angle and the same angle plus a full turn are one measurement: the default
+        :meth:`log_likelihood`, the Kalman filters and the guided proposals wrap the innovation
+        z - h(x) of these components into half a turn either side, and the UKF averages their
+        sigma points on the circle (:mod:`pfx.filters.kalman.measurement_form`).
+        """
+        return ()
+
+    @property
+    def measurement_full_turn(self) -> float:
+        """One full turn in the unit of the angular measurement components (2 pi: radians)."""
+        return 2.0 * math.pi
+
+    @property
+    def matrices(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """(A, H) for a linear model, the Kalman filter's (``kf``) matrices: ``propagate(x, u_k, w)
+        = A x + c_k + L w`` (c_k = propagate(0, u_k, 0), the control's share; L the process noise
+        Jacobian) and ``measurement_mean(x) = H x``; A of shape (d, d), H (m, d). None (the
+        default): not a linear model. pfx checks a plugin's matrices against its ``propagate``
+        and ``measurement_mean`` before the kf runs (:mod:`pfx.filters.kalman.linear_form`)."""
+        return None
+
+    @property
     def covariate_names(self) -> tuple[str, ...]:
         """The covariates the model reads (:meth:`covariates_at`), in order; default none."""
         return ()
@@ -243,8 +271,14 @@ class Model(BaseModel):
         return self.measurement_mean(state) + noise
 
     def log_likelihood(self, measurement: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """log p(z | x) under the measurement noise; ``measurement`` broadcasts against ``state``."""
-        return self.measurement_noise.log_density(measurement - self.measurement_mean(state))
+        """log p(z | x) under the measurement noise, of the innovation z - h(x) with its angular
+        components (:attr:`measurement_angular_components`) wrapped; ``measurement`` broadcasts
+        against ``state``."""
+        innovation = measurement - self.measurement_mean(state)
+        angles = self.measurement_angular_components
+        if angles:
+            innovation = wrap_components(innovation, angles, self.measurement_full_turn)
+        return self.measurement_noise.log_density(innovation)
 
     def default_prior(self):
         """The prior a filter starts from unless its config names one (default: ``initial``)."""
@@ -487,19 +521,13 @@ class Model(BaseModel):
     def check_contract(self, random: TrialStreams) -> None:
         """Call the model's methods once on a tiny batch (2 trials, 3 particles drawn from the
         initial law) and raise ``ValueError("<method> returned ...")`` where a result has the
-        wrong shape or is not a floating-point array: the public contract (module docstring),
-        checked before a run rather than deep inside the engine."""
+        wrong shape or is not a floating-point array, or a declared index list is not one
+        (:func:`~pfx.models.contract_checks.check_component_indices`): the public contract
+        (module docstring), checked before a run rather than deep inside the engine."""
         trials, particles = 2, 3
         self._check_names()
         d, m = self.state_dimension, self.measurement_dimension
-        for name in ("position_components", "angular_components", "accumulating_components"):
-            components = tuple(getattr(self, name))
-            if not all(isinstance(c, (int, np.integer)) and not isinstance(c, bool) and 0 <= c < d
-                       for c in components):
-                raise ValueError(f"{name} returned {components!r}; expected indices of state components "
-                                 f"(integers 0..{d - 1}, e.g. (0,) for {self.state_names[0]})")
-        if not tuple(self.position_components):
-            raise ValueError("position_components returned no component; expected at least one index")
+        check_component_indices(self)
         for path in type(self).vectorised_parameters:
             value = getattr(self, path, None) if path not in NOISE_VARIANCES else 0.0
             if isinstance(value, bool) or not isinstance(value, (int, float)):

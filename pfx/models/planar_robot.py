@@ -22,10 +22,11 @@ bearing relative to the heading, :math:`z = (r_1..r_m, b_1..b_m) + v`:
 .. math:: r_j = \lVert (x, y) - l_j \rVert, \qquad
           b_j = \mathrm{wrap}(\mathrm{atan2}(l_{j,y} - y, l_{j,x} - x) - \theta).
 
-The likelihood wraps the bearing innovation :math:`z - h(x)` to :math:`(-\pi, \pi]`. Only the
-model's own likelihood does (the ``gaussian`` weighting); the distance weightings and the
-Kalman filters take the plain difference, so with bearings near :math:`\pm\pi` use the particle
-filter with ``gaussian`` weighting.
+The bearings are declared angular measurement components (``measurement_angular_components``),
+so the likelihood (the ``gaussian`` weighting), the Kalman filters and the guided proposals wrap
+the bearing innovation :math:`z - h(x)` to :math:`(-\pi, \pi]`
+(:mod:`pfx.filters.kalman.measurement_form`); the distance weightings take the plain
+difference, so with bearings near :math:`\pm\pi` weigh by the likelihood.
 
 **Process noise, for the Gaussian filters.** The motion noise is not additive in the state: it
 perturbs the control with variances that depend on the control. pfx writes it as
@@ -210,6 +211,11 @@ class PlanarRobot(Model):
         return len(self.landmarks) * (2 if self.bearings else 1)
 
     @property
+    def measurement_angular_components(self) -> tuple[int, ...]:
+        """The bearings (after the ranges), in radians."""
+        return tuple(range(len(self.landmarks), 2 * len(self.landmarks))) if self.bearings else ()
+
+    @property
     def commands(self) -> np.ndarray:
         """The velocity commands (v_k, w_k) of steps 1..T, shape (T, 2)."""
         return self._commands
@@ -277,10 +283,6 @@ class PlanarRobot(Model):
 
     def measure(self, state, noise):
         return self._wrap_bearings(self.measurement_mean(state) + noise)
-
-    def log_likelihood(self, measurement, state):
-        innovation = self._wrap_bearings(measurement - self.measurement_mean(state))
-        return self.measurement_noise.log_density(innovation)
 
     def measurement_jacobian(self, state):
         difference = state[..., None, :2] - self._landmark_array              # (..., m, 2): landmark -> robot

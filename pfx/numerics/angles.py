@@ -53,3 +53,13 @@ def circular_mean(weights: np.ndarray, angles: np.ndarray, full_turn: float) -> 
     sine = np.einsum("rn,rnk->rk", weights, np.sin(radians))
     cosine = np.einsum("rn,rnk->rk", weights, np.cos(radians))
     return wrap_into_turn(np.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)
+
+
+def wrap_components(difference: np.ndarray, components, full_turn: float) -> np.ndarray:
+    """``difference`` (..., k) with the listed components (indices on the last axis) wrapped
+    into (-full_turn / 2, full_turn / 2] (:func:`wrap_difference`); a copy, the other
+    components unchanged. The innovation z - h(x) of a model with angular measurements."""
+    components = list(components)
+    wrapped = np.array(difference, dtype=float)
+    wrapped[..., components] = wrap_difference(wrapped[..., components], full_turn)
+    return wrapped

@@ -33,10 +33,16 @@ the filter is consistent), and the log-likelihood
 :math:`\log p(z_{1:T}) = \sum_k \log N(z_k; \hat z_k, S_k)`, computed from a Cholesky factor of
 :math:`S_k` (:math:`\log|S_k| = 2 \sum_i \log (L_S)_{ii}`).
 
-``kf`` (Kalman 1960): f and h are linear, :math:`f = A x + B u + w`, :math:`h = H x`, from
-:attr:`~pfx.models.linear_gaussian.LinearGaussian.matrices`. With gaussian noise it is the exact
-posterior; with another noise family, the best linear (minimum-variance affine) estimator, and its
-log-likelihood that of the Gaussian approximation. It refuses every other model.
+``kf`` (Kalman 1960): f and h are linear, :math:`f = A x + c_k + L w`, :math:`h = H x`, with
+:math:`(A, H)` the matrices a model declares (:attr:`~pfx.models.base.Model.matrices`:
+``linear_gaussian``, or a plugin's, checked against its ``propagate`` and ``measurement_mean``)
+and :math:`c_k = f(0, u_k, 0)` (:mod:`~pfx.filters.kalman.linear_form`). With gaussian noise it
+is the exact posterior; with another noise family, the best linear (minimum-variance affine)
+estimator, and its log-likelihood that of the Gaussian approximation. It refuses every other model.
+
+**The measurement** is read as :math:`z = h(x) + v` with the innovation's angular components
+wrapped; a plugin model whose own ``log_likelihood`` is not of that form is refused by all three
+kinds before they run (:mod:`~pfx.filters.kalman.measurement_form`).
 
 **Non-finite values**: a mean or covariance that becomes NaN or infinite, or an innovation
 covariance that is not positive definite, raises :class:`~pfx.errors.ModelNumericalError`
@@ -49,12 +55,17 @@ S. J. Julier, "The scaled unscented transformation", ACC 2002; E. A. Wan, R. van
 Durrant-Whyte, IEEE TAC 45(3), 2000 (the falling-body comparison of EKF and UKF).
 
 The package: :mod:`~pfx.filters.kalman.recursion` (the predict/update recursion and the linear
-update every kind shares), :mod:`~pfx.filters.kalman.linearisation` (the EKF's Jacobians),
+update every kind shares), :mod:`~pfx.filters.kalman.measurement_form` (what the kinds assume of
+the measurement: the wrapped innovation, and the probe of a plugin's likelihood),
+:mod:`~pfx.filters.kalman.linear_form` (the kf's matrices, read from a model and checked),
+:mod:`~pfx.filters.kalman.prediction` (the kf's and ekf's predict),
+:mod:`~pfx.filters.kalman.linearisation` (the EKF's Jacobians),
 :mod:`~pfx.filters.kalman.unscented` (the unscented transform and its covariance repair),
 :mod:`~pfx.filters.kalman.kinds` (the three registered kinds and their predict steps),
 :mod:`~pfx.filters.kalman.smoothing` (the Rauch-Tung-Striebel smoother of each kind's run, after filtering).
 
-May import :mod:`pfx.filters.base`, :mod:`pfx.filters.trace` and :mod:`pfx.errors`.
+May import :mod:`pfx.filters.base`, :mod:`pfx.filters.trace`, :mod:`pfx.filters.smoothers`,
+:mod:`pfx.laws`, :mod:`pfx.numerics` and :mod:`pfx.errors`.
 """
 
 from pfx.filters.kalman import kinds  # noqa: F401  (registers kf, ekf, ukf)

@@ -5,17 +5,22 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.filters.base import FILTERS, FilterKind
+from pfx.filters.kalman.linear_form import check_linear_form, linear_form
 from pfx.filters.kalman.linearisation import measurement_jacobian
+from pfx.filters.kalman.measurement_form import check_measurement_form
 from pfx.filters.kalman.prediction import extended_prediction, linear_step_prediction
 from pfx.filters.kalman.recursion import gaussian_recursion, linear_update
 from pfx.filters.kalman.smoothing import smooth_after
 from pfx.filters.kalman.unscented import UnscentedParameters, run_unscented
 from pfx.filters.smoothers import check_smoothers
 
+# What a refusal of the Gaussian filters on a model's own likelihood suggests instead.
+PARTICLE_REMEDY = "use the particle filter (kind: particle), which weighs by the model's own log_likelihood"
+
 
 @FILTERS.register_kind
 class KalmanFilter(FilterKind):
-    """Kalman filter: the exact posterior of a linear_gaussian model."""
+    """Kalman filter: the exact posterior of a linear-Gaussian model (linear_gaussian, or a plugin that declares its matrices)."""
 
     kind = "kf"
     model_needs = ("matrices",)
@@ -23,20 +28,19 @@ class KalmanFilter(FilterKind):
 
     @classmethod
     def plan(cls, model, settings, prior) -> "KalmanFilter":
-        if getattr(model, "matrices", None) is None:
-            raise ValueError(f"@kind: the Kalman filter (kf) needs a linear_gaussian model, not {model.kind}; "
-                             "use ekf or ukf for nonlinear models")
+        check_linear_form(model, "the Kalman filter (kf)", "kind")
+        check_measurement_form(model, "the kf filter", "kind", PARTICLE_REMEDY)
         check_smoothers(cls.kind, model, settings)
         return cls()
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
             snapshot=None):
-        A, H = model.matrices
-        Q = model.process_noise.covariance()
+        form = linear_form(model)
+        H = form.measurement
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
-            predicted, predicted_covariance, _ = linear_step_prediction(model, A, Q, k, mean, covariance)
+            predicted, predicted_covariance, _ = linear_step_prediction(model, form, k, mean, covariance)
             return predicted, predicted_covariance
 
         def update(mean, covariance, z, k):
@@ -55,6 +59,7 @@ class ExtendedKalmanFilter(FilterKind):
 
     @classmethod
     def plan(cls, model, settings, prior) -> "ExtendedKalmanFilter":
+        check_measurement_form(model, "the ekf filter", "kind", PARTICLE_REMEDY)
         check_smoothers(cls.kind, model, settings)
         return super().plan(model, settings, prior)
 
@@ -92,6 +97,7 @@ class UnscentedKalmanFilter(FilterKind):
             parameters.check(model.state_dimension)
         except ValueError as error:
             raise ValueError(f"@unscented.{str(error)[1:]}") from None
+        check_measurement_form(model, "the ukf filter", "kind", PARTICLE_REMEDY)
         check_smoothers(cls.kind, model, settings)
         return cls(parameters)
 

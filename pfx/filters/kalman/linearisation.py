@@ -24,18 +24,23 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from pfx.filters.kalman.measurement_form import measurement_angles
 from pfx.filters.kalman.recursion import transpose
 
 FD_STEP = float(np.finfo(float).eps ** (1.0 / 3.0))   # ~6.06e-6: optimal relative step, central differences
 
 
 def finite_difference_jacobian(function: Callable[[np.ndarray], np.ndarray], point: np.ndarray,
-                               scale: Optional[np.ndarray] = None) -> np.ndarray:
+                               scale: Optional[np.ndarray] = None,
+                               wrap: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> np.ndarray:
     """Central-difference Jacobian of ``function`` at ``point`` (..., n): shape (..., p, n).
 
     ``function`` maps (..., 2n, n) to (..., 2n, p) in one call (the 2n perturbed points sit on an
     axis inserted before the last). Step h_j = FD_STEP * max(|x_j|, scale_j), or FD_STEP where
     that is zero; the divisor is the difference actually represented in floating point.
+    ``wrap`` (optional) maps the differences g(x + h_j e_j) - g(x - h_j e_j) (..., n, p) before
+    the division: the angular outputs' wrap, so that an angle crossing its branch cut between
+    the two points is a small difference, not a turn.
     """
     point = np.asarray(point, dtype=float)
     n = point.shape[-1]
@@ -48,7 +53,10 @@ def finite_difference_jacobian(function: Callable[[np.ndarray], np.ndarray], poi
     minus = point[..., None, :] - offsets
     values = function(np.concatenate([plus, minus], axis=-2))
     width = np.diagonal(plus - minus, axis1=-2, axis2=-1)           # (x_j + h_j) - (x_j - h_j)
-    slopes = (values[..., :n, :] - values[..., n:, :]) / width[..., :, None]
+    differences = values[..., :n, :] - values[..., n:, :]
+    if wrap is not None:
+        differences = wrap(differences)
+    slopes = differences / width[..., :, None]
     return transpose(slopes)
 
 
@@ -73,11 +81,14 @@ def transition_jacobian(model, mean: np.ndarray, control, covariance: Optional[n
 
 
 def measurement_jacobian(model, mean: np.ndarray, covariance: Optional[np.ndarray] = None) -> np.ndarray:
-    """H = d h / d x at the mean: the model's, or central differences."""
+    """H = d h / d x at the mean: the model's, or central differences (of its angular
+    measurement components, wrapped: :mod:`~pfx.filters.kalman.measurement_form`)."""
     analytic = model.measurement_jacobian(mean)
     if analytic is not None:
         return np.broadcast_to(analytic, mean.shape[:-1] + (model.measurement_dimension, mean.shape[-1]))
-    return finite_difference_jacobian(model.measurement_mean, mean, _state_scale(covariance))
+    angles = measurement_angles(model)
+    return finite_difference_jacobian(model.measurement_mean, mean, _state_scale(covariance),
+                                      None if angles is None else angles.wrap)
 
 
 def noise_jacobian(model, mean: np.ndarray, control, time: Optional[float] = None) -> np.ndarray:

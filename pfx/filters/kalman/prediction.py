@@ -24,25 +24,27 @@ from typing import Optional
 
 import numpy as np
 
+from pfx.filters.kalman.linear_form import LinearForm
 from pfx.filters.kalman.linearisation import process_noise_in_state, transition_jacobian
 from pfx.filters.kalman.recursion import transpose
 
 
-def linear_prediction(A: np.ndarray, Q: np.ndarray, control, mean: np.ndarray, covariance: np.ndarray):
-    """The Kalman filter's predict, x^-_k = A x_{k-1} + B u_k, P^-_k = A P_{k-1} A' + Q
-    (``control`` = B u_k or None); mean (trials, d), covariance (trials, d, d)."""
-    mean = mean @ A.T if control is None else mean @ A.T + control
+def linear_prediction(A: np.ndarray, Q: np.ndarray, offset, mean: np.ndarray, covariance: np.ndarray):
+    """The Kalman filter's predict, x^-_k = A x_{k-1} + c_k, P^-_k = A P_{k-1} A' + Q
+    (``offset`` = c_k, the control's share B u_k, or None); mean (trials, d), covariance (trials, d, d)."""
+    mean = mean @ A.T if offset is None else mean @ A.T + offset
     return mean, A @ covariance @ A.T + Q
 
 
-def linear_step_prediction(model, A: np.ndarray, Q: np.ndarray, step: int, mean: np.ndarray,
-                           covariance: np.ndarray):
+def linear_step_prediction(model, form: LinearForm, step: int, mean: np.ndarray, covariance: np.ndarray):
     """The Kalman filter's predict over step k, one :func:`linear_prediction` per substep after
-    the reset (module docstring): (x^-_k, P^-_k, F) with F = A^s R the Jacobian of the step."""
-    control = model.control(step)
+    the reset (module docstring), with the model's linear form (A, its offsets c, Q:
+    :mod:`~pfx.filters.kalman.linear_form`): (x^-_k, P^-_k, F) with F = A^s R the Jacobian of
+    the step."""
+    A, Q = form.transition, form.process_noise
     mean, covariance, jacobian = reset_moments(model, mean, covariance)
-    for _ in range(model.propagations_per_step):
-        mean, covariance = linear_prediction(A, Q, control, mean, covariance)
+    for substep in range(model.propagations_per_step):
+        mean, covariance = linear_prediction(A, Q, form.offset(model, step, substep), mean, covariance)
         jacobian = A if jacobian is None else A @ jacobian
     return mean, covariance, jacobian
 

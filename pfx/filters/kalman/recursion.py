@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from pfx.errors import ConfigError, ModelNumericalError, note_step
+from pfx.filters.kalman.measurement_form import measurement_innovation
 from pfx.filters.trace import FilterTrace
 
 
@@ -114,8 +115,9 @@ def innovation_terms(kind: str, model, k: int, innovation: np.ndarray, innovatio
 
 
 def linear_update(kind, model, k, mean, covariance, z, predicted_measurement, H, noise_r):
-    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS, log p(z_k))."""
-    innovation = z - predicted_measurement
+    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS, log p(z_k)).
+    The innovation's angular components are wrapped (:func:`~pfx.filters.kalman.measurement_form.measurement_innovation`)."""
+    innovation = measurement_innovation(model, z, predicted_measurement)
     S, nis, log_density = innovation_terms(kind, model, k, innovation, H @ covariance @ transpose(H) + noise_r)
     cross = covariance @ transpose(H)                                   # P H'  (trials, d, m)
     gain = transpose(np.linalg.solve(S, transpose(cross)))             # P H' S^-1 (S symmetric)

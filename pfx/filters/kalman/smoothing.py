@@ -73,6 +73,7 @@ from typing import ClassVar, Literal, Optional
 import numpy as np
 
 from pfx.errors import ModelNumericalError, note_step
+from pfx.filters.kalman.linear_form import linear_form
 from pfx.filters.kalman.prediction import extended_prediction, linear_step_prediction
 from pfx.filters.kalman.recursion import check_finite, symmetric, transpose
 from pfx.filters.kalman.unscented import (
@@ -144,13 +145,13 @@ def _prediction(model, kind: str, parameters: Optional[UnscentedParameters]):
     """The kind's predict from N(m_k, P_k) to step k+1 as (P_k, m^-_{k+1}, P^-_{k+1}, C_{k+1}); P_k as
     the kind uses it (the UKF's, repaired where its Cholesky factorisation fails, as in the filter)."""
     if kind == "kf":
-        if getattr(model, "matrices", None) is None:
-            raise ValueError(f"the kf smoother needs a linear_gaussian model, not {model.kind}")
-        A, _ = model.matrices
-        Q = model.process_noise.covariance()
+        if model.matrices is None:
+            raise ValueError(f"the kf smoother needs a linear model that declares its matrices (linear_gaussian, or a "
+                             f"plugin model's), not {model.kind}")
+        form = linear_form(model)
 
         def linear(mean, covariance, step):
-            predicted, predicted_covariance, F = linear_step_prediction(model, A, Q, step, mean, covariance)
+            predicted, predicted_covariance, F = linear_step_prediction(model, form, step, mean, covariance)
             return covariance, predicted, predicted_covariance, covariance @ transpose(F)
 
         return linear

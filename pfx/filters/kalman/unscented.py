@@ -26,6 +26,21 @@ draws new sigma points from :math:`N(\hat x_k^-, P_k^-)`, maps them through h, a
 such unscented transform per substep (new sigma points from each substep's predicted moments),
 after its accumulating components are reset (:func:`unscented_step_prediction`).
 
+**Angular measurements** (a bearing: :mod:`~pfx.filters.kalman.measurement_form`): the images of
+an angle are averaged on the circle, about the central one: their deviations
+:math:`D_i = \mathcal Y_i - \mathcal Y_0` are wrapped into half a turn either side before the
+sums below, so that :math:`\bar y = \mathcal Y_0 + \delta` is their weighted mean on the circle
+(invariant to where the angles' branch cut lies), :math:`P_{zz}` and :math:`P_{xz}` are the
+weighted products of the wrapped deviations, and the innovation :math:`\nu` is wrapped too. Not
+the direction of the weighted resultant, :math:`\operatorname{atan2}(\sum_i W_i \sin
+\mathcal Y_i, \sum_i W_i \cos \mathcal Y_i)`: with the scaled transform's large negative
+:math:`W^m_0` its cosine sum is a second-order Taylor series of :math:`e^{-\sigma^2/2}`, which
+turns negative (and the mean half a turn away) once the angle's spread exceeds about
+:math:`\sqrt 2` rad; on the bearings-only example (examples/plugins, 40 trials) the UKF's RMSE was
+6.6 with that mean (the covariances about it were not even positive definite: those about
+:math:`\mathcal Y_0 + \delta` were used) against 0.24 with the mean about the central image (5.1
+without wrapping). The two means agree to second order in the spread.
+
 For a small :math:`\alpha` the weight :math:`W^m_0 \approx -1/(\alpha^2 d)` is huge and negative
 (-3.3e5 for d = 3 at the default :math:`\alpha = 10^{-3}`), and the sums above lose about
 :math:`\log_{10} |W^m_0|` digits to cancellation. pfx evaluates them in the algebraically identical form, with
@@ -70,6 +85,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.filters.kalman.linearisation import process_noise_in_state
+from pfx.filters.kalman.measurement_form import MeasurementAngles, measurement_angles, measurement_innovation
 from pfx.filters.kalman.recursion import check_finite, gaussian_recursion, innovation_terms, symmetric, transpose
 from pfx.filters.trace import FilterTrace
 
@@ -133,8 +149,7 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
     repairs = {"jitter": 0, "clipped": 0}
     factor = {}
 
-    def moments(points, values):
-        return unscented_moments(points, values, weight, curvature)
+    angles = measurement_angles(model)
 
     def sigma_points(mean, square_root):
         return unscented_sigma_points(mean, square_root, c)
@@ -148,9 +163,9 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
         square_root, covariance = robust_square_root(covariance, repairs)
         points = sigma_points(mean, square_root)
         images = model.measurement_mean(points)
-        predicted_measurement, measurement_spread = moments(images, images)
-        _, cross = moments(points, images)
-        innovation = z - predicted_measurement
+        predicted_measurement, measurement_spread = unscented_moments(images, images, weight, curvature, angles, angles)
+        _, cross = unscented_moments(points, images, weight, curvature, value_angles=angles)
+        innovation = measurement_innovation(model, z, predicted_measurement)
         S, nis, log_density = innovation_terms("ukf", model, k, innovation, measurement_spread + noise_r)
         gain = transpose(np.linalg.solve(S, transpose(cross)))
         mean = mean + np.einsum("rdm,rm->rd", gain, innovation)
@@ -203,12 +218,21 @@ def unscented_prediction(model, control, mean: np.ndarray, square_root: np.ndarr
     return points, images, predicted, spread + process_noise_in_state(model, mean, control, time)
 
 
-def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, curvature: float):
+def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, curvature: float,
+                      point_angles: Optional[MeasurementAngles] = None,
+                      value_angles: Optional[MeasurementAngles] = None):
     """Mean of ``values`` and cross-covariance of ``points`` and ``values`` (rows: batch; axis 1:
     the 2d + 1 sigma points), in the stable form of the module docstring: W = ``weight``,
-    ``curvature`` = beta - alpha^2."""
+    ``curvature`` = beta - alpha^2. ``point_angles`` and ``value_angles`` name angular
+    components of each (measurements: :mod:`~pfx.filters.kalman.measurement_form`): their
+    deviations D_i = Y_i - Y_0 are wrapped into half a turn either side, so that their mean
+    Y_0 + W sum_i D_i is taken on the circle (module docstring)."""
     d_points = points[:, 1:] - points[:, :1]
     d_values = values[:, 1:] - values[:, :1]
+    if point_angles is not None:
+        d_points = point_angles.wrap(d_points)
+    if value_angles is not None:
+        d_values = value_angles.wrap(d_values)
     shift_points = weight * d_points.sum(axis=1)
     shift_values = weight * d_values.sum(axis=1)
     cross = weight * np.einsum("rip,riq->rpq", d_points, d_values) \

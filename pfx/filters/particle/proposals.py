@@ -52,6 +52,14 @@ A trial whose measurement is missing at step k draws from the transition
 (:math:`m_i = f_i`, :math:`P = Q`) and gets no adjustment: its step is predict-only as in the
 bootstrap filter. The weighting must be ``gaussian`` (the model's likelihood): any other
 weighting is not :math:`p(z \mid x)`, and the ratio above would not be an importance weight.
+
+The Kalman updates read the measurement as :math:`z = h(x) + v`, :math:`v \sim N(0, R)`, with the
+innovation's angular components wrapped and the unscented images of an angle averaged on the
+circle (:mod:`pfx.filters.kalman.measurement_form`). The weights stay correct whatever the
+model's likelihood (they divide by q), but a proposal built on a law that is not the model's
+would lead the particles astray: a model whose own ``log_likelihood`` is not of that form
+(another noise family, an undeclared bearing that wraps) is refused by the guided proposals
+here, before the run, and pointed to the bootstrap proposal.
 """
 
 from __future__ import annotations
@@ -61,7 +69,9 @@ from typing import ClassVar, Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from pfx.filters.kalman.linear_form import check_linear_form
 from pfx.filters.kalman.linearisation import measurement_jacobian
+from pfx.filters.kalman.measurement_form import check_measurement_form, measurement_angles, measurement_innovation
 from pfx.filters.kalman.recursion import transpose
 from pfx.filters.kalman.unscented import (
     UnscentedParameters,
@@ -147,11 +157,21 @@ def gaussian_transition(model) -> AdditiveTransition:
                      f"{remedy}")
 
 
+# What a guided proposal's refusal of a model's own likelihood suggests instead.
+BOOTSTRAP_REMEDY = "use the bootstrap proposal (proposal: bootstrap), which weighs by the model's own log_likelihood"
+
+
 class _GaussianProposal(ProposalBase):
     """q = N(m_i, P_i) around each particle's prediction (module docstring)."""
 
     def check(self, model):
         gaussian_transition(model)
+        self.check_measurement(model)
+
+    def check_measurement(self, model) -> None:
+        """ValueError('@proposal: ...') when the model's own log_likelihood is not the
+        z = h(x) + v form the proposal's Kalman update assumes (:mod:`pfx.filters.kalman.measurement_form`)."""
+        check_measurement_form(model, f"the {self.kind} proposal", "proposal", BOOTSTRAP_REMEDY)
 
     def bind(self, model) -> "BoundGaussianProposal":
         self.check(model)
@@ -198,12 +218,13 @@ class BoundGaussianProposal(BoundProposal):
         return state, adjustment
 
 
-def kalman_update(predicted, noise, jacobian, predicted_measurement, measurement, measurement_noise):
-    """The Kalman update from N(f, Q): (m, C) with P = (I - K H) Q (I - K H)' + K R K' = C C'."""
+def kalman_update(predicted, noise, jacobian, innovation, measurement_noise):
+    """The Kalman update from N(f, Q) with innovation z - h(f): (m, C) with
+    P = (I - K H) Q (I - K H)' + K R K' = C C'."""
     cross = noise @ transpose(jacobian)                                        # Q H'
     innovation_covariance = jacobian @ cross + measurement_noise               # H Q H' + R
     gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))  # Q H' S^-1 (S symmetric)
-    mean = predicted + np.einsum("...dm,...m->...d", gain, measurement - predicted_measurement)
+    mean = predicted + np.einsum("...dm,...m->...d", gain, innovation)
     reduction = np.eye(predicted.shape[-1]) - gain @ jacobian
     covariance = reduction @ noise @ transpose(reduction) + gain @ measurement_noise @ transpose(gain)
     return mean, np.linalg.cholesky(0.5 * (covariance + transpose(covariance)))
@@ -217,23 +238,25 @@ class LocallyOptimalProposal(_GaussianProposal):
 
     def check(self, model):
         gaussian_transition(model)
-        if getattr(model, "matrices", None) is None:
+        if model.matrices is None:
             raise ValueError(f"@proposal: the locally_optimal proposal needs a measurement linear in the state, "
-                             f"z = H x + v (a model with `matrices`, e.g. linear_gaussian); model {model.kind} "
-                             "has none (use ekf or ukf)")
+                             f"z = H x + v (a model that declares its `matrices`, e.g. linear_gaussian); model "
+                             f"{model.kind} has none (use ekf or ukf)")
+        check_linear_form(model, "the locally_optimal proposal", "proposal", transition=False)
         if model.measurement_noise.family != "gaussian":
             raise ValueError(f"@proposal: the locally_optimal proposal needs gaussian measurement noise; model "
                              f"{model.kind} has {model.measurement_noise.family} (use ekf or ukf)")
+        self.check_measurement(model)
 
     def moments(self, model, predicted, noise, measurement):
-        H = model.matrices[1]
+        H = np.asarray(model.matrices[1], dtype=float)
         R = model.measurement_noise.covariance()
         # K and P are the same for every particle: one (d, d) factor, no per-particle algebra.
         gain = np.linalg.solve(H @ noise @ H.T + R, H @ noise).T               # Q H' (H Q H' + R)^-1
         reduction = np.eye(H.shape[1]) - gain @ H
         covariance = reduction @ noise @ reduction.T + gain @ R @ gain.T         # Joseph's form of P
         factor = np.linalg.cholesky(0.5 * (covariance + covariance.T))
-        return predicted + (measurement - predicted @ H.T) @ gain.T, factor
+        return predicted + measurement_innovation(model, measurement, predicted @ H.T) @ gain.T, factor
 
 
 @PROPOSALS.register_kind
@@ -244,7 +267,8 @@ class ExtendedKalmanProposal(_GaussianProposal):
 
     def moments(self, model, predicted, noise, measurement):
         jacobian = measurement_jacobian(model, predicted, noise)
-        return kalman_update(predicted, noise, jacobian, model.measurement_mean(predicted), measurement,
+        return kalman_update(predicted, noise, jacobian,
+                             measurement_innovation(model, measurement, model.measurement_mean(predicted)),
                              model.measurement_noise.covariance())
 
 
@@ -263,6 +287,7 @@ class UnscentedProposal(_GaussianProposal):
             self.parameters().check(model.state_dimension)
         except ValueError as error:
             raise ValueError(f"@proposal.{str(error)[1:]}") from None
+        self.check_measurement(model)
 
     def parameters(self) -> UnscentedParameters:
         return UnscentedParameters(alpha=self.alpha, beta=self.beta, kappa=self.kappa)
@@ -274,12 +299,14 @@ class UnscentedProposal(_GaussianProposal):
         flat = predicted.reshape(-1, d)                                     # (R N, d): one row per particle
         points = unscented_sigma_points(flat, np.linalg.cholesky(noise), spread)
         images = model.measurement_mean(points)
-        predicted_measurement, measurement_spread = unscented_moments(images, images, weight, curvature)
-        _, cross = unscented_moments(points, images, weight, curvature)
+        angles = measurement_angles(model)
+        predicted_measurement, measurement_spread = unscented_moments(images, images, weight, curvature, angles, angles)
+        _, cross = unscented_moments(points, images, weight, curvature, value_angles=angles)
         innovation_covariance = measurement_spread + model.measurement_noise.covariance()
         gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))
-        innovation = np.broadcast_to(measurement, leading + measurement.shape[-1:]).reshape(len(flat), -1) \
-            - predicted_measurement
+        innovation = measurement_innovation(
+            model, np.broadcast_to(measurement, leading + measurement.shape[-1:]).reshape(len(flat), -1),
+            predicted_measurement)
         mean = flat + np.einsum("rdm,rm->rd", gain, innovation)
         covariance = noise - gain @ innovation_covariance @ transpose(gain)
         factor, _ = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
