@@ -31,7 +31,8 @@ from pfx.config.estimation import (
     check_estimated_paths,
     check_figures_apply,
 )
-from pfx.config.plugin_faults import locate, plan_time_fault
+from pfx.config.plugin_faults import locate as locate_plugin_fault
+from pfx.config.plugin_faults import plan_time_fault
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, recorded_names, unknown_name_hint
 from pfx.config.schema import ConfigSchema, config_schema
 from pfx.config.validation import validate
@@ -251,7 +252,7 @@ def _resolve_cell(raw: dict, arm: str, arm_raw: Optional[dict], combination: dic
         try:        # the kind's checks, and what it fixes for the cell (the histogram grid)
             planned_filter = FILTERS[settings.kind].plan(filter_model, settings, prior)
         except ValueError as error:
-            fault = locate(error, plugins)      # a plugin's own ValueError, met while a check probed it
+            fault = locate_plugin_fault(error, plugins)      # a plugin's own ValueError, met while a check probed it
             if fault is not None:
                 raise fault.as_config_error() from error
             raise located_value_error(error, prefix="filter", file=file) from None
@@ -340,7 +341,7 @@ def check_plugin_model(model: Model, plugins: Iterable[LoadedPlugin]) -> None:
         if fault is not None:
             raise ValueError(fault)
     except Exception as error:          # the plugin's own code: any exception is its mistake
-        located = locate(error, [plugin])
+        located = locate_plugin_fault(error, [plugin])
         if located is not None:         # raised in the plugin's code: its line
             raise located.as_config_error() from error
         # A result pfx's check refused: the line of the member's definition, where it has one.
