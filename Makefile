@@ -17,10 +17,12 @@ $(INSTALLED): pyproject.toml
 install: $(INSTALLED)
 
 # The house rules first (seconds): lint and import order (ruff), the layering (import-linter).
+# Then the suite on one pytest-xdist worker per core (-n auto); `pytest tests/test_x.py` runs one
+# file in one process, `pytest -m "not slow"` leaves out the few full-size statistical checks.
 test: $(INSTALLED)
 	$(BIN)/ruff check pfx tests
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce
