@@ -1,11 +1,10 @@
 """Shared fixtures: run the ``pfx`` command line, share a Dask cluster, write small valid configs.
 
-The suite runs in parallel (``make test``: pytest-xdist, ``-n auto --dist loadgroup``), so a test
+The suite runs in parallel (``make test``: pytest-xdist, ``-n auto --dist loadfile``), so a test
 writes only below its own ``tmp_path`` (or ``tmp_path_factory``), never into the repository, and
-depends on no other test. A module whose tests share an expensive module fixture marks them
-``pytestmark = pytest.mark.xdist_group("NAME")``: one worker then runs them all, and the fixture
-runs once. ``@pytest.mark.slow`` marks the few tests that need a full-size run (``make test``
-runs them too; ``pytest -m "not slow"`` leaves them out).
+depends on no other test. One worker runs all of a module's tests, so a module fixture runs once.
+``@pytest.mark.slow`` marks the few tests that need a full-size run (``make test`` runs them too;
+``pytest -m "not slow"`` leaves them out).
 
 * ``pfx_in_process(*args, cwd=..., timeout=...)`` calls the command line's entry point
   (:func:`pfx.cli.main`) in the test's own process, as ``python -m pfx ARGS`` would run it:
@@ -20,7 +19,8 @@ runs them too; ``pytest -m "not slow"`` leaves them out).
   shims), worker processes, and a few checks of the process's exit status itself.
   ``run_pfx.many({key: (args, cwd)})`` runs several invocations concurrently (one per CPU);
   ``pfx_in_process.many`` takes the same jobs and runs them one after the other.
-* ``dask_cluster`` (session scope, one per xdist worker process): a Dask ``LocalCluster`` of 2
+* ``dask_cluster`` (session scope: one per xdist worker process that asks for it, so keep the
+  tests that use it in one module, tests/test_dask.py): a Dask ``LocalCluster`` of 2
   single-threaded worker processes with nannies (a killed worker is restarted), on loopback, and
   a ``Client`` to it: ``cluster, client = dask_cluster``; ``cluster.scheduler_address`` is what
   ``pfx run --executor dask --scheduler`` takes. Skipped without the ``dask`` extra. A test that

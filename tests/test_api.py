@@ -29,9 +29,6 @@ from pfx.analysis.compare import output_name
 from pfx.errors import ConfigError
 from pfx.result_folder import read_table, write_csv
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("api")
-
 CONFIG = tiny_config_dict(name="api", trials=4, arms={"few": {"particles": 5}, "many": {"particles": 40}},
                           outputs={"trace_trials": 1, "figures": []})
 OVERRIDES = {"trials": 3, "filter.particles": 30}        # particles: the arms' own values are replaced too

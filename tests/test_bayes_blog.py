@@ -22,9 +22,6 @@ from pfx.safe_yaml import load_config_file
 from pfx.studies.empirical_cdf import KOLMOGOROV_MEAN, EmpiricalCdf, expected_ks_distance, ks_distance
 from pfx.studies.importance_sampling_cdf import ImportanceSamplingCdf
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("bayes_blog")
-
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "papers" / "bayes-blog"
 
 

@@ -24,9 +24,6 @@ from pfx.bench.problem import FallingBodyProblem, make_case
 from pfx.bench.report import ALGORITHM_WIDTH
 from pfx.bench.timing import run_filter, run_numpy, run_pfx
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("bench")
-
 Z = 4.5        # two-sided P(|Z| > 4.5) = 7e-6 per comparison
 
 

@@ -26,9 +26,6 @@ from pfx.papers.beyond_the_papers import recovery, wilson_interval
 from pfx.papers.reproduce import paper_configs
 from pfx.safe_yaml import load_config_file
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("beyond_the_papers")
-
 SECTION = REPO_ROOT / "configs" / "papers" / "beyond-the-papers"
 
 

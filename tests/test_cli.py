@@ -27,9 +27,6 @@ import pfx
 from pfx.analysis.metrics import metric_range
 from pfx.analysis.summary import MINIMUM_VALUES
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("cli")
-
 EXAMPLES = sorted((REPO_ROOT / "configs" / "examples").glob("*.yaml"))
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 TRIALS, PARTICLES, STEPS, TRACE_TRIALS, HOLD = 6, [10, 20], [5, 2], 2, 3     # 6: the fewest with intervals

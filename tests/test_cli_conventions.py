@@ -29,9 +29,6 @@ from pfx.cli import LISTABLE, _registries, app
 from pfx.errors import ConfigError
 from pfx.safe_yaml import parse_yaml
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("cli_conventions")
-
 COMMANDS = list(typer.main.get_command(app).commands)
 
 

@@ -21,9 +21,6 @@ from scipy import stats
 from pfx.analysis.compare import BOOTSTRAP_SEED, format_table, grouping_columns, output_name, paired_comparison
 from pfx.errors import ConfigError
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("compare")
-
 # -- the function, on hand-made tables ---------------------------------------------------------
 
 BASE_VALUES = np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])

@@ -35,9 +35,6 @@ import pytest
 import yaml
 from conftest import tiny_config_dict, write_config_file
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("config_errors")
-
 CORPUS = Path(__file__).resolve().parent / "malformed_configs"
 GOOD = "good.yaml"          # a valid config given before the bad one to `pfx run`
 PREFIX = "pfx: error: "

@@ -5,8 +5,8 @@ cells, each split into ten batches of trials (so that a cell's batches come back
 order), must give trials.csv, steps.csv and summary.csv identical (all but the run-time
 columns) to `--executor local`, whether pfx starts the cluster (`dask-local`) or connects to
 one (`dask --scheduler`); a worker process killed mid-sweep must lose nothing (Dask reruns
-its tasks); an interrupted Dask run must keep its finished cells and resume. Without the
-optional extra, asking for Dask is one error line naming it.
+its tasks); an interrupted Dask run must keep its finished cells and resume; a plugin's code
+reaches the workers. Without the optional extra, asking for Dask is one error line naming it.
 """
 
 from __future__ import annotations
@@ -26,9 +26,6 @@ import pytest
 from conftest import REPO_ROOT, _environment, tiny_config_dict, write_config_file
 
 distributed = pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
-
-# One worker runs these (and the plugin test on Dask): the session's cluster starts once.
-pytestmark = pytest.mark.xdist_group("dask")
 
 CELLS = 8
 SWEEP = {
@@ -218,6 +215,23 @@ def test_interrupted_dask_run_keeps_finished_cells_and_resumes(config, runs, tmp
     assert f"{len(finished)} of {CELLS} cells already done" in resumed.stderr
     assert_same_tables(out, runs["local"])
     assert not (out / "cells").exists()
+
+
+def test_dask_runs_plugin_models(run_pfx, pfx_in_process, tmp_path, cluster):
+    """The minimal plugin of tests/test_plugins.py: its code reaches the cluster's worker
+    processes, which never imported it, and they compute what a local run does."""
+    from test_plugins import minimal_config, write_plugin
+
+    write_plugin(tmp_path)
+    config = write_config_file(tmp_path, minimal_config(trials=6, arms={"pf": {"kind": "particle"},
+                                                                        "ekf": {"kind": "ekf"}}))
+    local = pfx_in_process("run", config, "--out", "local", cwd=tmp_path)
+    dask = run_pfx("run", config, "--out", "dask", "--executor", "dask", "--scheduler",
+                   cluster[0].scheduler_address, cwd=tmp_path)
+    assert local.returncode == 0 and dask.returncode == 0, local.output + dask.output
+    columns = ["cell", "trial", "rmse_position", "log_likelihood"]
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "local" / "trials.csv")[columns],
+                                  pd.read_csv(tmp_path / "dask" / "trials.csv")[columns])
 
 
 @pytest.fixture

@@ -18,9 +18,6 @@ from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 from pfx.run.batch import run_batch
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("determinism")
-
 SEED = 2024
 TRIALS = 25                     # > 20: the runner splits each cell into several batches
 ARMS = {"A": {"resampler": "systematic"},

@@ -32,9 +32,6 @@ from pfx.papers.gallery import write_gallery
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("estimation_nile")
-
 CONFIGS = REPO_ROOT / "configs" / "benchmarks" / "estimation-nile"
 SCRIPT = REPO_ROOT / "examples" / "benchmarks" / "nile_posterior_grid.py"
 

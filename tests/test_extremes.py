@@ -39,9 +39,6 @@ from pfx.models.linear_gaussian import LinearGaussian
 from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("extremes")
-
 RESAMPLER_NAMES = ["multinomial", "stratified", "systematic", "residual", "han_lee_iv"]
 # empty = never converged; NEES/NIS not recorded (particle filters without metrics.consistency)
 EMPTY_IN_TRIALS = {"convergence_step", "error_at_convergence", "nees_mean", "nees_invalid_steps", "nis_mean",

@@ -24,9 +24,6 @@ from pfx.papers.gallery import write_gallery
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("han_lee")
-
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "papers" / "han-lee"
 SMALL = {  # experiment -> overrides that keep its structure but make it fast
     "fig1-concept": {},

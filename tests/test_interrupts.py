@@ -19,9 +19,6 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, _environment
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("interrupts")
-
 SLOW = {
     "name": "slow",
     "seed": 1,

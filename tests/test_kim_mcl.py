@@ -27,9 +27,6 @@ from pfx.papers.kim_mcl import (
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("kim_mcl")
-
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs" / "papers" / "kim-mcl"
 EXPERIMENTS = ("arena", "one-run", "paper-runs", "extended")

@@ -23,9 +23,6 @@ from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 from pfx.studies.mahalanobis_distances import MahalanobisDistances, sample_moments
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("park_mpf")
-
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs" / "papers" / "park-mpf"
 SIGMA = np.array([[1.0, 0.9], [0.9, 1.0]])

@@ -1,9 +1,9 @@
 """Plugins (docs/plugins.md): components from outside pfx, through the command line (its entry
-point in the test's process; the run on Dask from a real process).
+point in the test's process; `pfx list` in a real process).
 
 The minimal plugin of the docs, from a file, is validated, listed, documented, run by every
-filter kind that can run it, resumed and (with the Dask extra) run on Dask, like a built-in
-model. Every way a plugin can fail is one exact error line, exit status 2, nothing written. A
+filter kind that can run it and resumed, like a built-in model (and run on Dask: in
+tests/test_dask.py, on the Dask tests' cluster). Every way a plugin can fail is one exact error line, exit status 2, nothing written. A
 changed plugin refuses a resume. The two examples in examples/plugins/ run and pass checks
 derived from theory, and installed packages' plugins are found through their entry points.
 """
@@ -143,13 +143,15 @@ def test_plugin_failures_are_one_line(pfx_in_process, tmp_path, case):
     assert sorted(tmp_path.iterdir()) == before            # nothing written
 
 
-def test_list_and_schema_with_plugin(pfx_in_process, tmp_path):
+def test_list_and_schema_with_plugin(run_pfx, pfx_in_process, tmp_path):
+    """`pfx list` in a real process: in a process that loaded other plugins before (the test's),
+    their hidden names would widen the listing's name column."""
     write_plugin(tmp_path)
-    listed = pfx_in_process("list", "models", "--plugin", "damped_walk.py", cwd=tmp_path)
+    listed = run_pfx("list", "models", "--plugin", "damped_walk.py", cwd=tmp_path)
     assert listed.returncode == 0, listed.output
     assert "damped_walk        x_k = a x_{k-1} + w_k, z_k = x_k + v_k. [plugin damped_walk.py]" in listed.stdout
     assert "linear_gaussian" in listed.stdout
-    assert "damped_walk" not in pfx_in_process("list", "models", cwd=tmp_path).stdout
+    assert "damped_walk" not in run_pfx("list", "models", cwd=tmp_path).stdout
     schema = json.loads(pfx_in_process("schema", "--plugin", "damped_walk.py", cwd=tmp_path).stdout)
     assert "DampedWalk" in schema["$defs"]
     assert schema["$defs"]["DampedWalk"]["properties"]["a"]["default"] == 0.8
@@ -212,21 +214,6 @@ def test_a_plugin_runs_result_folder_reruns_from_anywhere(pfx_in_process, tmp_pa
     assert line.startswith(f"{folder / 'plugins' / 'damped_walk.py'}: this copy differs from the code the folder's "
                            "results were computed with (sha256 ")
     assert not (elsewhere / "third").exists()
-
-
-@pytest.mark.xdist_group("dask")            # with tests/test_dask.py: one cluster for both
-def test_dask_runs_plugin_models(run_pfx, pfx_in_process, tmp_path, dask_cluster):
-    """The plugin's code reaches the cluster's worker processes, which never imported it."""
-    write_plugin(tmp_path)
-    config = write_config_file(tmp_path, minimal_config(trials=6, arms={"pf": {"kind": "particle"},
-                                                                        "ekf": {"kind": "ekf"}}))
-    local = pfx_in_process("run", config, "--out", "local", cwd=tmp_path)
-    dask = run_pfx("run", config, "--out", "dask", "--executor", "dask", "--scheduler",
-                   dask_cluster[0].scheduler_address, cwd=tmp_path)
-    assert local.returncode == 0 and dask.returncode == 0, local.output + dask.output
-    columns = ["cell", "trial", "rmse_position", "log_likelihood"]
-    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "local" / "trials.csv")[columns],
-                                  pd.read_csv(tmp_path / "dask" / "trials.csv")[columns])
 
 
 # -- the examples -------------------------------------------------------------------------------

@@ -23,9 +23,6 @@ from pfx.studies.importance_sampling import ImportanceSampling
 from pfx.studies.kalman_1d_steps import KalmanSteps, gaussian_density, kalman_predict, kalman_update
 from pfx.studies.nonlinear_transform import NonlinearTransform, chi_square
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("prob_robotics")
-
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "papers" / "prob-robotics"
 
 

@@ -44,9 +44,6 @@ from pfx.run.runner import run_plan
 from pfx.studies.robot_motion import histogram_agreement, spread_along_across
 from pfx.studies.velocity_motion import VelocityMotionDensity
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("prob_robotics_motion")
-
 CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "papers" / "prob-robotics"
 VELOCITY_SETTINGS = [{"name": "a", "alphas": [0.02, 0.02, 0.02, 0.02, 0.0025, 0.0025]},
                      {"name": "b", "alphas": [0.08, 0.08, 0.005, 0.005, 0.0025, 0.0025]}]

@@ -111,7 +111,6 @@ def validated(run_pfx) -> dict[Path, str]:
             for path, start, end in zip(SHIPPED, starts, starts[1:] + [len(result.stdout)])}
 
 
-@pytest.mark.xdist_group("validated-shipped-configs")      # the one validate process, for them all
 @pytest.mark.parametrize("config", SHIPPED, ids=_id)
 def test_validate_prints_a_config_that_resolves_to_the_same_plan(config, validated, tmp_path):
     printed = yaml.safe_load(validated[config])        # the header line is a YAML comment
@@ -247,7 +246,6 @@ def _copy(folder: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(folder, tmp_path / folder.name))
 
 
-@pytest.mark.xdist_group("finished-record")
 def test_more_trials_extend_a_finished_run_to_what_a_fresh_run_gives(finished, tmp_path):
     config, three, six = finished
     folder = _copy(three, tmp_path)
@@ -264,7 +262,6 @@ def test_more_trials_extend_a_finished_run_to_what_a_fresh_run_gives(finished, t
     assert not (folder / "cells").exists()
 
 
-@pytest.mark.xdist_group("finished-record")
 def test_fewer_trials_than_the_folder_holds_is_refused(finished, tmp_path):
     config, three, _ = finished
     folder = _copy(three, tmp_path)
@@ -274,7 +271,6 @@ def test_fewer_trials_than_the_folder_holds_is_refused(finished, tmp_path):
     assert (folder / "trials.csv").read_bytes() == before
 
 
-@pytest.mark.xdist_group("finished-record")
 def test_changing_figures_and_name_rerenders_without_recomputing(finished, tmp_path):
     config, three, _ = finished
     folder = _copy(three, tmp_path)
@@ -291,7 +287,6 @@ def test_changing_figures_and_name_rerenders_without_recomputing(finished, tmp_p
     assert any("record updated" in m and "removed: error_over_time" in m for m in messages)
 
 
-@pytest.mark.xdist_group("finished-record")
 def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, pfx_in_process):
     _, three, _ = finished
     folder = _copy(three, tmp_path)

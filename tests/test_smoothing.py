@@ -29,9 +29,6 @@ from pfx.models.simulation import simulate_truth
 from pfx.numerics.log_weights import normalise_rows
 from pfx.numerics.seeding import TrialStreams
 
-# Its tests share what a module fixture ran: one xdist worker runs them all (tests/conftest.py).
-pytestmark = pytest.mark.xdist_group("smoothing")
-
 SIGNIFICANCE = 1e-3          # a chi-square test at this level fails a correct sampler once in a thousand seeds
 
 
