@@ -1,6 +1,6 @@
 """Shared fixtures: run the ``pfx`` command line, share a Dask cluster, write small valid configs.
 
-The suite runs in parallel (``make test``: pytest-xdist, ``-n auto --dist loadfile``), so a test
+The suite runs in parallel (``make test``: pytest-xdist, ``-n logical --dist loadfile``), so a test
 writes only below its own ``tmp_path`` (or ``tmp_path_factory``), never into the repository, and
 depends on no other test. One worker runs all of a module's tests, so a module fixture runs once.
 ``@pytest.mark.slow`` marks the few tests that need a full-size run (``make test`` runs them too;
