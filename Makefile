@@ -17,10 +17,13 @@ $(INSTALLED): pyproject.toml
 install: $(INSTALLED)
 
 # The house rules first (seconds): lint and import order (ruff), the layering (import-linter).
+# Then the suite on one pytest-xdist worker per logical CPU (-n logical; -n auto counts physical
+# cores, 1 on a machine whose 2 vCPUs share one). `pytest tests/test_x.py` runs one file in one
+# process; `pytest -m "not slow"` leaves out the few full-size statistical checks.
 test: $(INSTALLED)
 	$(BIN)/ruff check pfx tests
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n logical
 
 reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce

@@ -1,9 +1,30 @@
-"""Shared fixtures: run the real ``pfx`` command line, and write small valid configs.
+"""Shared fixtures: run the ``pfx`` command line, share a Dask cluster, write small valid configs.
 
-* ``run_pfx(*args, cwd=..., timeout=...)`` runs ``python -m pfx ARGS`` in a subprocess and
-  returns a :class:`PfxResult` (``returncode, stdout, stderr = result`` also works).
-  ``run_pfx.many({key: (args, cwd)})`` runs several invocations concurrently (one per CPU):
-  each is still a separate, real subprocess, the suite just waits less.
+The suite runs in parallel (``make test``: pytest-xdist, ``-n logical --dist loadfile``), so a test
+writes only below its own ``tmp_path`` (or ``tmp_path_factory``), never into the repository, and
+depends on no other test. One worker runs all of a module's tests, so a module fixture runs once.
+``@pytest.mark.slow`` marks the few tests that need a full-size run (``make test`` runs them too;
+``pytest -m "not slow"`` leaves them out).
+
+* ``pfx_in_process(*args, cwd=..., timeout=...)`` calls the command line's entry point
+  (:func:`pfx.cli.main`) in the test's own process, as ``python -m pfx ARGS`` would run it:
+  ``sys.argv``, the working folder, ``CI=1``, a fresh process's warning filters and plugin
+  registries; stdout and stderr captured; the exit status from ``SystemExit``, and an uncaught exception printed as a
+  traceback with status 1, as Python does. It returns a :class:`PfxResult` like ``run_pfx`` and
+  costs no interpreter start (about 2 s of CPU each). Use it wherever a subprocess proves
+  nothing more: messages, exit statuses, what is written.
+* ``run_pfx(*args, cwd=..., timeout=...)`` runs ``python -m pfx ARGS`` in a real subprocess and
+  returns a :class:`PfxResult` (``returncode, stdout, stderr = result`` also works). Keep it for
+  what only a process shows: signals, locks between processes, the environment (PYTHONPATH
+  shims), worker processes, and a few checks of the process's exit status itself.
+  ``run_pfx.many({key: (args, cwd)})`` runs several invocations concurrently (one per CPU);
+  ``pfx_in_process.many`` takes the same jobs and runs them one after the other.
+* ``dask_cluster`` (session scope: one per xdist worker process that asks for it, so keep the
+  tests that use it in one module, tests/test_dask.py): a Dask ``LocalCluster`` of 2
+  single-threaded worker processes with nannies (a killed worker is restarted), on loopback, and
+  a ``Client`` to it: ``cluster, client = dask_cluster``; ``cluster.scheduler_address`` is what
+  ``pfx run --executor dask --scheduler`` takes. Skipped without the ``dask`` extra. A test that
+  kills a worker waits for 2 workers first (``client.wait_for_workers(2)``).
 * ``tiny_config_dict()`` is a fresh dict of a tiny, fast, valid experiment (1-D linear-Gaussian
   model, 5 steps, 20 particles, 4 trials); ``write_config(data, name)`` writes a dict (as YAML),
   text or bytes into ``tmp_path``; ``tiny_config`` is the tiny config written to a file.
@@ -11,10 +32,16 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
+import logging
 import os
+import signal
 import subprocess
 import sys
+import traceback
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Iterator, NamedTuple, Optional
@@ -88,6 +115,105 @@ class PfxRunner:
 def run_pfx(tmp_path_factory) -> PfxRunner:
     """Run ``python -m pfx``; the default working folder is an empty temporary folder."""
     return PfxRunner(tmp_path_factory.mktemp("pfx-cwd"))
+
+
+# The warning filters of a fresh `python -m pfx` process (Python's defaults), so that a warning
+# the command line would print on stderr is printed by the in-process runner too.
+FRESH_PROCESS_WARNING_FILTERS = (
+    ("default", DeprecationWarning, "__main__"),
+    ("ignore", DeprecationWarning, ""),
+    ("ignore", PendingDeprecationWarning, ""),
+    ("ignore", ImportWarning, ""),
+    ("ignore", ResourceWarning, ""),
+)
+
+
+class InProcessPfx:
+    """Callable with ``run_pfx``'s signature that runs :func:`pfx.cli.main` in this process
+    (see the module docstring). What ``main`` may change for its process is put back after
+    each call: ``sys.argv``, the environment, the working folder, the signal handlers, and the
+    plugins it loaded (a plugin file registering the same names as another test's, from another
+    folder, would otherwise be refused as taken)."""
+
+    def __init__(self, default_cwd: Path):
+        self.default_cwd = Path(default_cwd)
+
+    def __call__(self, *args: Any, cwd: Optional[Path] = None, timeout: float = DEFAULT_TIMEOUT_S) -> PfxResult:
+        from pfx.cli import main
+        from pfx.config.plugins import loaded_plugins, unload_plugin
+
+        plugins_before = {plugin.origin for plugin in loaded_plugins()}
+        stdout, stderr = io.StringIO(), io.StringIO()
+        saved_argv, saved_environment, saved_cwd = sys.argv, dict(os.environ), os.getcwd()
+        saved_handlers = {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+        status = 0
+        try:
+            os.environ["CI"] = "1"                      # no progress bar, as for run_pfx
+            os.chdir(cwd or self.default_cwd)
+            sys.argv = ["pfx", *[str(a) for a in args]]
+            with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), \
+                    warnings.catch_warnings(record=True) as caught:
+                warnings.resetwarnings()
+                for action, category, module in reversed(FRESH_PROCESS_WARNING_FILTERS):
+                    warnings.filterwarnings(action, category=category, module=module)
+                try:
+                    main()
+                except SystemExit as exit:
+                    status = _exit_status(exit.code, stderr)
+                except Exception:                   # what Python does with an uncaught exception
+                    traceback.print_exc(file=stderr)
+                    status = 1
+                for warning in caught:              # where a process would have printed them
+                    stderr.write(warnings.formatwarning(warning.message, warning.category, warning.filename,
+                                                        warning.lineno, warning.line))
+        finally:
+            sys.argv = saved_argv
+            os.environ.clear()
+            os.environ.update(saved_environment)
+            os.chdir(saved_cwd)
+            for number, handler in saved_handlers.items():
+                signal.signal(number, handler)
+            for plugin in loaded_plugins():             # a process's plugins end with it
+                if plugin.origin not in plugins_before:
+                    unload_plugin(plugin)
+        return PfxResult(status, stdout.getvalue(), stderr.getvalue())
+
+    def many(self, jobs: dict[Any, tuple], timeout: float = DEFAULT_TIMEOUT_S) -> dict[Any, PfxResult]:
+        """Run ``{key: (args, cwd)}`` one after the other (one process has one working folder)."""
+        return {key: self(*args, cwd=cwd, timeout=timeout) for key, (args, cwd) in jobs.items()}
+
+
+def _exit_status(code: Any, stderr: io.StringIO) -> int:
+    """The process exit status ``sys.exit(code)`` gives: None is 0, a message is printed and 1."""
+    if code is None or isinstance(code, int):
+        return code or 0
+    print(code, file=stderr)
+    return 1
+
+
+@pytest.fixture(scope="session")
+def pfx_in_process(tmp_path_factory) -> InProcessPfx:
+    """Call ``pfx.cli.main`` in this process; the default working folder is an empty temporary folder."""
+    return InProcessPfx(tmp_path_factory.mktemp("pfx-in-process-cwd"))
+
+
+@pytest.fixture(scope="session")
+def dask_cluster():
+    """One Dask cluster for the session (per xdist worker): ``(LocalCluster, Client)``."""
+    distributed = pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
+    import dask.config
+
+    from pfx.run.executors.dask import WORKER_SETTINGS
+
+    # as docs/dask.md advises for one's own workers; in force while it lives (a nanny restarting a
+    # killed worker reads them again)
+    with dask.config.set(WORKER_SETTINGS):
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                           dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
+        client = distributed.Client(cluster, set_as_default=False)
+        yield cluster, client
+        client.close()
+        cluster.close()
 
 
 def tiny_config_dict(**changes: Any) -> dict:

@@ -1,8 +1,8 @@
 """``pfx.api``: running, reading and comparing from Python gives what the command line gives.
 
-A module fixture runs one two-arm config in this process (as a dict, and as a file, each into
-its own folder) and, concurrently, the real ``pfx`` on the same file, with ``--set``, and the
-``compare`` and error cases. The tests then hold the two sides against each other: the same
+A module fixture runs one two-arm config through the API (as a dict, and as a file, each into
+its own folder) and through the command line (its entry point, ``pfx_in_process``) on the same
+file, with ``--set``, and the ``compare`` and error cases. The tests then hold the two sides against each other: the same
 tables (run times aside), the same printed run summary, the same comparison table as the CSV
 ``pfx compare`` writes, the same one-line error messages, nothing written on a mistake. The
 worked example of docs/python-api.md is executed as written.
@@ -50,7 +50,7 @@ def _in_process(call):
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory, run_pfx):
+def runs(tmp_path_factory, pfx_in_process):
     """Every run, both sides: {name: Result or PfxResult}, and "root", the folder they ran in."""
     root = tmp_path_factory.mktemp("api")
     write_config_file(root, CONFIG, "api.yaml")
@@ -67,7 +67,7 @@ def runs(tmp_path_factory, run_pfx):
                                         overrides=[f"{key}={value}" for key, value in OVERRIDES.items()])
     results["study"] = api.run(STUDY, out=root / "api-study")
     shutil.copytree(root / "api-path", root / "compared")      # `pfx compare` writes into its folder
-    results.update(run_pfx.many({
+    results.update(pfx_in_process.many({
         "cli": (["run", "api.yaml", "--out", "cli"], root),
         "cli-set": (["run", "api.yaml", *SET_OPTIONS, "--out", "cli-set"], root),
         "cli-study": (["run", "study.yaml", "--out", "cli-study", "--quiet"], root),

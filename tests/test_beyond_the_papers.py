@@ -119,14 +119,14 @@ def test_each_loglik_config_is_its_proposals_config_on_one_dataset():
         assert a == b, loglik.name
 
 
-def test_an_also_run_entry_that_is_not_a_config_is_one_error_naming_paper_yaml(tmp_path, run_pfx):
+def test_an_also_run_entry_that_is_not_a_config_is_one_error_naming_paper_yaml(tmp_path, pfx_in_process):
     folder = tmp_path / "configs" / "toy"
     write_config_file(folder, tiny_config_dict(name="toy"), "toy.yaml")
     write_config_file(folder, {"also_run": ["toy.yaml", "../missing.yaml"]}, "paper.yaml")
     with pytest.raises(ConfigError) as caught:
         paper_configs(tmp_path / "configs")
     assert caught.value.key == "also_run[1]" and caught.value.file.endswith("paper.yaml")
-    result = run_pfx("reproduce", "--configs", tmp_path / "configs", "--out", tmp_path / "results")
+    result = pfx_in_process("reproduce", "--configs", tmp_path / "configs", "--out", tmp_path / "results")
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "paper.yaml: also_run[1]: no config file '../missing.yaml'" in result.stderr
     assert not (tmp_path / "results").exists()

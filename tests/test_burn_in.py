@@ -275,14 +275,14 @@ def test_a_summary_from_before_the_increments_merges_into_an_empty_column(runs):
 # -- the configuration: a burn-in that leaves nothing, and the cell keys ------------------------
 
 @pytest.mark.parametrize("swept", [False, True])
-def test_a_burn_in_that_leaves_no_step_is_a_located_error(swept, write_config, run_pfx, tmp_path):
+def test_a_burn_in_that_leaves_no_step_is_a_located_error(swept, write_config, pfx_in_process, tmp_path):
     config = tiny_config_dict(model={**MODEL}, outputs={"figures": []})
     if swept:
         config["sweep"] = {"metrics.burn_in": [1.0, 6.0]}           # 6.0: the last step's time
     else:
         config["metrics"] = {"burn_in": 6.0}
     path = write_config(config)
-    code, out, err = run_pfx("run", path, "--out", tmp_path / "out")
+    code, out, err = pfx_in_process("run", path, "--out", tmp_path / "out")
     assert code == 2, out + err
     message = (out + err).strip()
     assert "Traceback" not in message and len(message.splitlines()) == 1

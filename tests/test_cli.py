@@ -1,8 +1,9 @@
-"""The ``pfx`` command line, end to end, through real subprocesses.
+"""The ``pfx`` command line, end to end.
 
-A module fixture starts the independent invocations concurrently (a tiny run with a two-cell
-sweep, a run with ``--set``/``--trials``, ``validate``, ``list``, ``schema``, ``reproduce`` ...);
-tests that need a finished result folder work on copies of it.
+A module fixture starts the runs as real subprocesses, concurrently (a tiny run with a two-cell
+sweep, a run with ``--set``/``--trials``), and the other invocations (``validate``, ``list``,
+``schema``, ``reproduce`` ...) through the command line's entry point in the test's process;
+tests that need a finished result folder work on copies of it, again through real processes.
 """
 
 from __future__ import annotations
@@ -43,8 +44,8 @@ SUMMARY_STATISTICS = ("n", "mean", "std", "sem", "ci95_low", "ci95_high", "media
 
 
 @pytest.fixture(scope="module")
-def cli(tmp_path_factory, run_pfx):
-    """Run the independent invocations concurrently; {name: PfxResult}, plus the folders."""
+def cli(tmp_path_factory, run_pfx, pfx_in_process):
+    """Run the independent invocations; {name: PfxResult}, plus the folders."""
     root = tmp_path_factory.mktemp("cli")
     write_config_file(root, BASE, "exp.yaml")
     write_config_file(root, tiny_config_dict(name="single", outputs={"trace_trials": 1, "figures": []}),
@@ -55,9 +56,11 @@ def cli(tmp_path_factory, run_pfx):
     write_config_file(root / "paper-configs" / "toy-paper",
                       tiny_config_dict(name="toy-experiment", outputs={"trace_trials": 1, "figures": []}),
                       "first.yaml")
-    jobs = {
+    processes = {
         "run": (["run", "exp.yaml", "--out", "out"], root),
         "run-set": (["run", "single.yaml", "--out", "out-set", "--set", "filter.particles=7", "--trials", "3"], root),
+    }
+    jobs = {
         "validate": (["validate", "exp.yaml"], root),
         "list": (["list"], root),
         "list-resamplers": (["list", "resamplers"], root),
@@ -75,7 +78,7 @@ def cli(tmp_path_factory, run_pfx):
     }
     for example in EXAMPLES:
         jobs[f"example:{example.name}"] = (["validate", str(example)], REPO_ROOT)
-    results = run_pfx.many(jobs)
+    results = run_pfx.many(processes) | pfx_in_process.many(jobs)
     results["root"] = root
     return results
 

@@ -1,8 +1,9 @@
 """Small command-line conventions: --version, -h, completion, `pfx list`, compare's hints and
 relative change, where a YAML syntax error is reported, and the benchmark's goal lines.
 
-The exit statuses and the one-line errors come from ``pfx.cli.main``, so those are checked
-through real subprocesses (``run_pfx``); help texts are checked in process with typer's
+The exit statuses and the one-line errors come from ``pfx.cli.main``: the top-level invocations
+are checked through real subprocesses (``run_pfx``), the others through ``main`` in the test's
+process (``pfx_in_process``); help texts are checked in process with typer's
 ``CliRunner``; the pure functions (``paired_comparison``, ``relative_change_interval``,
 ``parse_yaml``, the bench report) directly.
 """
@@ -152,8 +153,8 @@ def test_no_listed_description_stops_mid_sentence():
     assert "the mean particle count and the mean number injected per step." in output
 
 
-def test_list_of_a_misspelt_registry_suggests_it(run_pfx):
-    line = _one_error_line(run_pfx("list", "studys"))
+def test_list_of_a_misspelt_registry_suggests_it(pfx_in_process):
+    line = _one_error_line(pfx_in_process("list", "studys"))
     assert "did you mean 'studies'?" in line
 
 
@@ -227,14 +228,14 @@ def test_relative_change_interval_of_a_negative_baseline_mirrors_the_positive_on
 
 
 @pytest.fixture(scope="module")
-def one_arm_run(run_pfx, tmp_path_factory):
+def one_arm_run(pfx_in_process, tmp_path_factory):
     """A real run without arms (a particles x resampler sweep), then compare invocations on it."""
     root = tmp_path_factory.mktemp("one-arm")
     config = tiny_config_dict(name="one-arm", trials=4,
                               sweep={"filter.particles": [10, 40], "filter.resampler": ["systematic", "multinomial"]},
                               outputs={"trace_trials": 1, "figures": []})
     write_config_file(root, config, "one-arm.yaml")
-    ran = run_pfx("run", "one-arm.yaml", "--out", "one-arm", "--quiet", cwd=root)
+    ran = pfx_in_process("run", "one-arm.yaml", "--out", "one-arm", "--quiet", cwd=root)
     assert ran.returncode == 0, ran.output
     jobs = {
         "default-by": (["compare", "one-arm", "--metric", "rmse_position"], root),
@@ -242,7 +243,7 @@ def one_arm_run(run_pfx, tmp_path_factory):
         "suggested-by": (["compare", "one-arm", "--metric", "log_likelihood", "--by", "n_particles",
                           "--higher-is-better"], root),
     }
-    results = run_pfx.many(jobs)
+    results = pfx_in_process.many(jobs)
     results["root"] = root
     return results
 
@@ -311,9 +312,9 @@ def test_a_flow_mapping_error_names_the_line_of_its_opening_brace():
     assert "(in the flow mapping opened at line 2, column 9)" in str(caught.value)
 
 
-def test_validate_reports_the_unclosed_brace_on_its_own_line(run_pfx, tmp_path):
+def test_validate_reports_the_unclosed_brace_on_its_own_line(pfx_in_process, tmp_path):
     write_config_file(tmp_path, FIVE_LINES, "five.yaml")
-    line = _one_error_line(run_pfx("validate", "five.yaml", cwd=tmp_path))
+    line = _one_error_line(pfx_in_process("validate", "five.yaml", cwd=tmp_path))
     assert line.startswith("pfx: error: five.yaml:5:46: YAML syntax error: expected ',' or '}'"), line
 
 

@@ -2,8 +2,8 @@
 
 The pure function ``paired_comparison`` is checked on hand-made tables whose paired
 differences are known (mean, t-interval and p-value recomputed here with scipy, wins and
-losses, exclusions, relative change, grouping). The command line is checked on real tiny runs
-(started concurrently by a module fixture): a two-arm run with a resampler sweep, an A/A run
+losses, exclusions, relative change, grouping). The command line (its entry point, in the test's
+process) is checked on real tiny runs (made by a module fixture): a two-arm run with a resampler sweep, an A/A run
 (two arms with identical settings), and every user error (exit 2, one line, nothing written).
 """
 
@@ -259,13 +259,13 @@ ERRORS = {
 
 
 @pytest.fixture(scope="module")
-def cli(tmp_path_factory, run_pfx):
-    """Run the two experiments, then every compare invocation concurrently: {name: PfxResult}."""
+def cli(tmp_path_factory, pfx_in_process):
+    """Run the two experiments, then every compare invocation: {name: PfxResult}."""
     root = tmp_path_factory.mktemp("compare")
     write_config_file(root, TWO_ARMS, "two-arms.yaml")
     write_config_file(root, A_A, "a-a.yaml")
-    runs = run_pfx.many({"two-arms": (["run", "two-arms.yaml", "--out", "two-arms"], root),
-                         "a-a": (["run", "a-a.yaml", "--out", "a-a"], root)})
+    runs = pfx_in_process.many({"two-arms": (["run", "two-arms.yaml", "--out", "two-arms"], root),
+                                "a-a": (["run", "a-a.yaml", "--out", "a-a"], root)})
     for name, result in runs.items():
         assert result.returncode == 0, f"{name}: {result.output}"
     for copy in ("errors", "unfinished", "bootstrap"):
@@ -280,7 +280,7 @@ def cli(tmp_path_factory, run_pfx):
                           "--bootstrap", "1000"], root)
     jobs["a-a"] = (["compare", "a-a", "--metric", "rmse_position"], root)
     jobs["versus"] = (["compare", "two-arms", "--metric", "error_distance_final", "--versus", "rmse_position"], root)
-    results = run_pfx.many(jobs)
+    results = pfx_in_process.many(jobs)
     results["root"] = root
     return results
 

@@ -16,8 +16,10 @@ is checked first). The contract (docs/configuration.md#reading-and-validation): 
 ``pfx: error: <file>[:line:col]: [<key path>: ]<reason>``, no traceback, no pydantic internals,
 nothing written, no code executed (YAML python tags), alias bombs refused before expansion.
 
-All invocations are real subprocesses started concurrently (one per CPU) by a module fixture;
-each test checks its own.
+A module fixture runs every invocation through the command line's entry point in the test's
+process (``pfx_in_process``: a subprocess per entry would cost two seconds of CPU each and
+prove nothing more); each test checks its own. A few of them (THROUGH_A_PROCESS) also run as
+real ``python -m pfx`` processes, which must give the same exit status, stdout and stderr.
 """
 
 from __future__ import annotations
@@ -159,18 +161,36 @@ def _listing(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
-@pytest.fixture(scope="module")
-def outcomes(tmp_path_factory, run_pfx):
-    """Run every (entry, mode) once, concurrently; {(id, mode): (folder, files before, result)}."""
-    root = tmp_path_factory.mktemp("config-errors")
+def _run_every(cases, root: Path, runner) -> dict:
+    """Run each (entry, mode) once in a folder of its own under ``root``;
+    {(id, mode): (folder, files before, result)}."""
     jobs, before = {}, {}
-    for index, (entry, mode) in enumerate(MODES):
+    for index, (entry, mode) in enumerate(cases):
         folder = root / f"{index:03d}-{mode}"           # short: a socket path must stay < 108 bytes
         _prepare(folder, entry, mode)
         before[(entry.id, mode)] = (folder, _listing(folder))
         jobs[(entry.id, mode)] = (_arguments(entry, mode), folder)
-    results = run_pfx.many(jobs, timeout=120)   # a safety net (alias bomb, socket), not a timing check
+    results = runner.many(jobs, timeout=120)    # a safety net (alias bomb, socket), not a timing check
     return {key: (*before[key], results[key]) for key in jobs}
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory, pfx_in_process):
+    """Every (entry, mode), through the command line in this process."""
+    return _run_every(MODES, tmp_path_factory.mktemp("config-errors"), pfx_in_process)
+
+
+# Through real processes as well: a YAML error, a python tag (no code runs), an alias bomb (refused
+# before it can take the process's memory), a --set mistake on the command line.
+THROUGH_A_PROCESS = [("01-yaml-bad-indentation", "validate"), ("13-python-object-apply-tag", "run"),
+                     ("16-alias-bomb", "run"), ("set-unknown-key", "run")]
+
+
+@pytest.fixture(scope="module")
+def processes(tmp_path_factory, run_pfx):
+    """THROUGH_A_PROCESS, as real ``python -m pfx`` processes started concurrently."""
+    cases = [(entry, mode) for entry, mode in MODES if (entry.id, mode) in THROUGH_A_PROCESS]
+    return _run_every(cases, tmp_path_factory.mktemp("config-errors-processes"), run_pfx)
 
 
 def test_corpus_is_complete():
@@ -181,6 +201,7 @@ def test_corpus_is_complete():
     assert len({e.id for e in ENTRIES}) == len(ENTRIES), "duplicate corpus ids"
     shorts = {e.short for e in ENTRIES}
     assert RUN_SUBSET <= shorts, RUN_SUBSET - shorts
+    assert set(THROUGH_A_PROCESS) <= {(entry.id, mode) for entry, mode in MODES}
 
 
 PARAMS = [pytest.param(entry, mode, id=f"{entry.id}-{mode}",
@@ -217,3 +238,12 @@ def test_config_error_is_one_clear_line(entry: Entry, mode: str, outcomes):
     if mode == "run":
         assert result.stdout == ""
         assert not (folder / "out").exists()
+
+
+@pytest.mark.parametrize("key", THROUGH_A_PROCESS, ids="-".join)
+def test_a_real_process_gives_what_the_in_process_command_line_gave(key, processes, outcomes):
+    """The exit status is the process's own, and nothing else differs: stdout, stderr, the files."""
+    folder, files_before, result = processes[key]
+    assert (result.returncode, result.stdout, result.stderr) == outcomes[key][2]
+    assert result.returncode == 2
+    assert _listing(folder) == files_before

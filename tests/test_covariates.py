@@ -97,10 +97,10 @@ def test_covariates_are_interpolated_linearly(tmp_path):
     assert one_row.covariates_at(0.0) == pytest.approx([3.0])
 
 
-def test_a_run_reads_the_covariate_at_each_step_start(run_pfx, tmp_path):
+def test_a_run_reads_the_covariate_at_each_step_start(pfx_in_process, tmp_path):
     write_table(tmp_path, LINEAR_DRIFT)
     config = write_config_file(tmp_path, drift_config(tmp_path))
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     steps = pd.read_csv(tmp_path / "out" / "steps.csv")
     truth = steps[steps["trial"] == 0].sort_values("step")
@@ -126,10 +126,10 @@ def test_the_table_is_part_of_the_cell_key(tmp_path):
     ("time,drift\n1,0\n6,6\n", "data.covariates", "from 0 (the start of step 1)"),
     ("time,drift\n0,0\n5,5\n", "data.covariates", "to 6 (step 6)"),
 ])
-def test_bad_covariate_tables_are_one_line_errors(run_pfx, tmp_path, table, where, reason):
+def test_bad_covariate_tables_are_one_line_errors(pfx_in_process, tmp_path, table, where, reason):
     (tmp_path / "drift.csv").write_text(table)
     config = write_config_file(tmp_path, drift_config(tmp_path))
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 2, result.output
     assert "Traceback" not in result.output and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert where in result.stderr and reason in result.stderr, result.stderr
@@ -170,20 +170,20 @@ def test_covariates_inline_in_the_model_work_too(tmp_path):
 
 
 @pytest.mark.parametrize("with_measurements", [False, True])
-def test_a_result_folder_records_the_file_and_reruns(run_pfx, tmp_path, with_measurements):
+def test_a_result_folder_records_the_file_and_reruns(pfx_in_process, tmp_path, with_measurements):
     write_table(tmp_path, LINEAR_DRIFT)
     config = drift_config(tmp_path)
     if with_measurements:
         (tmp_path / "z.csv").write_text("time,z1\n" + "".join(f"{k},{k * (k - 1) / 2}\n" for k in range(1, 7)))
         config["data"]["measurements"] = "z.csv"
-    first = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
+    first = pfx_in_process("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
     assert first.returncode == 0, first.output
     record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
     assert "covariates" not in record["model"]
     assert record["data"]["covariates"] == str(tmp_path / "drift.csv")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    again = run_pfx("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=elsewhere)
+    again = pfx_in_process("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=elsewhere)
     assert again.returncode == 0, again.output
     first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv").drop(columns="run_time_s")
                                   for name in ("first", "again"))

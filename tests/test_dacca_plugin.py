@@ -225,6 +225,7 @@ def log_mean_exp(values: np.ndarray) -> float:
     return float(top + np.log(np.mean(np.exp(values - top))))
 
 
+@pytest.mark.slow        # pypomp's size (J = 1000, 8 replicates, 600 months): its standard errors are the tolerance
 def test_standalone_bootstrap_filter_lands_on_pomps_log_likelihood():
     """J = 1000, 8 replicates, over the 600 months (about 20 s)."""
     dacca = model()

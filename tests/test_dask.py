@@ -5,8 +5,8 @@ cells, each split into ten batches of trials (so that a cell's batches come back
 order), must give trials.csv, steps.csv and summary.csv identical (all but the run-time
 columns) to `--executor local`, whether pfx starts the cluster (`dask-local`) or connects to
 one (`dask --scheduler`); a worker process killed mid-sweep must lose nothing (Dask reruns
-its tasks); an interrupted Dask run must keep its finished cells and resume. Without the
-optional extra, asking for Dask is one error line naming it.
+its tasks); an interrupted Dask run must keep its finished cells and resume; a plugin's code
+reaches the workers. Without the optional extra, asking for Dask is one error line naming it.
 """
 
 from __future__ import annotations
@@ -26,9 +26,6 @@ import pytest
 from conftest import REPO_ROOT, _environment, tiny_config_dict, write_config_file
 
 distributed = pytest.importorskip("distributed", reason="the Dask tests need the 'dask' extra (in '.[test]')")
-import dask.config  # noqa: E402  (after the skip: it comes with distributed)
-
-from pfx.run.executors.dask import WORKER_SETTINGS  # noqa: E402
 
 CELLS = 8
 SWEEP = {
@@ -97,16 +94,12 @@ def config(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def cluster(dask_cluster):
     """A Dask cluster as a user would start one: a scheduler and 2 single-threaded worker
-    processes (with nannies, which restart a killed worker), on loopback."""
-    with dask.config.set(WORKER_SETTINGS):          # as docs/dask.md advises for one's own workers
-        local = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                         dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL)
-        client = distributed.Client(local, set_as_default=False)
-        yield local, client
-        client.close()
-        local.close()
+    processes (with nannies, which restart a killed worker), on loopback: the session's
+    (tests/conftest.py), with both its workers up."""
+    dask_cluster[1].wait_for_workers(2, timeout=SAFETY_TIMEOUT_S)
+    return dask_cluster
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +168,8 @@ def test_killed_worker_loses_no_result(config, runs, cluster, tmp_path):
 
 def test_workers_dying_beyond_dasks_limit_end_the_run_in_one_line_keeping_cells(config, tmp_path):
     """With Dask's allowed-failures at 0, one worker death fails its tasks (KilledWorker):
-    exit status 1, one error line, the finished cells kept for a resume."""
+    exit status 1, one error line, the finished cells kept for a resume. On a cluster of its own:
+    the session's stays as the other tests expect it."""
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address="127.0.0.1:0", silence_logs=logging.CRITICAL,
                                   scheduler_kwargs={"allowed_failures": 0}) as local, \
@@ -223,6 +217,23 @@ def test_interrupted_dask_run_keeps_finished_cells_and_resumes(config, runs, tmp
     assert not (out / "cells").exists()
 
 
+def test_dask_runs_plugin_models(run_pfx, pfx_in_process, tmp_path, cluster):
+    """The minimal plugin of tests/test_plugins.py: its code reaches the cluster's worker
+    processes, which never imported it, and they compute what a local run does."""
+    from test_plugins import minimal_config, write_plugin
+
+    write_plugin(tmp_path)
+    config = write_config_file(tmp_path, minimal_config(trials=6, arms={"pf": {"kind": "particle"},
+                                                                        "ekf": {"kind": "ekf"}}))
+    local = pfx_in_process("run", config, "--out", "local", cwd=tmp_path)
+    dask = run_pfx("run", config, "--out", "dask", "--executor", "dask", "--scheduler",
+                   cluster[0].scheduler_address, cwd=tmp_path)
+    assert local.returncode == 0 and dask.returncode == 0, local.output + dask.output
+    columns = ["cell", "trial", "rmse_position", "log_likelihood"]
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "local" / "trials.csv")[columns],
+                                  pd.read_csv(tmp_path / "dask" / "trials.csv")[columns])
+
+
 @pytest.fixture
 def without_dask(tmp_path) -> dict[str, str]:
     """An environment where `import distributed` fails, as where the extra is not installed."""
@@ -262,12 +273,12 @@ MISTAKES = {
 
 
 @pytest.fixture(scope="module")
-def mistakes(tmp_path_factory, run_pfx):
-    """Every option mistake, run concurrently: name -> (result, its result folder)."""
+def mistakes(tmp_path_factory, pfx_in_process):
+    """Every option mistake, through the command line in this process: name -> (result, its result folder)."""
     root = tmp_path_factory.mktemp("dask-mistakes")
     config = write_config_file(root, tiny_config_dict(), "tiny.yaml")
-    results = run_pfx.many({name: (["run", config, "--out", root / str(index), *options], root)
-                            for index, (name, (options, _)) in enumerate(MISTAKES.items())})
+    results = pfx_in_process.many({name: (["run", config, "--out", root / str(index), *options], root)
+                                   for index, (name, (options, _)) in enumerate(MISTAKES.items())})
     return {name: (results[name], root / str(index)) for index, name in enumerate(MISTAKES)}
 
 

@@ -41,21 +41,24 @@ def _without_time(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory, run_pfx):
-    """Four real runs, concurrently: two arms (twice, and with 2 workers), and arm A alone."""
+def runs(tmp_path_factory, run_pfx, pfx_in_process):
+    """Four runs: two arms (twice, and with 2 workers), and arm A alone. The second and the one
+    with workers are real processes (so the first two runs are in two processes, each with its
+    own hash seed and state), the others the command line in the test's process."""
     root = tmp_path_factory.mktemp("determinism")
     write_config_file(root, TWO_ARMS, "two-arms.yaml")
     write_config_file(root, ONE_ARM, "one-arm.yaml")
-    jobs = {
-        "first": (["run", "two-arms.yaml", "--out", "first"], root),
+    results = run_pfx.many({
         "second": (["run", "two-arms.yaml", "--out", "second"], root),
         "workers": (["run", "two-arms.yaml", "--out", "workers", "--workers", "2"], root),
+    })
+    results.update(pfx_in_process.many({
+        "first": (["run", "two-arms.yaml", "--out", "first"], root),
         "one-arm": (["run", "one-arm.yaml", "--out", "one-arm"], root),
-    }
-    results = run_pfx.many(jobs)
+    }))
     for name, result in results.items():
         assert result.returncode == 0, f"{name}: {result.output}"
-    return {name: root / name for name in jobs}
+    return {name: root / name for name in results}
 
 
 def test_same_config_twice_gives_identical_tables(runs):

@@ -193,6 +193,7 @@ def exact_log_likelihoods(values):
     return target.log_likelihoods(values, [0] * len(values))
 
 
+@pytest.mark.slow        # 4 chains x 1500 iterations: the Monte Carlo error the comparison needs
 def test_pmmh_recovers_the_posterior_of_the_exact_likelihood():
     """PMMH with a particle filter targets the exact posterior: its posterior means agree with the
     means under the Kalman likelihood, integrated on a grid (uniform priors), within 4 Monte Carlo

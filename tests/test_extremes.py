@@ -6,7 +6,7 @@ Two layers:
 * the engine, driven directly (as in ``test_numerics.py``) where a case needs a measurement or a
   model that no config can express: every weight underflowing for every resampler and for SIS
   at N = 1, 2, 50; a model that returns NaN or inf at a given step;
-* the real command line (``pfx run``, subprocesses started together by a module fixture) on tiny
+* the command line (``pfx run``, its entry point in the test's process, by a module fixture) on tiny
   configs: N = 1, N = 2 and T = 1 for every resampler and SIS on every model; measurement and
   process noise variances of 1e-12 and 1e12 under every weighting; a prior so far from the truth
   that every likelihood is zero; filters and truths that overflow.
@@ -296,8 +296,8 @@ FAILURES = {
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory, run_pfx):
-    """Run every CLI case once, concurrently; {name: (result folder, PfxResult)}."""
+def runs(tmp_path_factory, pfx_in_process):
+    """Run every CLI case once; {name: (result folder, PfxResult)}."""
     root = tmp_path_factory.mktemp("extremes")
     jobs, folders = {}, {}
     for name, config in {**SUCCESSES, **{k: v[0] for k, v in FAILURES.items()}}.items():
@@ -306,7 +306,7 @@ def runs(tmp_path_factory, run_pfx):
         (folder / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
         jobs[name] = (["run", "config.yaml", "--out", "out", "--quiet"], folder)
         folders[name] = folder / "out"
-    results = run_pfx.many(jobs)
+    results = pfx_in_process.many(jobs)
     return {name: (folders[name], results[name]) for name in jobs}
 
 

@@ -67,7 +67,7 @@ def test_the_quadrature_reference_has_converged():
     assert abs(quadrature_log_likelihood(y) - quadrature_log_likelihood(y, points=2400, width=12.0)) < 1e-8
 
 
-def test_log_likelihood_variance_falls_like_one_over_n(run_pfx, tmp_path):
+def test_log_likelihood_variance_falls_like_one_over_n(pfx_in_process, tmp_path):
     """The shipped config at N = 100 and 400, 100 trials each (independent filter seeds).
 
     For fixed T the log of the particle likelihood estimate is asymptotically normal with
@@ -82,8 +82,8 @@ def test_log_likelihood_variance_falls_like_one_over_n(run_pfx, tmp_path):
     N = 400 must lie within 4 standard errors of the exact log-likelihood (quadrature), with
     se^2 = s^2 / R + s^4 / (2 (R - 1)) (the mean's and the half-variance's, for normal data)."""
     trials = 100
-    result = run_pfx("run", CONFIG, "--out", tmp_path / "gbp", "--trials", str(trials),
-                     "--set", "sweep.filter.particles=[100, 400]")
+    result = pfx_in_process("run", CONFIG, "--out", tmp_path / "gbp", "--trials", str(trials),
+                            "--set", "sweep.filter.particles=[100, 400]")
     assert result.returncode == 0, result.output
     table = pd.read_csv(tmp_path / "gbp" / "trials.csv")
     estimates = {n: group["log_likelihood"].to_numpy() for n, group in table.groupby("n_particles")}

@@ -1,4 +1,5 @@
-"""Interrupted, resumed and concurrent runs, through real `pfx run` processes.
+"""Interrupted, resumed and concurrent runs, through real `pfx run` processes (the runs no signal
+reaches: the command line in the test's process).
 
 A sweep of ten cells (each a fraction of a second) is stopped by a signal once two cells are
 finished; the folder must then hold every finished cell intact, no partial or temporary file,
@@ -66,11 +67,10 @@ def config(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def reference(config, tmp_path_factory) -> pd.DataFrame:
-    """The same sweep run without interruption."""
+def reference(config, tmp_path_factory, pfx_in_process) -> pd.DataFrame:
+    """The same sweep run without interruption (the command line in the test's process)."""
     out = tmp_path_factory.mktemp("reference") / "out"
-    done = subprocess.run(_pfx("run", config, "--out", out, "--quiet"), cwd=REPO_ROOT, env=_environment(),
-                          capture_output=True, text=True, timeout=SAFETY_TIMEOUT_S)
+    done = pfx_in_process("run", config, "--out", out, "--quiet")
     assert done.returncode == 0, done.stderr
     return _trials(out)
 
@@ -136,14 +136,13 @@ def test_second_run_on_the_same_folder_is_refused(config, tmp_path):
         first.communicate(timeout=SAFETY_TIMEOUT_S)
 
 
-def test_fresh_recomputes_a_finished_folder(config, reference, tmp_path):
+def test_fresh_recomputes_a_finished_folder(config, reference, tmp_path, pfx_in_process):
+    """No signal here: the command line in the test's process."""
     out = tmp_path / "out"
     for arguments in ((), ("--fresh",)):
-        done = subprocess.run(_pfx("run", config, "--out", out, *arguments), cwd=REPO_ROOT, env=_environment(),
-                              capture_output=True, text=True, timeout=SAFETY_TIMEOUT_S)
+        done = pfx_in_process("run", config, "--out", out, *arguments)
         assert done.returncode == 0, done.stderr
         assert "up to date" not in done.stderr
-    again = subprocess.run(_pfx("run", config, "--out", out), cwd=REPO_ROOT, env=_environment(),
-                           capture_output=True, text=True, timeout=SAFETY_TIMEOUT_S)
+    again = pfx_in_process("run", config, "--out", out)
     assert again.returncode == 0 and "up to date" in again.stderr
     pd.testing.assert_frame_equal(_trials(out), reference, check_exact=True)

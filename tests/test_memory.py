@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import copy
-import subprocess
-import sys
 import tracemalloc
 
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO_ROOT, _environment
 
 from pfx.config.plan import build_plan
 from pfx.run.batch import run_batch
@@ -88,15 +85,10 @@ def test_parse_and_format_sizes():
     assert format_size(3 * 1024**3) == "3.0 GiB"
 
 
-def _run(*args):
-    return subprocess.run([sys.executable, "-m", "pfx", *map(str, args)], cwd=REPO_ROOT, env=_environment(),
-                          capture_output=True, text=True, timeout=300)
-
-
-def test_a_cell_that_cannot_fit_is_refused_with_the_estimate(tmp_path):
+def test_a_cell_that_cannot_fit_is_refused_with_the_estimate(pfx_in_process, tmp_path):
     config = tmp_path / "big.yaml"
     config.write_text(yaml.safe_dump({**CONFIGS["linear_gaussian"], "filter": {"particles": 1_000_000}}))
-    done = _run("run", config, "--out", tmp_path / "out", "--max-memory", "100M")
+    done = pfx_in_process("run", config, "--out", tmp_path / "out", "--max-memory", "100M")
     assert done.returncode == 2
     line, = done.stderr.strip().splitlines()
     assert line.startswith("pfx: error: ") and "big.yaml" in line and "filter.particles" in line
@@ -104,7 +96,7 @@ def test_a_cell_that_cannot_fit_is_refused_with_the_estimate(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_splitting_trials_into_small_batches_changes_nothing(tmp_path):
+def test_splitting_trials_into_small_batches_changes_nothing(pfx_in_process, tmp_path):
     """A budget of about one trial forces batches of one; the tables must not change."""
     raw = {**CONFIGS["range_beacons"], "trials": 6, "filter": {"particles": 3000, "ess_threshold": 0.5}}
     config = tmp_path / "c.yaml"
@@ -113,7 +105,7 @@ def test_splitting_trials_into_small_batches_changes_nothing(tmp_path):
     outs = {}
     for label, limit in (("small", one_trial + 1), ("large", 1000 * one_trial)):
         outs[label] = tmp_path / label
-        done = _run("run", config, "--out", outs[label], "--max-memory", limit, "--quiet")
+        done = pfx_in_process("run", config, "--out", outs[label], "--max-memory", limit, "--quiet")
         assert done.returncode == 0, done.stderr
     small, large = (pd.read_csv(outs[k] / "trials.csv").drop(columns="run_time_s") for k in ("small", "large"))
     pd.testing.assert_frame_equal(small, large, check_exact=True)

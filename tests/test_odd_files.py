@@ -7,8 +7,8 @@ size limit holds whatever size a file reports (``/proc`` files report 0). Times 
 differences overflow are refused naming the data file, its line and the column, with no numpy
 warning on stderr.
 
-Every command runs with a timeout, so that a pipe that blocks fails the test instead of hanging
-the suite.
+Every command that meets an odd file runs in a real process with a timeout, so that a pipe that
+blocks fails the test instead of hanging the suite.
 """
 
 from __future__ import annotations
@@ -95,12 +95,12 @@ def test_the_size_limit_holds_for_a_file_that_reports_no_size(tmp_path, monkeypa
     assert str(caught.value) == f"{path}: data.measurements: /proc/self/status is larger than 64 bytes"
 
 
-def test_times_whose_spacing_overflows_name_the_data_file_line_and_column(run_pfx, tmp_path):
+def test_times_whose_spacing_overflows_name_the_data_file_line_and_column(pfx_in_process, tmp_path):
     """Finite times whose difference is not a float: the data file's line, not model.dt, and
     no numpy RuntimeWarning on stderr."""
     (tmp_path / "measurements.csv").write_text("time,z1\n-1.7e308,1\n1.7e308,2\n")
     path = data_config(tmp_path, "measurements.csv")
-    result = run_pfx("run", path.name, "--out", "out", cwd=tmp_path, timeout=TIMEOUT_S)
+    result = pfx_in_process("run", path.name, "--out", "out", cwd=tmp_path, timeout=TIMEOUT_S)
     assert result.returncode == 2, result.output
     assert result.stderr.splitlines() == [
         "pfx: error: measurements.csv:3: column time: the time since the previous row (1.7e+308 - -1.7e+308) "

@@ -75,10 +75,10 @@ def assert_refused(result: PfxResult, line: str) -> None:
     assert "Traceback" not in result.output
 
 
-def test_a_result_folder_under_a_regular_file_is_refused(run_pfx, tmp_path):
+def test_a_result_folder_under_a_regular_file_is_refused(pfx_in_process, tmp_path):
     write_config(tmp_path)
     (tmp_path / "notes.txt").write_text("not a folder\n")
-    result = run_pfx("run", "config.yaml", "--out", "notes.txt/out", cwd=tmp_path, timeout=TIMEOUT_S)
+    result = pfx_in_process("run", "config.yaml", "--out", "notes.txt/out", cwd=tmp_path, timeout=TIMEOUT_S)
     assert_refused(result, "notes.txt/out: cannot create the result folder: notes.txt is a file, not a folder")
     assert (tmp_path / "notes.txt").read_text() == "not a folder\n"
 
@@ -114,11 +114,11 @@ def test_figures_into_a_read_only_folder_are_refused(tmp_path):
     assert sorted((path.name, path.stat().st_mtime_ns) for path in (tmp_path / "out").rglob("*")) == before
 
 
-def test_reproduce_into_a_path_under_a_regular_file_is_refused(run_pfx, tmp_path):
+def test_reproduce_into_a_path_under_a_regular_file_is_refused(pfx_in_process, tmp_path):
     (tmp_path / "papers" / "some-paper").mkdir(parents=True)
     write_config(tmp_path / "papers" / "some-paper")
     (tmp_path / "notes.txt").write_text("not a folder\n")
-    result = run_pfx("reproduce", "--configs", "papers", "--out", "notes.txt/results", cwd=tmp_path,
+    result = pfx_in_process("reproduce", "--configs", "papers", "--out", "notes.txt/results", cwd=tmp_path,
                      timeout=TIMEOUT_S)
     assert_refused(result, "notes.txt/results: cannot create the results folder: notes.txt is a file, not a folder")
 

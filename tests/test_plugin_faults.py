@@ -1,7 +1,8 @@
 """Plugin code that raises, anywhere, is one line naming the plugin file, its line, the component
 and the function (pfx/config/plugin_faults.py; docs/plugins.md, "When a plugin fails").
 
-Through the real command line: before any trial ran (validation, planning) the line comes with
+Through the command line (its entry point in the test's process; with worker processes, a real
+``pfx`` process): before any trial ran (validation, planning) the line comes with
 exit status 2 and nothing is written; during a run, with exit status 1 and the finished cells
 kept. ``--traceback`` (or PFX_TRACEBACK=1) shows the traceback too. A model inconsistent with
 itself is refused at plan time, naming the plugin, not a data file.
@@ -97,11 +98,11 @@ INCONSISTENT_NAMES = '''    @property
 
 
 @pytest.mark.parametrize("command", ["validate", "run"])
-def test_a_method_meant_as_a_property_is_named_with_its_line(run_pfx, tmp_path, command):
+def test_a_method_meant_as_a_property_is_named_with_its_line(pfx_in_process, tmp_path, command):
     source = plugin_source(state_names=FORGOT_PROPERTY)
     config = setup_case(tmp_path, source)
     out = tmp_path / "out"
-    result = run_pfx(command, config, *(["--out", out] if command == "run" else []), cwd=tmp_path)
+    result = pfx_in_process(command, config, *(["--out", out] if command == "run" else []), cwd=tmp_path)
     line = line_number(source, "def state_names")
     assert the_error_line(result, 2) == (
         f"walk.py:{line}: model hidden_walk (class Walk): state_names is a method, and pfx reads it as a "
@@ -115,17 +116,17 @@ def test_a_method_meant_as_a_property_is_named_with_its_line(run_pfx, tmp_path, 
     ("presets raises", {"mean": MEAN + RAISING_PRESETS}, "raise KeyError",
      "model hidden_walk: presets raised KeyError: 'no preset for this a'"),
 ])
-def test_plugin_code_raising_during_validation_is_one_line(run_pfx, tmp_path, case, member, text, expected):
+def test_plugin_code_raising_during_validation_is_one_line(pfx_in_process, tmp_path, case, member, text, expected):
     source = plugin_source(**member)
     config = setup_case(tmp_path, source)
     for command in ("validate", "run"):
-        result = run_pfx(command, config, "--out" if command == "run" else "--set",
+        result = pfx_in_process(command, config, "--out" if command == "run" else "--set",
                          tmp_path / "out" if command == "run" else "trials=4", cwd=tmp_path)
         assert the_error_line(result, 2) == f"walk.py:{line_number(source, text)}: {expected}", case
     assert not (tmp_path / "out").exists()
 
 
-def test_a_model_inconsistent_with_itself_is_refused_naming_the_plugin(run_pfx, tmp_path):
+def test_a_model_inconsistent_with_itself_is_refused_naming_the_plugin(pfx_in_process, tmp_path):
     """measurement_names of length 1 beside measurement_dimension 2: refused at plan time, in
     the plugin's words and at its line, before any data file is read."""
     dimension_two = DIMENSION.replace("return 1", "return 2")
@@ -133,7 +134,7 @@ def test_a_model_inconsistent_with_itself_is_refused_naming_the_plugin(run_pfx, 
     source = plugin_source(dimension=dimension_two, mean=mean_two + INCONSISTENT_NAMES)
     config = setup_case(tmp_path, source, data={"measurements": "measurements.csv"})
     (tmp_path / "measurements.csv").write_text("step,range,z2\n" + "".join(f"{k},0.5,0.1\n" for k in range(1, 9)))
-    result = run_pfx("validate", config, cwd=tmp_path)
+    result = pfx_in_process("validate", config, cwd=tmp_path)
     line = line_number(source, "def measurement_names") - 1      # where its definition starts: @property
     assert the_error_line(result, 2) == (
         f"walk.py:{line}: model hidden_walk: measurement_names returned 1 name(s) ('range',), and "
@@ -141,11 +142,11 @@ def test_a_model_inconsistent_with_itself_is_refused_naming_the_plugin(run_pfx, 
 
 
 
-def test_a_vectorised_parameter_that_is_not_a_number_of_the_model_is_refused(run_pfx, tmp_path):
+def test_a_vectorised_parameter_that_is_not_a_number_of_the_model_is_refused(pfx_in_process, tmp_path):
     """vectorised_parameters (parameter estimation's batched chains) naming a field the model
     does not have: refused at plan time, naming the plugin, whatever the config runs."""
     source = plugin_source(mean=MEAN + '    vectorised_parameters = ("a", "b")\n')
-    result = run_pfx("validate", setup_case(tmp_path, source), cwd=tmp_path)
+    result = pfx_in_process("validate", setup_case(tmp_path, source), cwd=tmp_path)
     assert the_error_line(result, 2) == (
         "walk.py: model hidden_walk: vectorised_parameters names 'b', which is not a number of the model; "
         "expected its scalar fields or process_noise.variance or measurement_noise.variance")
@@ -163,12 +164,12 @@ WRONG_SHAPE_FOR_LARGE_N = '''    def propagate(self, state, control, noise):
 '''
 
 
-def test_an_exception_in_the_run_names_the_line_and_keeps_the_finished_cells(run_pfx, tmp_path):
+def test_an_exception_in_the_run_names_the_line_and_keeps_the_finished_cells(pfx_in_process, tmp_path):
     """propagate passes the 3-particle check and raises on the real batch of the second cell."""
     source = plugin_source(propagate=RAISES_ON_THE_REAL_BATCH)
     config = setup_case(tmp_path, source, sweep={"model.a": [0.5, 1.01]})
     out = tmp_path / "out"
-    result = run_pfx("run", config, "--out", out, cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", out, cwd=tmp_path)
     line = line_number(source, "raise RuntimeError")
     assert the_error_line(result, 1) == (
         f"walk.py:{line}: model hidden_walk: propagate raised RuntimeError: particle store full "
@@ -177,13 +178,15 @@ def test_an_exception_in_the_run_names_the_line_and_keeps_the_finished_cells(run
 
 
 @pytest.mark.parametrize("workers", ["1", "2"])
-def test_a_wrong_shape_for_the_runs_particle_count_is_named(run_pfx, tmp_path, workers):
+def test_a_wrong_shape_for_the_runs_particle_count_is_named(request, tmp_path, workers):
     """Right for 3 particles, wrong for the run's 50: the engine's check names the method, the
-    step and the shapes, in worker processes too; nothing finished, nothing kept."""
+    step and the shapes, in worker processes too; nothing finished, nothing kept. (Worker
+    processes are started from a real pfx process, not forked from the test's.)"""
     source = plugin_source(propagate=WRONG_SHAPE_FOR_LARGE_N)
     config = setup_case(tmp_path, source, model={**walk_config()["model"], "a": 1.01}, trials=8)
     out = tmp_path / "out"
-    result = run_pfx("run", config, "--out", out, "--workers", workers, cwd=tmp_path)
+    command_line = request.getfixturevalue("pfx_in_process" if workers == "1" else "run_pfx")
+    result = command_line("run", config, "--out", out, "--workers", workers, cwd=tmp_path)
     line = the_error_line(result, 1)
     assert line.startswith("walk.py: model hidden_walk: the transition (propagate) returned shape (")
     assert "x 50 particles; expected (" in line and "at step 1 of the filter" in line
@@ -214,21 +217,21 @@ def test_a_plugin_fault_reaches_python_as_one_exception(tmp_path):
         pfx.run(tmp_path / config, out=tmp_path / "out")
 
 
-def test_a_built_in_run_is_unchanged_by_the_checks(run_pfx, tmp_path, tiny_config_dict):
+def test_a_built_in_run_is_unchanged_by_the_checks(pfx_in_process, tmp_path, tiny_config_dict):
     """The engine's per-step shape checks pass every built-in run (here: the tiny config)."""
     config = write_config_file(tmp_path, tiny_config_dict(), "tiny.yaml")
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     assert len(pd.read_csv(tmp_path / "out" / "trials.csv")) == 4
 
 
-def test_a_plugin_figure_that_raises_after_the_run_keeps_the_tables(run_pfx, tmp_path, tiny_config_dict):
+def test_a_plugin_figure_that_raises_after_the_run_keeps_the_tables(pfx_in_process, tmp_path, tiny_config_dict):
     source = ('from pfx.figures import FIGURES\n\n@FIGURES.register("broken_figure")\n'
               'def broken_figure(result):\n    """A figure that fails."""\n    return 1 / 0\n')
     (tmp_path / "figure_plugin.py").write_text(source)
     write_config_file(tmp_path, tiny_config_dict(plugins=["figure_plugin.py"], outputs={"figures": ["broken_figure"]}),
                       "tiny.yaml")
-    result = run_pfx("run", "tiny.yaml", "--out", "out", cwd=tmp_path)
+    result = pfx_in_process("run", "tiny.yaml", "--out", "out", cwd=tmp_path)
     assert the_error_line(result, 1) == (
         f"figure_plugin.py:{line_number(source, '1 / 0')}: figure broken_figure: broken_figure raised "
         "ZeroDivisionError: division by zero; every trial finished and the tables are written in out, but not "

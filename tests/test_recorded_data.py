@@ -111,12 +111,12 @@ def test_published_variances_maximise_the_likelihood():
         assert other < best - 1e-3
 
 
-def test_nile_example_particle_filter_within_its_standard_error(run_pfx, tmp_path):
+def test_nile_example_particle_filter_within_its_standard_error(pfx_in_process, tmp_path):
     """The shipped config, through the command line (fewer trials): the particle filter's
     log-likelihood estimate. Its log is biased low by about var/2 (it is the likelihood that is
     unbiased; the log of it is asymptotically normal with mean log L - sigma^2/2, Berard, Del
     Moral & Doucet 2014), so mean + var/2 must lie within 4 standard errors of the Kalman value."""
-    result = run_pfx("run", NILE_CONFIG, "--out", tmp_path / "nile", "--trials", "30")
+    result = pfx_in_process("run", NILE_CONFIG, "--out", tmp_path / "nile", "--trials", "30")
     assert result.returncode == 0, result.stderr
     trials = pd.read_csv(tmp_path / "nile" / "trials.csv")
     kalman = trials.loc[trials["arm"] == "KF", "log_likelihood"]
@@ -285,14 +285,14 @@ def write_simulated_trial(folder: Path) -> None:
         folder / "truth.csv", index=False, float_format="%.17g")
 
 
-def test_recorded_trial_gives_the_simulated_trials_numbers(run_pfx, tmp_path):
+def test_recorded_trial_gives_the_simulated_trials_numbers(pfx_in_process, tmp_path):
     write_simulated_trial(tmp_path)
     simulated = write_config_file(tmp_path, SIMULATED, "simulated.yaml")
     recorded = write_config_file(tmp_path, {**SIMULATED, "name": "recorded", "trials": 3,
                                             "model": {k: v for k, v in SIMULATED["model"].items() if k != "steps"},
                                             "data": {"measurements": "measurements.csv", "truth": "truth.csv"}},
                                  "recorded.yaml")
-    results = run_pfx.many({"simulated": (("run", simulated, "--out", tmp_path / "sim"), tmp_path),
+    results = pfx_in_process.many({"simulated": (("run", simulated, "--out", tmp_path / "sim"), tmp_path),
                             "recorded": (("run", recorded, "--out", tmp_path / "rec"), tmp_path)})
     for result in results.values():
         assert result.returncode == 0, result.stderr
@@ -412,20 +412,20 @@ def test_config_level_refusals(tmp_path):
         assert expected in str(caught.value).replace(f"{tmp_path}/", ""), (name, str(caught.value))
 
 
-def test_bad_data_through_the_command_line(run_pfx, tmp_path):
+def test_bad_data_through_the_command_line(pfx_in_process, tmp_path):
     """Exit status 2, one line on stderr, no traceback, nothing written."""
     (tmp_path / "measurements.csv").write_text("step,z1\n1,1\n2,abc\n")
     path = write_config_file(tmp_path, tiny_config_dict(
         model={k: v for k, v in tiny_config_dict()["model"].items() if k != "steps"},
         data={"measurements": "measurements.csv"}))
-    result = run_pfx("run", path.name, "--out", "out", cwd=tmp_path)
+    result = pfx_in_process("run", path.name, "--out", "out", cwd=tmp_path)
     assert result.returncode == 2
     assert result.stderr.strip() == "pfx: error: measurements.csv:3: column z1: 'abc' is not a number " \
                                     "(leave a missing value blank)"
     assert "Traceback" not in result.output and not (tmp_path / "out").exists()
 
 
-def test_a_result_folder_with_recorded_controls_reruns(run_pfx, tmp_path):
+def test_a_result_folder_with_recorded_controls_reruns(pfx_in_process, tmp_path):
     """config.yaml records data.controls by its path, not copied into model.controls as well
     (which the rerun refused: "controls are given twice")."""
     config = {"name": "controls", "seed": 1, "trials": 2,
@@ -437,11 +437,11 @@ def test_a_result_folder_with_recorded_controls_reruns(run_pfx, tmp_path):
               "outputs": {"figures": []}}
     (tmp_path / "z.csv").write_text("step,z1\n1,0.1\n2,0.3\n3,0.2\n")
     (tmp_path / "u.csv").write_text("step,u1\n1,0.1\n2,0.1\n3,0.1\n")
-    first = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
+    first = pfx_in_process("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
     assert first.returncode == 0, first.output
     record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
     assert "controls" not in record["model"] and record["data"]["controls"] == str(tmp_path / "u.csv")
-    again = run_pfx("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=tmp_path)
+    again = pfx_in_process("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=tmp_path)
     assert again.returncode == 0, again.output
     columns = ["trial", "log_likelihood", "rmse_x"]
     first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv") for name in ("first", "again"))
@@ -449,7 +449,7 @@ def test_a_result_folder_with_recorded_controls_reruns(run_pfx, tmp_path):
                                   again_trials[[c for c in columns if c in again_trials]])
 
 
-def test_the_log_likelihood_spread_figure_treats_recorded_data_as_one_dataset(run_pfx, tmp_path):
+def test_the_log_likelihood_spread_figure_treats_recorded_data_as_one_dataset(pfx_in_process, tmp_path):
     """Every trial of a data run filters the same measurements: the spread of the log-likelihood
     estimate is pooled over all of a cell's trials (each has its own truth_seed, which told
     datasets apart and left no dataset run twice: the figure drew nothing)."""
@@ -462,7 +462,7 @@ def test_the_log_likelihood_spread_figure_treats_recorded_data_as_one_dataset(ru
     config["data"]["measurements"] = str(NILE_DATA)
     config.pop("arms", None)
     config["sweep"] = {"filter.particles": [50, 200]}
-    result = run_pfx("run", write_config_file(tmp_path, config), "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", write_config_file(tmp_path, config), "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     folder = ResultFolder(tmp_path / "out")
     assert folder.recorded_data and folder.trials.groupby("n_particles")["truth_seed"].nunique().eq(8).all()

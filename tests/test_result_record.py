@@ -1,10 +1,10 @@
 """A result folder is a record of what ran: its config.yaml reruns to the same numbers, and
 what a later run does with the folder (resume, extend, re-render, refuse) keeps that true.
 
-* Every shipped config (examples, papers, studies, the plugin examples), run with 2 trials, then
-  rerun from the folder's own config.yaml (for a plugin run: with the folder's copy of the
-  plugin's code): every table identical apart from run times. ``pfx validate``'s
-  output is itself a config that resolves to the same plan.
+* Every shipped config (examples, papers, studies, benchmarks, the plugin examples), run with 2
+  trials (the heaviest few also shrunk, see SHRUNK), then rerun from the folder's own config.yaml
+  (for a plugin run: with the folder's copy of the plugin's code): every table identical apart
+  from run times. ``pfx validate``'s output is itself a config that resolves to the same plan.
 * ``--set`` wins over arms and the sweep, and says so; ``--set sweep.KEY=[...]`` adds an axis.
 * A run that fails keeps only what a rerun can resume from, and says what it kept.
 * Changing only the outputs, the name or the trial count keeps the results: figures are
@@ -36,6 +36,26 @@ SHIPPED = sorted(path for folder in ("configs", "examples") for path in (REPO_RO
 # last digit in tests/test_estimation.py, on a short run rather than the examples' minutes.
 RERUN = [path for path in SHIPPED if "\nestimation:" not in path.read_text()]
 
+# Whether a folder's config.yaml reruns to the same tables does not depend on a run's size: the
+# record holds a particle count, a step count or a grid size like any other setting. The configs
+# that take a minute or more even at 2 trials rerun shrunk by `--set` assignments that keep every
+# arm, every sweep axis (with as many values) and every kind of setting; the rest run as shipped.
+SHRUNK = {
+    # three histogram grids of 3000, 1000 and 6000 cells; 120 keeps the cells narrower than the
+    # process noise's standard deviation on the widest grid, as the grid's check requires
+    "configs/benchmarks/sv-gbp-usd/exact.yaml": ["filter.grid.cells=[120]"],
+    # 1001 steps of 25 RK4 substeps; 80 steps still go past the burn-in (t <= 16: 64 steps)
+    "configs/benchmarks/dapper-lorenz/lorenz63.yaml": ["model.steps=80"],
+    # 1280 steps; 40 steps with a burn-in of t <= 1 (20 steps) still score 20
+    "configs/benchmarks/dapper-lorenz/lorenz96.yaml": ["model.steps=40", "metrics.burn_in=1.0"],
+    # 600 months (the data's) of 20 substeps, each a call of the plugin, at 1000 and 5000 particles
+    "configs/benchmarks/dacca-cholera/dacca.yaml": ["sweep.filter.particles=[50, 100]", "model.substeps=4"],
+    # its histogram arm's default grid of 2000 cells
+    "configs/examples/growth.yaml": ["arms.grid.grid.cells=[300]"],
+    # the genealogy of 400 and 800 steps
+    "configs/papers/beyond-the-papers/ancestral-tree.yaml": ["sweep.model.steps=[40, 80]"],
+}
+
 
 def _id(path: Path) -> str:
     return str(path.relative_to(REPO_ROOT))
@@ -60,9 +80,13 @@ def test_every_shipped_config_is_found():
     assert any("study" in load_config_file(path) for path in SHIPPED)
 
 
+def test_the_shrunk_configs_are_shipped_configs():
+    assert set(SHRUNK) <= {_id(path) for path in RERUN}
+
+
 @pytest.mark.parametrize("config", RERUN, ids=_id)
 def test_the_saved_config_reruns_to_identical_tables(config, tmp_path):
-    raw = load_config_file(config)
+    raw, _ = apply_overrides(load_config_file(config), SHRUNK.get(_id(config), []), str(config))
     raw.setdefault("outputs", {})["figures"] = []           # the numbers are what is checked here
     study = "study" in raw
     first = run_plan(build_plan(raw, str(config), trials=None if study else 2), tmp_path / "first")
@@ -75,16 +99,21 @@ def test_the_saved_config_reruns_to_identical_tables(config, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def validated(run_pfx):
-    """``pfx validate`` of every shipped config, concurrently."""
-    return run_pfx.many({path: (["validate", path], REPO_ROOT) for path in SHIPPED})
+def validated(run_pfx) -> dict[Path, str]:
+    """``pfx validate`` of every shipped config, all in one real process: what it printed for
+    each, by path (each config's part starts with its header line, '# FILE: valid; ...')."""
+    result = run_pfx("validate", *SHIPPED, cwd=REPO_ROOT)
+    assert result.returncode == 0, result.output
+    headers = [f"# {path}: valid; " for path in SHIPPED]
+    starts = [result.stdout.index(header) for header in headers]
+    assert starts == sorted(starts), "the configs printed in another order than given"
+    return {path: result.stdout[start:end]
+            for path, start, end in zip(SHIPPED, starts, starts[1:] + [len(result.stdout)])}
 
 
 @pytest.mark.parametrize("config", SHIPPED, ids=_id)
 def test_validate_prints_a_config_that_resolves_to_the_same_plan(config, validated, tmp_path):
-    result = validated[config]
-    assert result.returncode == 0, result.output
-    printed = yaml.safe_load(result.stdout)            # the header line is a YAML comment
+    printed = yaml.safe_load(validated[config])        # the header line is a YAML comment
     original = build_plan(load_config_file(config), str(config))
     again = build_plan(printed, str(config.parent / "printed.yaml"))     # saved beside it: plugins are found
     assert again.resolved == original.resolved == printed
@@ -163,9 +192,9 @@ def test_set_that_cannot_apply_to_every_cell_is_refused(assignment, words):
     assert words in str(error.value) and str(error.value).startswith("swept.yaml: ")
 
 
-def test_readme_quick_start_set_reaches_every_cell(run_pfx):
+def test_readme_quick_start_set_reaches_every_cell(pfx_in_process):
     config = REPO_ROOT / "configs" / "examples" / "linear-gaussian.yaml"
-    result = run_pfx("validate", config, "--set", "filter.particles=500")
+    result = pfx_in_process("validate", config, "--set", "filter.particles=500")
     assert result.returncode == 0, result.output
     printed = yaml.safe_load(result.stdout)
     assert printed["filter"]["particles"] == 500 and "filter.particles" not in printed.get("sweep", {})
@@ -181,22 +210,22 @@ def _failing(order: list[str]) -> dict:
                             outputs={"trace_trials": 1, "figures": []})
 
 
-def test_failure_in_the_first_cell_leaves_no_folder(tmp_path, run_pfx):
+def test_failure_in_the_first_cell_leaves_no_folder(tmp_path, pfx_in_process):
     config = write_config_file(tmp_path, _failing(["blows-up", "fine"]), "failing.yaml")
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 1, result.output
     assert result.stderr.count("\n") == 1 and "nothing was kept" in result.stderr
     assert not (tmp_path / "out").exists()
     fixed = write_config_file(tmp_path, _failing(["fine"]), "fixed.yaml")     # a later run is not refused
-    assert run_pfx("run", fixed, "--out", tmp_path / "out", "--quiet", cwd=tmp_path).returncode == 0
+    assert pfx_in_process("run", fixed, "--out", tmp_path / "out", "--quiet", cwd=tmp_path).returncode == 0
 
 
-def test_failure_after_a_finished_cell_keeps_it_for_a_resume(tmp_path, run_pfx):
+def test_failure_after_a_finished_cell_keeps_it_for_a_resume(tmp_path, pfx_in_process):
     config = write_config_file(tmp_path, _failing(["fine", "blows-up"]), "failing.yaml")
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 1 and "1 of 2 cells finished and are kept" in result.stderr, result.output
     assert len(list((tmp_path / "out" / "cells").glob("*.trials.csv"))) == 1
-    other = run_pfx("run", config, "--out", tmp_path / "out", "--trials", "9", cwd=tmp_path)
+    other = pfx_in_process("run", config, "--out", tmp_path / "out", "--trials", "9", cwd=tmp_path)
     assert other.returncode == 2 and "interrupted run of 4 trials" in other.stderr, other.output
 
 
@@ -258,10 +287,10 @@ def test_changing_figures_and_name_rerenders_without_recomputing(finished, tmp_p
     assert any("record updated" in m and "removed: error_over_time" in m for m in messages)
 
 
-def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, run_pfx):
+def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, pfx_in_process):
     _, three, _ = finished
     folder = _copy(three, tmp_path)
-    result = run_pfx("figures", folder, "--figure", "ess_over_time")
+    result = pfx_in_process("figures", folder, "--figure", "ess_over_time")
     assert result.returncode == 0, result.output
     assert (folder / "figures" / "ess_over_time.png").exists()
     manifest = json.loads((folder / "manifest.json").read_text())
@@ -270,14 +299,14 @@ def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, run_pfx
     assert saved["outputs"]["figures"] == manifest["figures"]
     again = build_plan(saved, "saved")                  # the record still resolves to its own hash
     assert again.config_hash == manifest["config_hash"]
-    wrong = run_pfx("figures", folder, "--figure", "ess_over_tim")
+    wrong = pfx_in_process("figures", folder, "--figure", "ess_over_tim")
     assert wrong.returncode == 2 and "did you mean 'ess_over_time'" in wrong.stderr
 
 
-def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, run_pfx):
+def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, pfx_in_process):
     config = write_config_file(tmp_path, tiny_config_dict(        # 6 trials: the fewest with an interval
         trials=6, arms={"few": {"particles": 10}, "many": {"particles": 40}}, outputs={"figures": []}), "arms.yaml")
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
     lines = result.stdout.splitlines()
     header = next(line for line in lines if "position RMSE" in line)

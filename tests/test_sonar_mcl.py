@@ -394,7 +394,7 @@ def test_bad_maps_and_routes_are_located_errors(changes, key, reason):
     assert "\n" not in text and text.startswith("sonar.yaml: ") and key in text and reason in text, text
 
 
-def test_bad_map_is_one_line_exit_2_through_the_command_line(tmp_path, run_pfx):
+def test_bad_map_is_one_line_exit_2_through_the_command_line(tmp_path, pfx_in_process):
     """Through `pfx run`: fewer than 3 walls, a NaN coordinate (YAML .nan), a start pose outside
     the arena: one line on stderr naming the file and the key, exit status 2, nothing written."""
     text = EXAMPLE.read_text()
@@ -408,7 +408,7 @@ def test_bad_map_is_one_line_exit_2_through_the_command_line(tmp_path, run_pfx):
     for name, content in cases.items():
         write_config_file(tmp_path, content, f"{name}.yaml")
         jobs[name] = (["run", f"{name}.yaml", "--out", f"out-{name}"], tmp_path)
-    results = run_pfx.many(jobs)
+    results = pfx_in_process.many(jobs)
     for name, result in results.items():
         assert result.returncode == 2, (name, result.output)
         lines = result.stderr.strip().splitlines()

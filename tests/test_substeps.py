@@ -230,7 +230,7 @@ def test_one_substep_is_one_propagate_call_with_one_draw():
     assert np.array_equal(moved, model.propagate(state, None, noise))
 
 
-def test_substeps_one_written_out_keeps_the_cell_key_and_every_number(run_pfx, tmp_path):
+def test_substeps_one_written_out_keeps_the_cell_key_and_every_number(pfx_in_process, tmp_path):
     plain = tiny_config_dict()
     written = tiny_config_dict()
     written["model"]["substeps"] = 1
@@ -239,7 +239,7 @@ def test_substeps_one_written_out_keeps_the_cell_key_and_every_number(run_pfx, t
     for name, data in (("plain", plain), ("written", written)):
         data["outputs"] = {"trace_trials": 2, "figures": []}
         config = write_config_file(tmp_path, data, f"{name}.yaml")
-        result = run_pfx("run", config, "--out", tmp_path / name, cwd=tmp_path)
+        result = pfx_in_process("run", config, "--out", tmp_path / name, cwd=tmp_path)
         assert result.returncode == 0, result.output
         outputs[name] = pd.read_csv(tmp_path / name / "steps.csv")
     pd.testing.assert_frame_equal(outputs["plain"], outputs["written"])
@@ -354,14 +354,14 @@ def test_propagate_is_given_the_time_at_each_substep_start():
     assert list(model.times()) == [10.0, 12.0, 14.0]
 
 
-def test_a_run_with_substeps_writes_the_measurement_times(run_pfx, tmp_path):
+def test_a_run_with_substeps_writes_the_measurement_times(pfx_in_process, tmp_path):
     """The filters that take substeps run from a config (the auxiliary filter's look-ahead is
     the noise-free step, mean_transition); steps.csv's times are the measurement times."""
     (tmp_path / "oscillator.py").write_text(PLUGIN)
     arms = {"pf": {"kind": "particle"}, "apf": {"kind": "particle", "auxiliary": True}, "sis": {"kind": "sis"},
             "ekf": {"kind": "ekf", "smoothers": [{"kind": "rts"}]}, "ukf": {"kind": "ukf"}}
     config = write_config_file(tmp_path, plugin_config(arms=arms))
-    result = run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.stdout + result.stderr
     trials = pd.read_csv(tmp_path / "out" / "trials.csv")
     assert len(trials) == 5 * 2 and np.isfinite(trials["rmse_position"]).all()
@@ -410,10 +410,10 @@ def one_error_line(result) -> str:
     return lines[0].removeprefix(PREFIX)
 
 
-def test_builtin_model_that_does_not_integrate_substeps_is_refused(run_pfx, tmp_path):
+def test_builtin_model_that_does_not_integrate_substeps_is_refused(pfx_in_process, tmp_path):
     data = tiny_config_dict()
     data["model"]["substeps"] = 3
-    result = run_pfx("run", write_config_file(tmp_path, data), "--out", tmp_path / "out", cwd=tmp_path)
+    result = pfx_in_process("run", write_config_file(tmp_path, data), "--out", tmp_path / "out", cwd=tmp_path)
     line = one_error_line(result)
     assert "model.substeps" in line and "integrates_substeps" in line, line
     assert not (tmp_path / "out").exists()
@@ -426,10 +426,10 @@ def test_builtin_model_that_does_not_integrate_substeps_is_refused(run_pfx, tmp_
     ({"kind": "histogram"}, "substeps"),
     ({"kind": "ukf", "smoothers": [{"kind": "rts"}]}, "substeps"),
 ])
-def test_algorithms_needing_a_step_density_refuse_noisy_substeps(run_pfx, tmp_path, settings, words):
+def test_algorithms_needing_a_step_density_refuse_noisy_substeps(pfx_in_process, tmp_path, settings, words):
     (tmp_path / "oscillator.py").write_text(PLUGIN)
     config = write_config_file(tmp_path, plugin_config(**settings))
-    line = one_error_line(run_pfx("run", config, "--out", tmp_path / "out", cwd=tmp_path))
+    line = one_error_line(pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path))
     assert words in line, line
 
 

@@ -468,6 +468,17 @@ def python_origins() -> list[str]:
     return [plugin.origin for plugin in _LOADED.values()] + list(_IMPORTED_BY_HAND)
 
 
+def unload_plugin(plugin: LoadedPlugin) -> None:
+    """Undo loading ``plugin`` in this process: its registrations, its module, the record of it.
+
+    The test suite runs the command line in its own process and unloads what each command
+    loaded, so that every command starts with the registries of a fresh process.
+    """
+    _forget(plugin.origin)
+    _LOADED.pop(plugin.origin, None)
+    sys.modules.pop(plugin.module, None)
+
+
 def registries() -> list:
     """Every registry a plugin may add to (:mod:`pfx.config.components`, the one list)."""
     from pfx.config.components import all_registries
