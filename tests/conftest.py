@@ -25,6 +25,10 @@ depends on no other test. One worker runs all of a module's tests, so a module f
   a ``Client`` to it: ``cluster, client = dask_cluster``; ``cluster.scheduler_address`` is what
   ``pfx run --executor dask --scheduler`` takes. Skipped without the ``dask`` extra. A test that
   kills a worker waits for 2 workers first (``client.wait_for_workers(2)``).
+* ``fresh_plugins``: every plugin the test loaded in this process (``pfx.load_plugin``, a
+  ``pfx.run`` of a config with plugins) is unloaded after it, so that the worker's next test, of
+  any module, sees pfx's own registries (a test module that loads plugins in process sets
+  ``pytestmark = pytest.mark.usefixtures("fresh_plugins")``).
 * ``tiny_config_dict()`` is a fresh dict of a tiny, fast, valid experiment (1-D linear-Gaussian
   model, 5 steps, 20 particles, 4 trials); ``write_config(data, name)`` writes a dict (as YAML),
   text or bytes into ``tmp_path``; ``tiny_config`` is the tiny config written to a file.
@@ -189,6 +193,20 @@ def _exit_status(code: Any, stderr: io.StringIO) -> int:
         return code or 0
     print(code, file=stderr)
     return 1
+
+
+@pytest.fixture
+def fresh_plugins():
+    """Unload, after the test, every plugin it loaded in this process (``pfx.load_plugin``,
+    ``pfx.run`` of a config with plugins): the next test in this worker sees pfx's own
+    registries, as a fresh process would (``pytestmark = pytest.mark.usefixtures("fresh_plugins")``)."""
+    from pfx.config.plugins import loaded_plugins, unload_plugin
+
+    before = {plugin.origin for plugin in loaded_plugins()}
+    yield
+    for plugin in loaded_plugins():
+        if plugin.origin not in before:
+            unload_plugin(plugin)
 
 
 @pytest.fixture(scope="session")

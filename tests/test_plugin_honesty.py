@@ -39,6 +39,8 @@ from pfx.filters.kalman.unscented import unscented_moments
 from pfx.models import MODELS
 from pfx.models.contract_checks import reproducibility_fault
 
+pytestmark = pytest.mark.usefixtures("fresh_plugins")      # each test's plugins unloaded after it
+
 _kinds = itertools.count()
 
 # A target at nearly constant velocity, seen in range and bearing from the origin; the bearing is

@@ -29,6 +29,8 @@ from conftest import REPO_ROOT, tiny_config_dict
 
 import pfx
 
+pytestmark = pytest.mark.usefixtures("fresh_plugins")      # each test's plugins unloaded after it
+
 WALK = {"kind": "linear_gaussian", "steps": 4, "transition_matrix": [[1.0, 0.0], [0.0, 1.0]],
         "measurement_matrix": [[1.0, 0.0], [0.0, 1.0]]}
 MEASUREMENTS = np.zeros((4, 2))
