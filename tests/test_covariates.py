@@ -180,7 +180,7 @@ def test_a_result_folder_records_the_file_and_reruns(pfx_in_process, tmp_path, w
     assert first.returncode == 0, first.output
     record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
     assert "covariates" not in record["model"]
-    assert record["data"]["covariates"] == str(tmp_path / "drift.csv")
+    assert record["data"]["covariates"] == "../drift.csv"         # relative to the folder, which reads it
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     again = pfx_in_process("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=elsewhere)

@@ -308,7 +308,10 @@ def test_recorded_trial_gives_the_simulated_trials_numbers(pfx_in_process, tmp_p
     for column in ("truth_position", "estimate_velocity", "sd_position", "sd_velocity", "nees", "time"):
         assert steps.loc[steps["trial"] == 0, column].to_numpy() == pytest.approx(simulated_steps[column].to_numpy())
     config = yaml.safe_load((tmp_path / "rec" / "config.yaml").read_text())
-    assert Path(config["data"]["measurements"]).is_absolute() and config["outputs"]["trace_trials"] == 10_000
+    # the folder's record names the file relative to the folder, which its paths are read from
+    named = Path(config["data"]["measurements"])
+    assert not named.is_absolute() and config["outputs"]["trace_trials"] == 10_000
+    assert ((tmp_path / "rec") / named).resolve().read_bytes() == (tmp_path / named.name).read_bytes()
 
 
 def plan_for(folder: Path, measurements: str, truth=None, controls=None, **model_changes):
@@ -440,7 +443,7 @@ def test_a_result_folder_with_recorded_controls_reruns(pfx_in_process, tmp_path)
     first = pfx_in_process("run", write_config_file(tmp_path, config), "--out", tmp_path / "first", cwd=tmp_path)
     assert first.returncode == 0, first.output
     record = yaml.safe_load((tmp_path / "first" / "config.yaml").read_text())
-    assert "controls" not in record["model"] and record["data"]["controls"] == str(tmp_path / "u.csv")
+    assert "controls" not in record["model"] and record["data"]["controls"] == "../u.csv"    # from the folder
     again = pfx_in_process("run", tmp_path / "first" / "config.yaml", "--out", tmp_path / "again", cwd=tmp_path)
     assert again.returncode == 0, again.output
     columns = ["trial", "log_likelihood", "rmse_x"]

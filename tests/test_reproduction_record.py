@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 from conftest import tiny_config_dict, write_config_file
 
+import pfx
 from pfx.papers.base import format_number
 from pfx.papers.record import RELATIVE_TOLERANCE, compare_folders, compare_tables
 from pfx.papers.reproduce import reproduce_papers
@@ -104,3 +105,29 @@ def test_compare_folders_finds_a_changed_table(tmp_path):
     (265719.49999999997, 3, "265,720"), (0.0998, 3, "0.0998"), (5.8e-11, 2, "5.8e-11")])
 def test_shown_digits_do_not_depend_on_the_last_bits(value, digits, text):
     assert format_number(value, digits) == text
+
+
+def test_a_folder_with_data_keeps_its_record_in_a_clone_elsewhere(tmp_path, capsys):
+    """A repository holding data, config and results, cloned into another folder: the rerun finds
+    its results up to date, and a fresh run there writes the same config.yaml (the data named
+    relative to the result folder, the config hash from the data's content), where an absolute
+    path made every clone's record differ."""
+    project = tmp_path / "here"
+    (project / "data").mkdir(parents=True)
+    (project / "data" / "flow.csv").write_text("step,z1\n1,0.5\n2,0.7\n3,\n4,1.1\n")
+    model = {key: value for key, value in tiny_config_dict()["model"].items() if key != "steps"}
+    write_config_file(project, tiny_config_dict(model=model, data={"measurements": "data/flow.csv"}), "flow.yaml")
+    pfx.run(str(project / "flow.yaml"), out=project / "results" / "flow")
+    record = (project / "results" / "flow" / "config.yaml").read_bytes()
+    assert b"../../data/flow.csv" in record and str(project).encode() not in record
+
+    clone = tmp_path / "elsewhere" / "clone"
+    shutil.copytree(project, clone)
+    capsys.readouterr()
+    pfx.run(str(clone / "flow.yaml"), out=clone / "results" / "flow", quiet=False)
+    assert "up to date (same config hash" in capsys.readouterr().err
+    pfx.run(str(clone / "flow.yaml"), out=clone / "results" / "flow", fresh=True)
+    assert (clone / "results" / "flow" / "config.yaml").read_bytes() == record
+    hashes = [json.loads((root / "results" / "flow" / "manifest.json").read_text())["config_hash"]
+              for root in (project, clone)]
+    assert hashes[0] == hashes[1]

@@ -47,8 +47,10 @@ without a truth file.
 (the header is line 1) and the column, before anything runs. A path that names no regular file
 (a folder, a pipe, ``/dev/zero``) or a file over :data:`MAX_FILE_BYTES` is refused, naming the
 config's key, without being read (:func:`pfx.user_files.read_user_file`). The cell keys include a digest of
-the data, so a result folder is never reused for other data; the resolved config records the
-files' absolute paths, so that a result folder's ``config.yaml`` reruns from anywhere.
+the data, so a result folder is never reused for other data; the resolved config holds the
+files' absolute paths, and a result folder's ``config.yaml`` names them relative to the folder
+(:func:`pfx.run.runner.write_record_config`), so that it reruns from the folder and a clone of a
+repository holding both keeps the same record.
 
 :func:`prepare_recorded_data` reads and checks the files and fills the model's ``steps``,
 ``dt`` and ``controls`` before the config is validated; :func:`attach_recorded_data` checks the

@@ -13,10 +13,12 @@ pfx's own components plus theirs. Their code's hashes join the config and result
 from __future__ import annotations
 
 import copy
+import hashlib
 import inspect
 import itertools
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 from pydantic import BaseModel
@@ -86,8 +88,8 @@ class Plan:
     @property
     def config_hash(self) -> str:
         """Hash of the whole resolved config: the record of what was asked (with the code of
-        its plugins, if any)."""
-        return canonical_hash(with_plugin_code(self.resolved, self.plugins))
+        its plugins and the contents of its data files, if any, not the paths that reach them)."""
+        return canonical_hash(with_plugin_code(with_data_content(self.resolved), self.plugins))
 
     @property
     def results_hash(self) -> str:
@@ -164,6 +166,20 @@ def with_plugin_code(record: dict, plugins: list[LoadedPlugin]) -> dict:
         return record
     record = {key: value for key, value in record.items() if key != "plugins"}
     return {**record, "plugin_code": dict(zip(recorded_names(plugins), (plugin.sha256 for plugin in plugins)))}
+
+
+def with_data_content(record: dict) -> dict:
+    """``record`` with each data file (``data:``) named by the sha256 of its bytes, for hashing,
+    as :func:`with_plugin_code` names a plugin by its code: the same data reached by another path
+    (a clone of the repository in another folder; the result folder's ``config.yaml``, which names
+    it relative to the folder) is the same record. Without data, ``record`` itself."""
+    files = record.get("data")
+    if not files:
+        return record
+    def content(path):
+        return None if path is None else "sha256:" + hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+    return {**record, "data": {key: content(path) for key, path in files.items()}}
 
 
 def identity_dump(value: Any) -> Any:

@@ -20,6 +20,7 @@ process loads the plugins before it unpickles the arguments, whose model classes
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import platform
 import shutil
@@ -280,6 +281,9 @@ def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
     each plugin file's code (the very bytes that ran, whose sha256 the manifest records), which
     its ``plugins:`` list names: the folder reruns from anywhere, on its own."""
     resolved = plan.resolved
+    if resolved.get("data"):
+        resolved = {**resolved, "data": {key: path if path is None else _recorded_path(path, out)
+                                         for key, path in resolved["data"].items()}}
     if plan.plugins:
         for plugin, entry in zip(plan.plugins, copied_entries(plan.plugins)):
             if plugin.is_file:
@@ -287,6 +291,16 @@ def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
                 write_bytes(plugin.source, out / entry)
         resolved = {**resolved, "plugins": copied_entries(plan.plugins)}
     write_text(yaml.safe_dump(resolved, sort_keys=False), out / "config.yaml")
+
+
+def _recorded_path(path: str, out: Path) -> str:
+    """A data file's path as the folder's config.yaml records it: relative to the folder (a
+    config's paths are read relative to its own folder), so that a repository holding both, cloned
+    anywhere, keeps the same record; absolute where the two share no folder but the root."""
+    folder = Path(out).resolve()
+    if os.path.commonpath([os.path.abspath(path), str(folder)]) == folder.anchor:
+        return str(path)
+    return Path(os.path.relpath(path, folder)).as_posix()
 
 
 def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
