@@ -22,7 +22,7 @@ Either way row r's numbers depend only on its parameters and its seed.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pydantic import ValidationError
@@ -80,6 +80,11 @@ class EstimationTarget:
     @property
     def dimension(self) -> int:
         return len(self.paths)
+
+    def with_particles(self, particles: int) -> "EstimationTarget":
+        """The same problem with the cell's filter at ``particles`` particles."""
+        cell = replace(self.cell, filter=self.cell.filter.model_copy(update={"particles": int(particles)}))
+        return EstimationTarget(cell, self.estimation, self.measurements)
 
     # -- the prior and the transformed scale ------------------------------------------------------
 

@@ -38,6 +38,7 @@ TRUTH_ROLE = 0
 FILTER_ROLE = 1
 STUDY_ROLE = 2
 ESTIMATION_ROLE = 3
+SPREAD_ROLE = 4
 
 
 def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int:
@@ -69,6 +70,14 @@ def chain_seeds(root_seed: int, cell_key: int, chain: int, iteration: int) -> tu
     sequence = np.random.SeedSequence(root_seed, spawn_key=(ESTIMATION_ROLE, cell_key, chain, iteration))
     filter_state, move_state = sequence.generate_state(2, np.uint64) >> np.uint64(1)
     return int(filter_state), int(move_state)
+
+
+def spread_seed(root_seed: int, cell_key: int, particles: int, run: int) -> int:
+    """Seed of run ``run`` of a cell's filter at ``particles`` particles when measuring the spread
+    of its log-likelihood estimate (:mod:`pfx.estimation.likelihood_spread`); apart from every
+    trial's and chain's stream, and the same whatever else the measurement runs."""
+    sequence = np.random.SeedSequence(root_seed, spawn_key=(SPREAD_ROLE, cell_key, particles, run))
+    return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
 def study_generator(root_seed: int) -> np.random.Generator:
