@@ -425,7 +425,8 @@ def test_if2_whose_final_estimates_all_have_zero_likelihood_says_so(tmp_path, mo
     assert "every replicate's likelihood is zero at its final estimate" in printed.err
     assert "-inf" in printed.out.split("IF2, the replicate of highest log-likelihood")[1]
     fields = (result.folder / "maximum_likelihood.csv").read_text().split("\n")[1].split(",")
-    assert fields[-2:] == ["-inf", ""]                        # log_likelihood, and no standard error
+    assert fields[-3:-1] == ["-inf", ""]                      # log_likelihood, and no standard error
+    assert fields[-1].startswith("log_likelihood -inf")       # flag
 
 
 def test_a_posterior_whose_chains_never_moved_still_prints_and_says_why(tmp_path, capsys):

@@ -34,6 +34,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
+from pfx.analysis.estimation_flags import if2_advice, pmmh_advice
 from pfx.analysis.metrics import ConvergenceCriterion
 from pfx.analysis.summary import MINIMUM_VALUES
 
@@ -252,30 +253,72 @@ def _r_hat(value: float) -> str:
 
 def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
     """What an estimation run prints at its end: per cell and parameter, the posterior mean and
-    sd with R-hat and bulk ESS (PMMH, posterior.csv), or the best replicate's estimate and its
-    log-likelihood (IF2, maximum_likelihood.csv)."""
+    sd with R-hat, bulk and tail ESS and the row's flag (PMMH, posterior.csv), or the best
+    replicate's estimate and its log-likelihood, with how many replicates are flagged (IF2,
+    maximum_likelihood.csv); then, per flagged cell, the line that says what to try
+    (:mod:`pfx.analysis.estimation_flags`), read from the folder's files alone."""
     method = manifest.get("estimation", {}).get("method")
     labels = [column for column in manifest.get("legend_columns", [])] or []
+    notes = []
     if method == "pmmh" and (folder / "posterior.csv").is_file():
-        table = pd.read_csv(folder / "posterior.csv")
-        header = [*labels, "parameter", "mean", "sd", "R-hat", "bulk ESS"]
+        table = _with_flags(pd.read_csv(folder / "posterior.csv", dtype={"cell": str}))
+        header = [*labels, "parameter", "mean", "sd", "R-hat", "bulk ESS", "tail ESS", "flag"]
         rows = [[*(str(row[c]) for c in labels), str(row["parameter"]), _number(row["mean"]), _number(row["sd"]),
-                 _r_hat(row["r_hat"]), _number(row["ess_bulk"])]
+                 _r_hat(row["r_hat"]), _number(row["ess_bulk"]), _number(row["ess_tail"]), row["flag"]]
                 for _, row in table.iterrows()]
         title = f"{manifest.get('name', '')}: posterior after the warm-up, chains pooled, per cell"
+        spreads = _likelihood_spreads(folder)
+        iterations = int(manifest.get("estimation", {}).get("iterations") or 0)
+        for cell, cell_rows in table.groupby("cell", sort=False):
+            advice = pmmh_advice(cell_rows, iterations, spreads.get(cell))
+            if advice:
+                notes.append(f"cell {_cell_name(cell_rows, labels, cell)}: {advice}")
     elif method == "if2" and (folder / "maximum_likelihood.csv").is_file():
-        table = pd.read_csv(folder / "maximum_likelihood.csv", dtype={"cell": str})
-        parameters = [c for c in table.columns if c not in ("cell", "replicate", "log_likelihood", "log_likelihood_se")
+        table = _with_flags(pd.read_csv(folder / "maximum_likelihood.csv", dtype={"cell": str}))
+        parameters = [c for c in table.columns
+                      if c not in ("cell", "replicate", "log_likelihood", "log_likelihood_se", "flag")
                       and c not in manifest.get("label_columns", [])]
         # A cell whose every likelihood is zero (-inf) still has a row: its first replicate's, shown as -inf.
         best = table.loc[table["log_likelihood"].fillna(-math.inf).groupby(table["cell"], sort=False).idxmax()]
-        header = [*labels, "replicate", *parameters, "log-likelihood", "se"]
+        flagged = (table["flag"] != "").groupby(table["cell"], sort=False).agg(["sum", "size"])
+        header = [*labels, "replicate", *parameters, "log-likelihood", "se", "flagged"]
         rows = [[*(str(row[c]) for c in labels), str(int(row["replicate"])), *(_number(row[p]) for p in parameters),
-                 f"{row['log_likelihood']:.3f}", _number(row["log_likelihood_se"])] for _, row in best.iterrows()]
+                 f"{row['log_likelihood']:.3f}", _number(row["log_likelihood_se"]),
+                 f"{flagged.loc[row['cell'], 'sum']} of {flagged.loc[row['cell'], 'size']}"]
+                for _, row in best.iterrows()]
         title = f"{manifest.get('name', '')}: IF2, the replicate of highest log-likelihood, per cell"
+        for cell, cell_rows in table.groupby("cell", sort=False):
+            advice = if2_advice(list(cell_rows["flag"]), len(parameters))
+            if advice:
+                notes.append(f"cell {_cell_name(cell_rows, labels, cell)}: {advice}")
     else:
         return
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(header)]
     echo(title)
     for line in [header, *rows]:
         echo("  " + "  ".join(text.ljust(width) for text, width in zip(line, widths)).rstrip())
+    for note in notes:
+        echo(note)
+
+
+def _with_flags(table: pd.DataFrame) -> pd.DataFrame:
+    """The table with its ``flag`` column as text ("" where a row passes: pandas reads NaN), and
+    an empty one for a folder written before there were flags."""
+    table = table.copy()
+    table["flag"] = table["flag"].fillna("").astype(str) if "flag" in table else ""
+    return table
+
+
+def _likelihood_spreads(folder: Path) -> dict[str, pd.Series]:
+    """likelihood_spread.csv's row per cell key (none where the run measured none)."""
+    try:
+        spreads = pd.read_csv(folder / "likelihood_spread.csv", dtype={"cell": str})
+    except (OSError, pd.errors.EmptyDataError):
+        return {}
+    return {row["cell"]: row for _, row in spreads.iterrows()}
+
+
+def _cell_name(rows: pd.DataFrame, labels: list[str], cell: str) -> str:
+    """"arm=KF, n_particles=200" from a cell's rows, or its key where it has no label columns."""
+    shown = [column for column in labels if column in rows]
+    return ", ".join(f"{column}={rows.iloc[0][column]}" for column in shown) if shown else cell

@@ -2,8 +2,10 @@
 these layouts, and a parameter may not take the name of one of their columns.
 
 Every table starts with the cell's columns (``cell``, then its labels: ``arm``, ``model``,
-``filter``, ..., the swept keys), as trials.csv does. chains.csv, if2.csv and
-maximum_likelihood.csv then have their own columns, one column per estimated parameter (named
+``filter``, ..., the swept keys), as trials.csv does. chains.csv, if2.csv,
+maximum_likelihood.csv and likelihood_spread.csv (a flagged PMMH cell's spread of the
+log-likelihood estimate, at the point its parameter columns give) then have their own columns,
+one column per estimated parameter (named
 by :meth:`pfx.config.estimation.EstimationConfig.column`) among them; the progress files
 ``estimation/<cell>.csv`` are chains.csv's and if2.csv's columns without the cell's.
 posterior.csv and priors.csv have one row per parameter instead, its name in ``parameter``, and
@@ -44,19 +46,25 @@ class TableLayout:
 
 CHAINS = TableLayout("chains.csv", ("chain", "iteration", "warm_up"), ("log_likelihood", "log_prior", "accepted"))
 IF2 = TableLayout("if2.csv", ("replicate", "iteration"), ("log_likelihood",))
-MAXIMUM_LIKELIHOOD = TableLayout("maximum_likelihood.csv", ("replicate",), ("log_likelihood", "log_likelihood_se"))
+MAXIMUM_LIKELIHOOD = TableLayout("maximum_likelihood.csv", ("replicate",), ("log_likelihood", "log_likelihood_se", "flag"))
+# likelihood_spread.csv: a flagged particle-filter cell's sd of the log-likelihood estimate, measured at
+# its posterior mean (the parameters' columns: the point); written only where a cell was measured
+LIKELIHOOD_SPREAD = TableLayout("likelihood_spread.csv", (),
+                                ("particles", "runs", "finite", "mean", "sd", "sd_standard_error", "seconds"))
 
 # posterior.csv: a row per parameter and one for the log-likelihood; the quantiles by their probability
 QUANTILES = {"quantile_2_5": 0.025, "quantile_25": 0.25, "median": 0.5, "quantile_75": 0.75, "quantile_97_5": 0.975}
 DIAGNOSTICS = ("r_hat", "ess_bulk", "ess_tail", "mcse_mean")
-POSTERIOR_COLUMNS = ("parameter", "n", "mean", "sd", *QUANTILES, *DIAGNOSTICS, "acceptance_rate", "chains")
+# flag: the checks the row fails, empty if none (pfx.analysis.estimation_flags)
+POSTERIOR_COLUMNS = ("parameter", "n", "mean", "sd", *QUANTILES, *DIAGNOSTICS, "acceptance_rate", "chains", "flag")
 POSTERIOR_EXTRA_ROWS = ("log_likelihood",)
 PRIORS_COLUMNS = ("parameter", "value", "density")
 
 
 def tables_with(name: str) -> list[str]:
     """The tables in which ``name`` is a column (or, in posterior.csv, a row of its own)."""
-    found = [layout.file for layout in (CHAINS, IF2, MAXIMUM_LIKELIHOOD) if name in (CELL, *layout.own)]
+    found = [layout.file for layout in (CHAINS, IF2, MAXIMUM_LIKELIHOOD, LIKELIHOOD_SPREAD)
+             if name in (CELL, *layout.own)]
     if name in (CELL, *POSTERIOR_COLUMNS, *POSTERIOR_EXTRA_ROWS):
         found.append("posterior.csv")
     if name in PRIORS_COLUMNS:
@@ -66,5 +74,5 @@ def tables_with(name: str) -> list[str]:
 
 def reserved_names() -> set[str]:
     """Every name a parameter may not take, whatever the cell's labels (see the module docstring)."""
-    return {CELL, *CHAINS.own, *IF2.own, *MAXIMUM_LIKELIHOOD.own, *POSTERIOR_COLUMNS, *POSTERIOR_EXTRA_ROWS,
+    return {CELL, *CHAINS.own, *IF2.own, *MAXIMUM_LIKELIHOOD.own, *LIKELIHOOD_SPREAD.own, *POSTERIOR_COLUMNS, *POSTERIOR_EXTRA_ROWS,
             *PRIORS_COLUMNS}

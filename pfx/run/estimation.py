@@ -6,8 +6,8 @@ every IF2 iteration's estimates, with ``estimation/<cell>.swarm.npy``, IF2's par
 :mod:`pfx.run.estimation_progress`): an interrupted run resumes from them, and a finished one
 asked for more ``iterations`` extends its chains (each iteration's random numbers depend only on
 its chain and its index, so either way the numbers are those of one uninterrupted run). Then the
-tables: chains.csv, posterior.csv, priors.csv (PMMH); if2.csv, maximum_likelihood.csv (IF2); and
-the figures.
+tables: chains.csv, posterior.csv, priors.csv, and likelihood_spread.csv where a flagged cell's
+spread was measured (PMMH); if2.csv, maximum_likelihood.csv (IF2); and the figures.
 
 A run does in two phases what it does to a folder. First it reads and checks everything it
 will build on, writing nothing: each cell's progress files (refused if damaged), the iterations
@@ -30,13 +30,14 @@ from typing import Callable, Union
 import numpy as np
 import pandas as pd
 
-from pfx.config.estimation_tables import CHAINS, IF2, MAXIMUM_LIKELIHOOD
+from pfx.analysis.estimation_flags import if2_advice, pmmh_advice, replicate_flags
+from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM_LIKELIHOOD
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
-from pfx.estimation.summary import posterior_summary, prior_grid
+from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
 from pfx.result_folder import (
@@ -60,7 +61,8 @@ from pfx.run.estimation_progress import (
 from pfx.run.interrupts import raise_if_requested
 
 CHECKPOINT_SECONDS = 10.0
-TABLES = tuple(f"{name}.csv" for names in ESTIMATION_TABLES.values() for name in names)
+# every table a run may write; likelihood_spread.csv only where a flagged cell's spread was measured
+TABLES = (*(f"{name}.csv" for names in ESTIMATION_TABLES.values() for name in names), LIKELIHOOD_SPREAD.file)
 RECORD = ("config.yaml", MANIFEST)
 
 
@@ -328,7 +330,7 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
     """The tables of every cell, from its rows (labels first, as in trials.csv)."""
     estimation = plan.experiment.estimation
     columns, labels = estimation.columns, plan.label_columns
-    frames, summaries, finals = [], [], []
+    frames, summaries, finals, spreads = [], [], [], []
     for item in work:
         cell = item.cell
         rows = item.rows[item.rows["iteration"] <= estimation.iterations]
@@ -340,6 +342,14 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
                 report(f"{out}: cell {cell.key}: no chain accepted a proposal after the warm-up, so each chain's "
                        "posterior draws are one point, repeated (posterior.csv: acceptance_rate 0); try a smaller "
                        "proposal_sd, adapt, a longer warm-up or more particles")
+            # flagged chains: the likelihood's spread measured where it may be the cause, and what to try
+            spread = spread_at_posterior_mean(item.target, summary, plan.experiment.seed)
+            if spread is not None:
+                spreads.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=spread.index), spread],
+                                         axis=1)[LIKELIHOOD_SPREAD.columns(labels, columns)])
+            advice = pmmh_advice(summary, estimation.iterations, None if spread is None else spread.iloc[0])
+            if advice:
+                report(f"{out}: cell {cell.key}: {advice}")
             summaries.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=summary.index),
                                         summary], axis=1))
         else:
@@ -348,8 +358,12 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
             log_likelihood, standard_error = _iterated_filtering(plan, item.target).evaluate(estimates)
             final = pd.DataFrame({"cell": cell.key, **cell.labels, "replicate": last["replicate"].to_numpy(),
                                   **{name: estimates[:, j] for j, name in enumerate(columns)},
-                                  "log_likelihood": log_likelihood, "log_likelihood_se": standard_error})
+                                  "log_likelihood": log_likelihood, "log_likelihood_se": standard_error,
+                                  "flag": replicate_flags(log_likelihood, standard_error, len(columns))})
             finals.append(final[MAXIMUM_LIKELIHOOD.columns(labels, columns)])
+            advice = if2_advice(final["flag"], len(columns))
+            if advice and np.isfinite(log_likelihood).any():      # none finite: the line below says it
+                report(f"{out}: cell {cell.key}: {advice}")
             if not np.isfinite(log_likelihood).any():
                 report(f"{out}: cell {cell.key}: every replicate's likelihood is zero at its final estimate "
                        "(log_likelihood -inf in maximum_likelihood.csv): no particle explained some measurement; "
@@ -360,6 +374,10 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
         write_csv(pd.concat(summaries, ignore_index=True), out / "posterior.csv")
         draws = table[~table["warm_up"].astype(bool)]
         write_csv(prior_grid(estimation, draws), out / "priors.csv")
+        if spreads:
+            write_csv(pd.concat(spreads, ignore_index=True), out / LIKELIHOOD_SPREAD.file)
+        else:                   # an extended run whose chains are no longer flagged: no stale measurement
+            (out / LIKELIHOOD_SPREAD.file).unlink(missing_ok=True)
     else:
         write_csv(table[IF2.columns(labels, columns)], out / "if2.csv")
         write_csv(pd.concat(finals, ignore_index=True), out / "maximum_likelihood.csv")

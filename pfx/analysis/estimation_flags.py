@@ -1,0 +1,275 @@
+r"""Chains and replicates that should not be trusted yet, named, with what to do about them.
+
+Every threshold is a constant of this module, and both the run (:mod:`pfx.run.estimation`) and
+the end-of-run table (:mod:`pfx.analysis.run_summary`) read them from here, so the folder's
+``flag`` columns and the lines printed cannot disagree (docs/estimation.md, "Reading the
+diagnostics: flagged chains and replicates").
+
+**PMMH** (posterior.csv's ``flag``, per parameter and for the log-likelihood row). Vehtari,
+Gelman, Simpson, Carpenter & Bürkner (2021, *Bayesian Analysis* 16) ask, before draws are used,
+for
+
+* a rank-normalised split :math:`\hat R \le 1.01` (:data:`R_HAT_LIMIT`; it needs two chains or
+  more, so one chain is not checked for it), and
+* a bulk and a tail effective sample size of at least 100 per chain
+  (:data:`ESS_PER_CHAIN`): 400 for four chains, the paper's and Stan's rule. The issue's
+  "under 100" is read per chain, since the ESS of the pooled draws grows with the chains.
+
+A diagnostic that is not a number is flagged too: with fewer than :data:`MINIMUM_DRAWS` draws per
+chain there are no diagnostics at all (too few draws), and an R-hat of NaN means every draw is the
+same value.
+
+**What to do, in the order of diagnosis** (:func:`pmmh_advice`, one line per flagged cell):
+
+1. **More particles**, when the likelihood estimate is too noisy: PMMH's chains stick wherever a
+   lucky overestimate of :math:`\hat\ell` put them. The run measures
+   :math:`\mathrm{sd}(\hat\ell)` at the posterior mean (R runs of the filter, particle filters
+   only); above :data:`SPREAD_LIMIT` it is the cause, and the 1/N law
+   :math:`\mathrm{Var}\,\hat\ell \approx c/N` gives the N at which the sd is
+   :data:`SPREAD_TARGET`, where PMMH's cost per independent draw is least (Doucet, Pitt,
+   Deligiannidis & Kohn 2015): :math:`N' = N\,(\mathrm{sd}/1.2)^2`.
+2. **A proposal scale**, given the acceptance rate after the warm-up: below
+   :data:`ACCEPTANCE_LOW` the steps are too long, above :data:`ACCEPTANCE_HIGH` too short. The
+   reference rates: 0.234 for a random walk on an exact likelihood in many dimensions (0.44 in
+   one; Roberts, Gelman & Gilks 1997), about 0.07 to 0.15 with a noisy estimate of sd near 1.2
+   (Sherlock, Thiery, Roberts & Rosenthal 2015).
+3. **More iterations**, when the chains are sound but short: the ESS grows about linearly with
+   the draws, so the worst ESS e reaches its threshold t after about d (t/e - 1) more draws per
+   chain (d: the draws per chain so far).
+
+The order matters: a noisy estimate also lowers the acceptance rate, so the spread is measured
+first; and a badly scaled proposal makes longer chains a waste, so its scale comes before their
+length.
+
+**IF2** (maximum_likelihood.csv's ``flag``, per replicate). Replicates that reached the maximum
+agree within the likelihood-ratio tolerance :math:`\tfrac12\chi^2_p(0.95)` (p estimated
+parameters; 1.92 for one, 3.00 for two): points closer than that to the maximum lie inside the
+95% likelihood-ratio confidence region. A replicate is flagged when its final log-likelihood
+:math:`\ell` is below the best replicate's :math:`\ell_{best}` by more than the tolerance plus
+:data:`MONTE_CARLO_SES` standard errors of the difference,
+
+.. math::
+
+    \ell_{best} - \ell > \tfrac12\chi^2_p(0.95) + 2\sqrt{se_{best}^2 + se^2},
+
+so that the Monte Carlo error of the two estimates (maximum_likelihood.csv's
+``log_likelihood_se``; taken as 0 where there is none) does not flag a replicate by chance; and
+when its log-likelihood is not finite (the likelihood is zero at its estimate).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy.stats import chi2
+
+R_HAT_LIMIT = 1.01
+ESS_PER_CHAIN = 100
+MINIMUM_DRAWS = 4                # per chain: fewer, and arviz-stats' diagnostics are not computed
+SPREAD_LIMIT = 2.0               # sd of the log-likelihood estimate above which particles come first
+SPREAD_TARGET = 1.2              # the sd at which PMMH costs least per independent draw (Doucet et al. 2015)
+SPREAD_RUNS = 40                 # filter runs that measure it: the sd's relative standard error is 11 %
+ACCEPTANCE_LOW = 0.05
+ACCEPTANCE_HIGH = 0.5
+LIKELIHOOD_RATIO_LEVEL = 0.95
+MONTE_CARLO_SES = 2.0
+
+DIAGNOSTIC_NAMES = ("r_hat", "ess_bulk", "ess_tail")
+
+
+def ess_threshold(chains: int) -> int:
+    """The least bulk and tail ESS the draws of ``chains`` chains need: 100 per chain."""
+    return ESS_PER_CHAIN * int(chains)
+
+
+def too_few_draws(draws_per_chain: int) -> bool:
+    return draws_per_chain < MINIMUM_DRAWS
+
+
+def posterior_flag(r_hat: float, ess_bulk: float, ess_tail: float, chains: int, draws_per_chain: int) -> str:
+    """posterior.csv's ``flag`` for one row: empty when the row passes, else each failed check
+    with its value and threshold, joined by "; " (``r_hat 1.920 > 1.01; ess_bulk 6 < 400``)."""
+    if too_few_draws(draws_per_chain):
+        return f"too few draws for diagnostics: {draws_per_chain} per chain < {MINIMUM_DRAWS}"
+    failed = []
+    if chains > 1:
+        if math.isnan(r_hat):
+            failed.append("r_hat NaN (every draw the same value)")
+        elif r_hat > R_HAT_LIMIT:
+            failed.append(f"r_hat {_r_hat_text(r_hat)} > {R_HAT_LIMIT}")
+    threshold = ess_threshold(chains)
+    for name, value in (("ess_bulk", ess_bulk), ("ess_tail", ess_tail)):
+        if math.isnan(value):
+            failed.append(f"{name} NaN")
+        elif value < threshold:
+            failed.append(f"{name} {math.floor(value)} < {threshold}")   # floored: 399.6 reads "399 < 400"
+    return "; ".join(failed)
+
+
+def _r_hat_text(value: float) -> str:
+    return f"{value:.3f}" if math.isfinite(value) and value < 1000 else f"{value:.4g}"
+
+
+# -- PMMH: what to do -------------------------------------------------------------------------------------
+
+def suggested_particles(particles: int, sd: float) -> int:
+    """The N at which the sd of the log-likelihood estimate is :data:`SPREAD_TARGET`, by the 1/N
+    law from ``sd`` measured at ``particles``, to two significant figures."""
+    wanted = particles * (sd / SPREAD_TARGET) ** 2
+    return max(int(_two_figures(wanted)), particles + 1)
+
+
+def _two_figures(value: float) -> float:
+    """``value`` to two significant figures (2408 -> 2400), at least 1: advice, not a measurement."""
+    if value <= 0 or not math.isfinite(value):
+        return value
+    scale = 10 ** max(math.floor(math.log10(value)) - 1, 0)
+    return max(round(value / scale) * scale, 1)
+
+
+def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mapping] = None) -> Optional[str]:
+    """One line for a cell's posterior.csv rows ``posterior`` whose ``flag`` is not empty (None
+    when none is): what to try first (module docstring). ``iterations``: the chains' iterations so
+    far (warm-up included); ``spread``: the cell's row of likelihood_spread.csv (``particles``,
+    ``runs``, ``finite``, ``sd``), where the run measured one."""
+    flags = posterior["flag"].fillna("").astype(str)
+    flagged = posterior[flags != ""]
+    if flagged.empty:
+        return None
+    chains = int(posterior["chains"].iloc[0])
+    draws_per_chain = int(posterior["n"].iloc[0]) // max(chains, 1)
+    head = f"chains flagged for {', '.join(flagged['parameter'].astype(str))} (posterior.csv, flag{_worst(flagged)}): "
+    if too_few_draws(draws_per_chain):
+        return head + (f"more iterations: {draws_per_chain} draws per chain after the warm-up are too few to judge the "
+                       f"chains (at least {MINIMUM_DRAWS}, and {ESS_PER_CHAIN} effective per chain); raise "
+                       "estimation.iterations")
+    if spread is not None:
+        noisy = _noisy_estimate(spread)
+        if noisy:
+            return head + noisy
+    acceptance = float(posterior["acceptance_rate"].iloc[0])
+    measured = _spread_aside(spread)
+    reference = ("a random walk accepts best near 0.234 on an exact likelihood (0.44 in one dimension), about "
+                 "0.07-0.15 on an estimate of sd near 1.2 (Sherlock, Thiery, Roberts & Rosenthal 2015)")
+    if acceptance < ACCEPTANCE_LOW:
+        return head + (f"a smaller proposal scale: the acceptance rate after the warm-up is {acceptance:.3g} < "
+                       f"{ACCEPTANCE_LOW}{measured}; try a smaller proposal_sd, or adapt: true with a longer warm_up; "
+                       + reference)
+    if acceptance > ACCEPTANCE_HIGH:
+        return head + (f"a larger proposal scale: the acceptance rate after the warm-up is {acceptance:.3g} > "
+                       f"{ACCEPTANCE_HIGH}{measured}; try a larger proposal_sd, or adapt: true with a longer warm_up; "
+                       + reference)
+    return head + _more_iterations(posterior, chains, draws_per_chain, iterations) + measured
+
+
+def _worst(flagged: pd.DataFrame) -> str:
+    """"; worst R-hat 1.920, worst ESS 6 < 400" over the flagged rows (what is a number)."""
+    parts = []
+    r_hat = flagged["r_hat"].to_numpy(dtype=float)
+    if (r_hat > R_HAT_LIMIT).any():
+        parts.append(f"worst R-hat {_r_hat_text(float(np.max(r_hat[r_hat > R_HAT_LIMIT])))}")
+    ess = flagged[["ess_bulk", "ess_tail"]].to_numpy(dtype=float)
+    threshold = ess_threshold(int(flagged["chains"].iloc[0]))
+    if (ess < threshold).any():
+        parts.append(f"worst ESS {math.floor(float(np.min(ess[ess < threshold])))} < {threshold}")
+    return "".join(f"; {part}" for part in parts)
+
+
+def _noisy_estimate(spread: Mapping) -> Optional[str]:
+    """The "more particles" advice when the measured spread calls for it, else None."""
+    particles, runs, finite, sd = int(spread["particles"]), int(spread["runs"]), int(spread["finite"]), spread["sd"]
+    auto = "or `particles: auto`"
+    if finite < runs:
+        return (f"more particles: the filter's likelihood estimate at the posterior mean was zero in {runs - finite} "
+                f"of {runs} runs at N = {particles}; raise filter.particles, {auto}")
+    if sd is None or not math.isfinite(float(sd)) or float(sd) <= SPREAD_LIMIT:
+        return None
+    sd = float(sd)
+    return (f"more particles: sd of log L̂ at the posterior mean {sd:.2g} over {runs} runs at N = {particles} "
+            f"(above {SPREAD_LIMIT:g}); PMMH mixes best near {SPREAD_TARGET}: about "
+            f"N = {suggested_particles(particles, sd)} by the 1/N law, {auto}")
+
+
+def _spread_aside(spread: Optional[Mapping]) -> str:
+    """The measured spread, where it was measured and is not the cause, as an aside."""
+    if spread is None or spread["sd"] is None or not math.isfinite(float(spread["sd"])):
+        return ""
+    return (f" (sd of log L̂ at the posterior mean {float(spread['sd']):.2g} at N = {int(spread['particles'])}, "
+            f"not above {SPREAD_LIMIT:g}: not the cause)")
+
+
+def _more_iterations(posterior: pd.DataFrame, chains: int, draws_per_chain: int, iterations: int) -> str:
+    """How many more iterations bring the worst ESS to its threshold (the ESS grows about
+    linearly with the draws); twice the draws where only R-hat fails."""
+    threshold = ess_threshold(chains)
+    values = posterior[["ess_bulk", "ess_tail"]].to_numpy(dtype=float)
+    worst = float(np.nanmin(values)) if np.isfinite(values).any() else math.nan
+    if math.isfinite(worst) and 0 < worst < threshold:
+        more = math.ceil(_two_figures(draws_per_chain * (threshold / worst - 1.0)))
+        why = (f"the worst ESS is {math.floor(worst)} < {threshold}, and the ESS grows about linearly with the draws "
+               f"({draws_per_chain} per chain so far)")
+    else:
+        more = draws_per_chain
+        why = f"R-hat stays above {R_HAT_LIMIT}: the chains have not met yet; try twice the draws"
+    return (f"more iterations: {why}: about {more} more per chain, iterations: {iterations + more} "
+            f"(a finished run extends)")
+
+
+# -- IF2 ---------------------------------------------------------------------------------------------------
+
+def likelihood_ratio_tolerance(parameters: int) -> float:
+    """½ χ²_p(0.95): how far below the maximum a log-likelihood may be and its point still lie in
+    the 95% likelihood-ratio confidence region (1.9207 for p = 1)."""
+    return 0.5 * float(chi2.ppf(LIKELIHOOD_RATIO_LEVEL, parameters))
+
+
+def replicate_flags(log_likelihood: Sequence[float], standard_error: Sequence[float], parameters: int) -> list[str]:
+    """maximum_likelihood.csv's ``flag`` for a cell's replicates (module docstring): empty, or
+    ``below the best by 7.3 > 3.91`` (the gap, and the tolerance plus two standard errors of the
+    difference), or the non-finite log-likelihood."""
+    values = np.asarray(log_likelihood, dtype=float)
+    errors = np.nan_to_num(np.asarray(standard_error, dtype=float), nan=0.0)   # no standard error: compared without one
+    finite = np.isfinite(values)
+    if not finite.any():
+        return [_not_finite(value) for value in values]
+    best = int(np.argmax(np.where(finite, values, -np.inf)))
+    tolerance = likelihood_ratio_tolerance(parameters)
+    flags = []
+    for value, error, is_finite in zip(values, errors, finite):
+        if not is_finite:
+            flags.append(_not_finite(value))
+            continue
+        gap = values[best] - value
+        limit = tolerance + MONTE_CARLO_SES * math.sqrt(errors[best] ** 2 + error ** 2)
+        flags.append(f"below the best by {_apart(gap, limit)}" if gap > limit else "")
+    return flags
+
+
+def _not_finite(value: float) -> str:
+    return f"log_likelihood {value}: the likelihood is zero at its estimate" if value == -np.inf \
+        else f"log_likelihood {value}"
+
+
+def _apart(gap: float, limit: float) -> str:
+    """"gap > limit" with enough digits that the two read differently."""
+    for digits in range(3, 10):
+        text, bound = f"{gap:.{digits}g}", f"{limit:.{digits}g}"
+        if text != bound:
+            return f"{text} > {bound}"
+    return f"{gap!r} > {limit!r}"
+
+
+def if2_advice(flags: Sequence[str], parameters: int) -> Optional[str]:
+    """One line for a cell whose replicates (their ``flag``) include flagged ones; None otherwise."""
+    flagged = [flag for flag in flags if isinstance(flag, str) and flag]
+    if not flagged:
+        return None
+    tolerance = likelihood_ratio_tolerance(parameters)
+    return (f"{len(flagged)} of {len(flags)} IF2 replicates flagged (maximum_likelihood.csv, flag): their final "
+            f"log-likelihood is below the best's by more than the likelihood-ratio tolerance {tolerance:.3g} "
+            f"(½ χ²_{parameters}(0.95)) plus {MONTE_CARLO_SES:g} standard errors, or is not finite: they have not "
+            "reached the maximum; try more iterations (passes), a larger starting random_walk_sd or slower "
+            "cooling (cooling_fraction_50 nearer 1), or more particles")
