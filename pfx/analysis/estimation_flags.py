@@ -27,7 +27,9 @@ same value.
    only); above :data:`SPREAD_LIMIT` it is the cause, and the 1/N law
    :math:`\mathrm{Var}\,\hat\ell \approx c/N` gives the N at which the sd is
    :data:`SPREAD_TARGET`, where PMMH's cost per independent draw is least (Doucet, Pitt,
-   Deligiannidis & Kohn 2015): :math:`N' = N\,(\mathrm{sd}/1.2)^2`.
+   Deligiannidis & Kohn 2015): :math:`N' = N\,(\mathrm{sd}/1.2)^2`. The law holds once the sd is
+   near 1; far above it (:data:`FAR_SPREAD`) the sd first falls faster than :math:`1/\sqrt N`,
+   so N' is then likely too many, and the line points to ``particles: auto``, which measures it.
 2. **A proposal scale**, given the acceptance rate after the warm-up: below
    :data:`ACCEPTANCE_LOW` the steps are too long, above :data:`ACCEPTANCE_HIGH` too short. The
    reference rates: 0.234 for a random walk on an exact likelihood in many dimensions (0.44 in
@@ -71,6 +73,7 @@ ESS_PER_CHAIN = 100
 MINIMUM_DRAWS = 4                # per chain: fewer, and arviz-stats' diagnostics are not computed
 SPREAD_LIMIT = 2.0               # sd of the log-likelihood estimate above which particles come first
 SPREAD_TARGET = 1.2              # the sd at which PMMH costs least per independent draw (Doucet et al. 2015)
+FAR_SPREAD = 5.0                 # above it, the 1/N law's N is likely too many (Var ℓ̂ ≈ c/N holds near sd 1)
 SPREAD_RUNS = 40                 # filter runs that measure it: the sd's relative standard error is 11 %
 ACCEPTANCE_LOW = 0.05
 ACCEPTANCE_HIGH = 0.5
@@ -91,7 +94,7 @@ def too_few_draws(draws_per_chain: int) -> bool:
 
 def posterior_flag(r_hat: float, ess_bulk: float, ess_tail: float, chains: int, draws_per_chain: int) -> str:
     """posterior.csv's ``flag`` for one row: empty when the row passes, else each failed check
-    with its value and threshold, joined by "; " (``r_hat 1.920 > 1.01; ess_bulk 6 < 400``)."""
+    with its value and threshold, joined by "; " (``r_hat 1.92 > 1.01; ess_bulk 6 < 400``)."""
     if too_few_draws(draws_per_chain):
         return f"too few draws for diagnostics: {draws_per_chain} per chain < {MINIMUM_DRAWS}"
     failed = []
@@ -99,7 +102,7 @@ def posterior_flag(r_hat: float, ess_bulk: float, ess_tail: float, chains: int, 
         if math.isnan(r_hat):
             failed.append("r_hat NaN (every draw the same value)")
         elif r_hat > R_HAT_LIMIT:
-            failed.append(f"r_hat {_r_hat_text(r_hat)} > {R_HAT_LIMIT}")
+            failed.append(f"r_hat {_apart(r_hat, R_HAT_LIMIT)}")
     threshold = ess_threshold(chains)
     for name, value in (("ess_bulk", ess_bulk), ("ess_tail", ess_tail)):
         if math.isnan(value):
@@ -109,8 +112,9 @@ def posterior_flag(r_hat: float, ess_bulk: float, ess_tail: float, chains: int, 
     return "; ".join(failed)
 
 
-def _r_hat_text(value: float) -> str:
-    return f"{value:.3f}" if math.isfinite(value) and value < 1000 else f"{value:.4g}"
+def flag_texts(flags: pd.Series) -> pd.Series:
+    """A ``flag`` column as text, "" where a row passes (pandas reads an empty field as NaN)."""
+    return flags.astype(object).where(flags.notna(), "").astype(str)
 
 
 # -- PMMH: what to do -------------------------------------------------------------------------------------
@@ -135,8 +139,7 @@ def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mappi
     when none is): what to try first (module docstring). ``iterations``: the chains' iterations so
     far (warm-up included); ``spread``: the cell's row of likelihood_spread.csv (``particles``,
     ``runs``, ``finite``, ``sd``), where the run measured one."""
-    flags = posterior["flag"].fillna("").astype(str)
-    flagged = posterior[flags != ""]
+    flagged = posterior[flag_texts(posterior["flag"]) != ""]
     if flagged.empty:
         return None
     chains = int(posterior["chains"].iloc[0])
@@ -170,7 +173,7 @@ def _worst(flagged: pd.DataFrame) -> str:
     parts = []
     r_hat = flagged["r_hat"].to_numpy(dtype=float)
     if (r_hat > R_HAT_LIMIT).any():
-        parts.append(f"worst R-hat {_r_hat_text(float(np.max(r_hat[r_hat > R_HAT_LIMIT])))}")
+        parts.append(f"worst R-hat {float(np.max(r_hat[r_hat > R_HAT_LIMIT])):.3g}")
     ess = flagged[["ess_bulk", "ess_tail"]].to_numpy(dtype=float)
     threshold = ess_threshold(int(flagged["chains"].iloc[0]))
     if (ess < threshold).any():
@@ -188,16 +191,23 @@ def _noisy_estimate(spread: Mapping) -> Optional[str]:
     if sd is None or not math.isfinite(float(sd)) or float(sd) <= SPREAD_LIMIT:
         return None
     sd = float(sd)
-    return (f"more particles: sd of log L̂ at the posterior mean {sd:.2g} over {runs} runs at N = {particles} "
-            f"(above {SPREAD_LIMIT:g}); PMMH mixes best near {SPREAD_TARGET}: about "
-            f"N = {suggested_particles(particles, sd)} by the 1/N law, {auto}")
+    measured = (f"more particles: sd of log L̂ at the posterior mean {sd:.3g} over {runs} runs at N = {particles} "
+                f"(above {SPREAD_LIMIT:g}); PMMH mixes best near {SPREAD_TARGET}: ")
+    wanted = suggested_particles(particles, sd)
+    if sd > FAR_SPREAD:
+        # Var ℓ̂ ≈ c/N holds once the sd is near 1; far above, the sd falls faster than 1/√N at
+        # first, so the law's N is likely far too many: measured, not extrapolated
+        return measured + (f"the 1/N law, which holds near sd 1, would say N = {wanted}, likely too many this far "
+                           f"from it: use `particles: auto`, or raise N by factors of 4 until the sd is near "
+                           f"{SPREAD_TARGET}")
+    return measured + f"about N = {wanted} by the 1/N law, {auto}"
 
 
 def _spread_aside(spread: Optional[Mapping]) -> str:
     """The measured spread, where it was measured and is not the cause, as an aside."""
     if spread is None or spread["sd"] is None or not math.isfinite(float(spread["sd"])):
         return ""
-    return (f" (sd of log L̂ at the posterior mean {float(spread['sd']):.2g} at N = {int(spread['particles'])}, "
+    return (f" (sd of log L̂ at the posterior mean {float(spread['sd']):.3g} at N = {int(spread['particles'])}, "
             f"not above {SPREAD_LIMIT:g}: not the cause)")
 
 
@@ -264,12 +274,18 @@ def _apart(gap: float, limit: float) -> str:
 
 def if2_advice(flags: Sequence[str], parameters: int) -> Optional[str]:
     """One line for a cell whose replicates (their ``flag``) include flagged ones; None otherwise."""
-    flagged = [flag for flag in flags if isinstance(flag, str) and flag]
-    if not flagged:
+    flags = [flag if isinstance(flag, str) else "" for flag in flags]      # pandas reads an empty flag as NaN
+    below = sum(flag.startswith("below the best") for flag in flags)
+    zero = sum(flag.startswith("log_likelihood") for flag in flags)
+    if not below and not zero:
         return None
-    tolerance = likelihood_ratio_tolerance(parameters)
-    return (f"{len(flagged)} of {len(flags)} IF2 replicates flagged (maximum_likelihood.csv, flag): their final "
-            f"log-likelihood is below the best's by more than the likelihood-ratio tolerance {tolerance:.3g} "
-            f"(½ χ²_{parameters}(0.95)) plus {MONTE_CARLO_SES:g} standard errors, or is not finite: they have not "
-            "reached the maximum; try more iterations (passes), a larger starting random_walk_sd or slower "
-            "cooling (cooling_fraction_50 nearer 1), or more particles")
+    what = []
+    if below:
+        what.append(f"{below} end below the best's log-likelihood by more than the likelihood-ratio tolerance "
+                    f"{likelihood_ratio_tolerance(parameters):.3g} (½ χ²_{parameters}(0.95)) plus "
+                    f"{MONTE_CARLO_SES:g} standard errors")
+    if zero:
+        what.append(f"{zero} {'has' if zero == 1 else 'have'} a log-likelihood that is not finite")
+    return (f"{below + zero} of {len(flags)} IF2 replicates flagged (maximum_likelihood.csv, flag): "
+            f"{'; '.join(what)}; they have not reached the maximum: try more iterations (passes), a larger starting "
+            "random_walk_sd or slower cooling (cooling_fraction_50 nearer 1), or more particles")

@@ -34,7 +34,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from pfx.analysis.estimation_flags import if2_advice, pmmh_advice
+from pfx.analysis.estimation_flags import flag_texts, if2_advice, pmmh_advice
 from pfx.analysis.metrics import ConvergenceCriterion
 from pfx.analysis.summary import MINIMUM_VALUES
 
@@ -305,7 +305,7 @@ def _with_flags(table: pd.DataFrame) -> pd.DataFrame:
     """The table with its ``flag`` column as text ("" where a row passes: pandas reads NaN), and
     an empty one for a folder written before there were flags."""
     table = table.copy()
-    table["flag"] = table["flag"].fillna("").astype(str) if "flag" in table else ""
+    table["flag"] = flag_texts(table["flag"]) if "flag" in table else ""
     return table
 
 
