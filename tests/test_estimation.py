@@ -253,7 +253,8 @@ def test_an_estimation_config_has_no_trials():
 
 def test_the_result_of_an_estimation_run_lists_its_tables_and_prints_its_posterior(tmp_path, capsys):
     result = pfx.run(nile_config(), out=tmp_path / "run", quiet=False)
-    assert result.table_names == ["chains", "posterior", "priors"]
+    # 15 draws per chain are flagged, and the particle filter's spread measured (likelihood_spread.csv)
+    assert result.table_names == ["chains", "posterior", "priors", "likelihood_spread"]
     assert list(result.posterior["parameter"]) == ["measurement_noise.variance", "process_noise.variance",
                                                    "log_likelihood"]
     assert len(result.chains) == 4 * 21 and "trials" not in result.manifest
