@@ -80,8 +80,6 @@ ACCEPTANCE_HIGH = 0.5
 LIKELIHOOD_RATIO_LEVEL = 0.95
 MONTE_CARLO_SES = 2.0
 
-DIAGNOSTIC_NAMES = ("r_hat", "ess_bulk", "ess_tail")
-
 
 def ess_threshold(chains: int) -> int:
     """The least bulk and tail ESS the draws of ``chains`` chains need: 100 per chain."""
