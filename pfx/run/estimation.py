@@ -11,8 +11,10 @@ the figures.
 
 A run does in two phases what it does to a folder. First it reads and checks everything it
 will build on, writing nothing: each cell's progress files (refused if damaged), the iterations
-they hold against those asked (never fewer), and the starts of the cells without progress (the
-model must accept each chain's start and the data have a likelihood above zero there). Any of
+they hold against those asked (never fewer), the particle count of a PMMH cell with ``particles:
+auto`` (read back from ``estimation/<cell>.particle_count.csv``, or measured by the pilot of
+:mod:`pfx.estimation.particle_count`, which may refuse), and the starts of the cells without
+progress (the model must accept each chain's start and the data have a likelihood above zero there). Any of
 these refused, the folder is as it was. Only then does it write. Stopped (Ctrl-C, SIGTERM, an
 error), it keeps what it computed: PMMH's rows are saved every :data:`CHECKPOINT_SECONDS` and at
 the stop, IF2's after every pass; the same command resumes.
