@@ -107,6 +107,12 @@ def test_runs_without_a_likelihood_count_as_an_sd_above_any_target():
         choose(law(20.0, lost_below=10**9), largest=64)
 
 
+def test_an_sd_of_zero_chooses_the_smallest_count():
+    """A filter whose estimate does not vary (sd 0) needs no more particles than the first rung."""
+    choice = choose(lambda n: Spread(n, 40, 40, -10.0, 0.0, 0.0))
+    assert choice.particles == 16 and len(choice.rows) == 1
+
+
 # -- against the committed N-choice curve of the stochastic-volatility benchmark -------------------------
 
 SV_CONFIG = REPO_ROOT / "configs" / "benchmarks" / "estimation-sv" / "posterior.yaml"
@@ -376,3 +382,4 @@ def test_particle_filter_refuses_auto():
     with pytest.raises(ConfigError, match="choose_particles"):
         pfx.particle_filter(pfx.model("linear_gaussian", transition_matrix=[[1.0]], measurement_matrix=[[1.0]]),
                             particles="auto")
+

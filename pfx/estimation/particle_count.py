@@ -81,6 +81,11 @@ def effective_sd(row: Spread) -> float:
     return row.sd if row.finite == row.runs and math.isfinite(row.sd) else math.inf
 
 
+def _log(value: float) -> float:
+    """log, with log 0 = -inf (an sd of exactly 0: a filter whose estimate does not vary)."""
+    return math.log(value) if value > 0 else -math.inf
+
+
 def ladder(settings: ParticleCount) -> list[int]:
     """smallest, 2 smallest, 4 smallest, ..., the cap last."""
     rungs = [settings.smallest]
@@ -92,7 +97,7 @@ def ladder(settings: ParticleCount) -> list[int]:
 def predicted(rows: Sequence[Spread], target_sd: float) -> float:
     """The N the 1/N law puts at ``target_sd`` from the measured rows with a finite sd (the
     geometric mean of each row's N (sd / target)^2: the law fitted on the log scale)."""
-    logs = [math.log(row.particles) + 2 * (math.log(effective_sd(row)) - math.log(target_sd))
+    logs = [math.log(row.particles) + 2 * (_log(effective_sd(row)) - math.log(target_sd))
             for row in rows if math.isfinite(effective_sd(row))]
     return math.exp(sum(logs) / len(logs)) if logs else math.inf
 
@@ -118,7 +123,7 @@ def choose_particle_count(spread_at: Callable[[int], Spread], settings: Particle
     if extra not in {row.particles for row in rows}:
         rows.append(spread_at(extra))
     candidates = [row for row in rows if math.isfinite(effective_sd(row))]
-    best = min(candidates, key=lambda row: (abs(math.log(effective_sd(row)) - math.log(target)), row.particles))
+    best = min(candidates, key=lambda row: (abs(_log(effective_sd(row)) - math.log(target)), row.particles))
     return ParticleChoice(best.particles, tuple(rows))
 
 

@@ -193,7 +193,8 @@ def read_pilot(path: Path) -> tuple[list[Spread], int]:
             raise damaged(path, f"{line.count(',') + 1} fields, not {len(PARTICLE_COUNT.own)}", number)
         try:
             particles, runs, finite = (int(fields[name]) for name in ("particles", "runs", "finite"))
-            mean, sd, seconds = (float(fields[name] or "nan") for name in ("mean", "sd", "seconds"))
+            mean, sd, _, seconds = (float(fields[name] or "nan") for name in ("mean", "sd", "sd_standard_error",
+                                                                              "seconds"))
         except ValueError:
             raise damaged(path, "a field is not a number of its column's kind", number) from None
         if fields["chosen"] not in FLAGS:
