@@ -110,11 +110,12 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                                                                "iterations": estimation.iterations,
                                                                "chains": estimation.chains}}
         manifest["figures"] = list(plan.experiment.outputs.figures)    # the method's, by default (pfx.config.plan)
-        _keep_pilots(out, work, manifest, report)
+        manifest.update(_pilot_record(work))       # nothing without `particles: auto`
         manifest.pop("trials", None)
         earlier = {} if fresh else dict((state.manifest or {}).get("cell_wall_time_s") or {})
         write_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
+        _keep_pilots(out, work, report)
         cell_times: dict[str, float] = {}
         try:
             for item in work:
@@ -306,13 +307,16 @@ def _particles_key(plan: Plan, cell: Cell) -> str:
         else "filter.particles"
 
 
-def _keep_pilots(out: Path, work: list[CellWork], manifest: dict, report: Callable[[str], None]) -> None:
-    """The write phase's first step for the cells with ``particles: auto``: the manifest's record
-    of each choice, the pilot files of the counts measured by this run (kept at once: the pilot
-    is not measured again), and each choice said in a line, with the ladder measured."""
+def _pilot_record(work: list[CellWork]) -> dict:
+    """The manifest's ``particle_count``: each auto cell's chosen particle count (none: nothing)."""
     chosen = {item.cell.key: item.pilot.particles for item in work if item.pilot is not None}
-    if chosen:
-        manifest["particle_count"] = chosen
+    return {"particle_count": chosen} if chosen else {}
+
+
+def _keep_pilots(out: Path, work: list[CellWork], report: Callable[[str], None]) -> None:
+    """The write phase's first step for the cells with ``particles: auto``: the pilot files of
+    the counts measured by this run (kept at once, so that no later run measures again), and each
+    choice said in a line, with the ladder measured."""
     for item in work:
         if item.pilot is None:
             continue
