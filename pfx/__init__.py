@@ -53,6 +53,7 @@ _LAZY_NAMES = {
     "particle_filter": "pfx.filtering",
     "filter": "pfx.filtering",
     "FilterResult": "pfx.filtering",
+    "choose_particles": "pfx.filtering",
     # a plugin loaded from Python, as a config's plugins: entry loads it (docs/python-api.md)
     "load_plugin": "pfx.filtering",
 }

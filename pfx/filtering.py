@@ -25,6 +25,8 @@ uses::
   path, to the last bit); ``seed`` derives one per trial from a root seed. It returns a
   :class:`FilterResult`: arrays with the trial axis first, always.
 * :func:`filter` binds and calls in one go.
+* :func:`choose_particles` chooses N for PMMH as a config's ``particles: auto`` does: the sd of
+  the log-likelihood estimate near a target, at the model's own parameters.
 
 Every argument is checked before anything runs, as a config's keys are, and a bad one raises
 :class:`~pfx.errors.ConfigError` naming it (``<python>: measurements[3]: ...``): the checks of
@@ -35,11 +37,13 @@ what no config holds (measurements, trials, seeds, a model or prior object) are
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
 import numpy as np
+import pandas as pd
 
 from pfx import python_arguments as arguments
 from pfx.config.plan import check_plugin_model
@@ -48,12 +52,14 @@ from pfx.config.plugins import LoadedPlugin, loaded_plugins, python_origins
 from pfx.config.plugins import load_plugin as load_plugin_entry
 from pfx.config.schema import config_schema
 from pfx.config.validation import validate
-from pfx.errors import ConfigError, located_value_error
+from pfx.errors import ConfigError, ModelNumericalError, located_value_error
+from pfx.estimation.likelihood_spread import Spread
+from pfx.estimation.particle_count import choose_particle_count
 from pfx.filters import FILTERS
 from pfx.filters.trace import FilterTrace
 from pfx.models import MODELS
 from pfx.models.base import Model
-from pfx.numerics.seeding import TrialStreams, filter_seed
+from pfx.numerics.seeding import TrialStreams, filter_seed, spread_seed
 from pfx.python_arguments import CALLER
 
 
@@ -168,3 +174,59 @@ def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None,
     return particle_filter(model, kind=kind, prior=prior, **settings)(
         measurements, seeds=seeds, seed=seed, trials=trials, genealogy=genealogy, consistency=consistency,
         traced=traced)
+
+
+@dataclass
+class ParticleCountResult:
+    """:func:`choose_particles`'s answer: ``particles``, the N chosen; ``table``, every particle
+    count measured (particle_count.csv's columns without the cell's: particles, runs, finite, mean,
+    sd, sd_standard_error, seconds, chosen)."""
+
+    particles: int
+    table: pd.DataFrame
+
+
+def choose_particles(model: Model, measurements, *, target_sd: float = 1.2, runs: int = 40, smallest: int = 16,
+                     largest: int = 100_000, seed: int = 0, kind: str = "particle", prior=None,
+                     **settings: Any) -> ParticleCountResult:
+    """The particle count PMMH would use on ``measurements`` (one dataset, (T, m)) at the model's
+    own parameters: the rule of a config's ``particles: auto``
+    (:func:`pfx.estimation.particle_count.choose_particle_count`), each particle count N measured by
+    ``runs`` runs of the filter (``kind``, ``prior``, ``settings`` as :func:`particle_filter` takes
+    them) with seeds ``spread_seed(seed, 0, N, run)``. Every argument is checked first; a cap whose
+    sd is still above the target is refused in one line naming ``largest``."""
+    if "particles" in settings:
+        raise arguments.refuse("choose_particles chooses the particle count; drop particles", "particles")
+    pilot = arguments.particle_count_settings(target_sd, runs, smallest, largest)
+    root = arguments.seed_value(seed, "seed")
+    first = particle_filter(model, kind=kind, prior=prior, particles=pilot.smallest, **settings)
+    if not FILTERS[first.kind].carries_particles:
+        raise arguments.refuse(f"the {first.kind} filter has no particles to choose a count of", "kind")
+    data = arguments.measurement_array(measurements, first.model.measurement_dimension)
+    if len(data) != 1:
+        raise arguments.refuse(f"shape {data.shape}: give one dataset, (T, m)", "measurements")
+    arguments.check_horizon(first.model, data.shape[1])
+    repeated = np.repeat(data, pilot.runs, axis=0)
+
+    def spread_at(particles: int) -> Spread:
+        started = time.perf_counter()
+        bound = particle_filter(first.model, kind=kind, prior=prior, particles=particles, **settings)
+        seeds = [spread_seed(root, 0, particles, run) for run in range(pilot.runs)]
+        try:
+            estimates = bound(repeated, seeds=seeds).log_likelihood
+        except ModelNumericalError:     # some run lost its particles to NaN: find which, run by run (the same numbers)
+            estimates = np.array([_log_likelihood_or_zero(bound, data, seed) for seed in seeds])
+        return Spread.of(particles, estimates, time.perf_counter() - started)
+
+    choice = choose_particle_count(spread_at, pilot, key="largest", point_text="the model's parameters", file=CALLER,
+                                   largest_name="largest", nearer="a model at parameters nearer it")
+    return ParticleCountResult(choice.particles, choice.table())
+
+
+def _log_likelihood_or_zero(bound: Filter, data: np.ndarray, seed: int) -> float:
+    """One run's log-likelihood estimate; -inf where every particle became NaN (as a parameter
+    estimation's target counts it: :meth:`pfx.estimation.target.EstimationTarget.log_likelihoods`)."""
+    try:
+        return float(bound(data, seeds=[seed]).log_likelihood[0])
+    except ModelNumericalError:
+        return -np.inf

@@ -77,7 +77,11 @@ def flag(value: Any, key: str) -> bool:
 def validate_settings(schema, kind: Any, settings: dict):
     """The filter's settings (a config's ``filter:`` keys, ``kind`` among them), validated as a
     config's ``filter:`` section is (``schema``: :func:`pfx.config.schema.config_schema`'s)."""
-    return validate(schema.FilterConfig, {"kind": kind, **plain_numbers(settings)}, file=CALLER, prefix="filter")
+    validated = validate(schema.FilterConfig, {"kind": kind, **plain_numbers(settings)}, file=CALLER, prefix="filter")
+    if validated.particles == "auto":      # a config's PMMH pilot; from Python, pfx.choose_particles
+        raise refuse("auto is a PMMH config's pilot; give a number (pfx.choose_particles chooses one from Python)",
+                     "particles")
+    return validated
 
 
 # -- the model and its prior -----------------------------------------------------------------------
@@ -315,3 +319,14 @@ def _shown(value: Any) -> str:
     text = repr(value)
     text = text if len(text) <= 60 else text[:57] + "..."
     return f"{text} ({type(value).__name__})" if not isinstance(value, str) else text
+
+
+def particle_count_settings(target_sd: Any, runs: Any, smallest: Any, largest: Any):
+    """:func:`pfx.choose_particles`'s settings, checked as a config's ``estimation.particle_count``
+    (:class:`pfx.config.estimation.ParticleCount`), each refusal naming its argument."""
+    from pfx.config.estimation import ParticleCount
+
+    values = plain_numbers({"target_sd": target_sd, "runs": runs, "smallest": smallest, "largest": largest})
+    if _is_integer(values["target_sd"]):
+        values["target_sd"] = float(values["target_sd"])      # 1 means 1.0, as in a config's YAML
+    return validate(ParticleCount, values, file=CALLER)

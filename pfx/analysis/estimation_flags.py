@@ -12,8 +12,8 @@ for
 * a rank-normalised split :math:`\hat R \le 1.01` (:data:`R_HAT_LIMIT`; it needs two chains or
   more, so one chain is not checked for it), and
 * a bulk and a tail effective sample size of at least 100 per chain
-  (:data:`ESS_PER_CHAIN`): 400 for four chains, the paper's and Stan's rule. The issue's
-  "under 100" is read per chain, since the ESS of the pooled draws grows with the chains.
+  (:data:`ESS_PER_CHAIN`): 400 for four chains, the paper's and Stan's rule. Per chain, since
+  the ESS of the pooled draws grows with the number of chains.
 
 A diagnostic that is not a number is flagged too: with fewer than :data:`MINIMUM_DRAWS` draws per
 chain there are no diagnostics at all (too few draws), and an R-hat of NaN means every draw is the

@@ -59,6 +59,32 @@ class EstimatedParameter(BaseModel):
         return self
 
 
+class ParticleCount(BaseModel):
+    """How ``particles: auto`` chooses a PMMH cell's particle count (docs/estimation.md, "Choosing N",
+    and :mod:`pfx.estimation.particle_count`, the rule)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    target_sd: StrictFloat = Field(1.2, gt=0, description="the sd of the log-likelihood estimate to aim at, at the "
+                                                          "point `at` (Doucet, Pitt, Deligiannidis & Kohn 2015: about "
+                                                          "1.2 at the posterior's centre)")
+    runs: StrictInt = Field(40, ge=10, le=100_000, description="filter runs per particle count measured; the sd's "
+                                                              "relative standard error is about 1/sqrt(2 (runs - 1))")
+    smallest: StrictInt = Field(16, ge=2, le=100_000_000, description="the first particle count measured; the "
+                                                                     "ladder doubles it")
+    largest: StrictInt = Field(100_000, ge=2, le=100_000_000, description="the most particles the choice may take "
+                                                                         "(the ladder's cap)")
+    at: Union[Literal["start"], dict[str, StrictFloat]] = Field(
+        "start", description="where the sd is measured: `start` (the chains' common start, or the per-parameter "
+                             "median of their starts) or a mapping dotted path -> value for every estimated parameter")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.largest < self.smallest:
+            raise ValueError(f"@largest: {self.largest} is below smallest ({self.smallest})")
+        return self
+
+
 class EstimationConfig(BaseModel):
     """Parameter estimation from the data: PMMH (a posterior sample) or IF2 (maximum likelihood)."""
 
@@ -86,6 +112,9 @@ class EstimationConfig(BaseModel):
     evaluations: StrictInt = Field(10, ge=1, le=10_000, description="IF2: filter runs at each replicate's final "
                                                                    "estimate, for its log-likelihood and standard "
                                                                    "error (maximum_likelihood.csv)")
+    particle_count: Optional[ParticleCount] = Field(
+        None, description="PMMH with `particles: auto`: how the pilot chooses each cell's particle count "
+                          "(target_sd, runs, smallest, largest, at); default: those defaults")
 
     @model_validator(mode="before")
     @classmethod
@@ -113,10 +142,26 @@ class EstimationConfig(BaseModel):
             if name in reserved:
                 raise ValueError(f"@{self.name_key(path)}: {name!r} is a column of {', '.join(tables_with(name))}, "
                                  "which the parameter's own column would overwrite; give it another `name`")
+        if self.particle_count is not None and isinstance(self.particle_count.at, dict):
+            self._check_pilot_point(self.particle_count.at)
         if self.method == "pmmh" and self.warm_up >= self.iterations:
             raise ValueError(f"@warm_up: {self.warm_up} warm-up iterations leave none of the {self.iterations} for "
                              "the posterior")
         return self
+
+    def _check_pilot_point(self, point: dict[str, float]) -> None:
+        """``particle_count.at`` names every estimated parameter, each inside its prior's support."""
+        for path in point:
+            if path not in self.parameters:
+                raise ValueError(f"@particle_count.at.{path}: not an estimated parameter (they are "
+                                 f"{', '.join(self.parameters)})")
+        for path, parameter in self.parameters.items():
+            if path not in point:
+                raise ValueError(f"@particle_count.at: gives no value for {path}; give one for every estimated "
+                                 "parameter, or at: start")
+            if not math.isfinite(float(parameter.prior.log_density(point[path]))):
+                raise ValueError(f"@particle_count.at.{path}: {point[path]:g} lies outside the prior's support "
+                                 f"{parameter.prior.support}")
 
     def column(self, path: str) -> str:
         """The column name of the parameter at ``path``."""
@@ -126,6 +171,11 @@ class EstimationConfig(BaseModel):
         """The key (below ``estimation``) that gives the parameter at ``path`` its column name:
         its ``name``, or the path itself."""
         return f"parameters.{path}.name" if self.parameters[path].name else f"parameters.{path}"
+
+    @property
+    def pilot(self) -> ParticleCount:
+        """The settings of ``particles: auto`` (``particle_count``, or its defaults)."""
+        return self.particle_count or ParticleCount()
 
     @property
     def columns(self) -> list[str]:
@@ -169,3 +219,37 @@ def check_estimated_paths(estimation: EstimationConfig, model, file: str, cell_t
             raise ConfigError(f"{path} names {found} in model {model.kind}{cell_text}; an estimated parameter is "
                               "a number of the model (a scalar variance, a coefficient)", file=file,
                               key=f"estimation.parameters.{path}")
+
+
+AUTO = "auto"
+
+
+def auto_particle_keys(experiment) -> list[str]:
+    """The keys that set ``particles: auto``: ``filter.particles`` and each arm's own
+    ``arms.<name>.particles`` (an arm without the key takes the ``filter:`` section's)."""
+    keys = ["filter.particles"] if experiment.filter.particles == AUTO else []
+    return keys + [f"arms.{name}.particles" for name, arm in experiment.arms.items()
+                   if "particles" in arm.model_fields_set and arm.particles == AUTO]
+
+
+def check_auto_particles(experiment, file: str) -> None:
+    """ConfigError where ``particles: auto`` cannot be honoured: it is PMMH's pilot (a particle
+    count chosen so that the log-likelihood estimate's sd is near a target, docs/estimation.md),
+    so a filter run, IF2 and a sweep list (whose values are the counts being compared) take a
+    number; and ``estimation.particle_count`` without ``auto`` anywhere would do nothing."""
+    estimation = experiment.estimation
+    purpose = ("`auto` lets a PMMH run choose the particle count by a pilot (the sd of the log-likelihood estimate "
+               "near estimation.particle_count.target_sd)")
+    for index, value in enumerate(experiment.sweep.get("filter.particles", [])):
+        if value == AUTO:
+            raise ConfigError(f"{purpose}; a sweep compares the counts it lists, so give a number", file=file,
+                              key=f"sweep.filter.particles[{index}]")
+    keys = auto_particle_keys(experiment)
+    if keys and (estimation is None or estimation.method != "pmmh"):
+        run = "a filter run" if estimation is None else "IF2"
+        raise ConfigError(f"{purpose}, with estimation: {{method: pmmh}}; {run} needs a number of particles, give "
+                          "one", file=file, key=keys[0])
+    if estimation is not None and estimation.particle_count is not None and not keys:
+        raise ConfigError("sets how `particles: auto` chooses a PMMH cell's particle count, and neither filter."
+                          "particles nor an arm's particles is auto here, so it would do nothing: drop it, or set "
+                          "particles: auto", file=file, key="estimation.particle_count")

@@ -29,6 +29,7 @@ from pfx.config.data import CellData, attach_recorded_data, check_covariate_span
 from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.estimation import (
     ESTIMATION_FIGURES,
+    check_auto_particles,
     check_column_names,
     check_estimated_paths,
     check_figures_apply,
@@ -107,8 +108,10 @@ class Plan:
         if outputs.genealogy:                        # likewise: genealogy.csv is a table of the results
             numbers_depend_on["genealogy"] = outputs.genealogy
         if self.experiment.estimation is not None:   # every setting but the iterations (more extend a run)
-            numbers_depend_on["estimation"] = self.experiment.estimation.model_dump(mode="json",
-                                                                                   exclude={"iterations"})
+            estimation = self.experiment.estimation.model_dump(mode="json", exclude={"iterations"})
+            if self.experiment.estimation.particle_count is None:
+                estimation.pop("particle_count")     # absent, the hash of earlier results is unchanged
+            numbers_depend_on["estimation"] = estimation
         return canonical_hash(with_plugin_code(numbers_depend_on, self.plugins))
 
     @property
@@ -388,6 +391,7 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
             if key in raw:
                 raise ConfigError(f"an estimation config runs chains on one dataset, not trials; drop {key} (how many "
                                   "chains: estimation.chains)", file=file, key=key)
+    check_auto_particles(experiment, file)
     raw_arms = raw.get("arms") or {}
     arms: dict[str, Optional[dict]] = {name: raw_arms[name] for name in experiment.arms} or {DEFAULT_ARM: None}
     sweep = experiment.sweep
@@ -452,6 +456,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("estimation", None)     # nor that of a config without estimation
     else:
         resolved.pop("trials", None)         # it has none
+        if experiment.estimation.particle_count is None:
+            resolved["estimation"].pop("particle_count")     # the record of a config without it is unchanged
         for cell in cells:
             check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)

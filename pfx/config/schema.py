@@ -127,7 +127,9 @@ def _build(plugins: frozenset) -> ConfigSchema:
         kind: FilterKind = Field(  # type: ignore[valid-type]
             "particle", description="filter kind (`pfx list filters`): particle (SIR with the ESS rule), "
                                     "sis (never resample), ...")
-        particles: StrictInt = Field(1000, ge=1, le=100_000_000, description="number of particles N")
+        particles: Union[Annotated[StrictInt, Field(ge=1, le=100_000_000)], Literal["auto"]] = Field(
+            1000, description="number of particles N; `auto` (PMMH only): chosen by a pilot run, so that the "
+                              "log-likelihood estimate's sd is near estimation.particle_count.target_sd")
         resampler: ResamplerName = Field(  # type: ignore[valid-type]
             "systematic", description="resampling scheme (`pfx list resamplers`)")
         ess_threshold: StrictFloat = Field(

@@ -36,6 +36,14 @@ class Spread:
     sd: float
     seconds: float
 
+    @classmethod
+    def of(cls, particles: int, estimates: np.ndarray, seconds: float) -> "Spread":
+        """The spread of ``estimates`` (R,), R runs' log-likelihood estimates at ``particles``."""
+        finite = estimates[np.isfinite(estimates)]
+        mean = float(finite.mean()) if finite.size else -np.inf
+        sd = float(finite.std(ddof=1)) if finite.size > 1 else np.nan
+        return cls(int(particles), len(estimates), int(finite.size), mean, sd, seconds)
+
     @property
     def relative_standard_error(self) -> float:
         """The sd's relative standard error, about 1 / sqrt(2 (R - 1)) for a near-normal estimate."""
@@ -51,7 +59,4 @@ def log_likelihood_spread(target: EstimationTarget, point: np.ndarray, particles
     seeds = [spread_seed(root_seed, target.cell.stream_key, int(particles), run) for run in range(runs)]
     values = np.repeat(np.asarray(point, dtype=float)[None, :], runs, axis=0)
     estimates = at_size.log_likelihoods(values, seeds)
-    finite = estimates[np.isfinite(estimates)]
-    mean = float(finite.mean()) if finite.size else -np.inf
-    sd = float(finite.std(ddof=1)) if finite.size > 1 else np.nan
-    return Spread(int(particles), runs, int(finite.size), mean, sd, time.perf_counter() - started)
+    return Spread.of(particles, estimates, time.perf_counter() - started)

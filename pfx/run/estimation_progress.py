@@ -4,7 +4,8 @@ back, checked, when a run resumes or extends the folder.
 ``estimation/<cell>.csv`` holds the rows of chains.csv (PMMH) or if2.csv (IF2) without the
 cell's columns (:mod:`pfx.config.estimation_tables`), every iteration so far, in order: chain
 (or replicate) 0, 1, ... of iteration 0 (the starts), then of iteration 1, and so on. IF2 also
-keeps the particle swarm its last pass left, ``estimation/<cell>.swarm.npy``.
+keeps the particle swarm its last pass left, ``estimation/<cell>.swarm.npy``; a PMMH cell with
+``particles: auto``, the particle counts its pilot measured, ``estimation/<cell>.particle_count.csv``.
 
 pfx writes each file whole (to a temporary file, then renamed over it), so a file cut short,
 with other columns, with a field that is not a number of the right kind, or with a row missing,
@@ -15,14 +16,16 @@ its line (:func:`damaged`), never read back as data: rows read from it would bec
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 import pandas as pd
 
-from pfx.config.estimation_tables import CHAINS, IF2
+from pfx.config.estimation_tables import CHAINS, IF2, PARTICLE_COUNT
 from pfx.errors import ConfigError
+from pfx.estimation.likelihood_spread import Spread
 from pfx.result_folder import write_bytes
 
 if TYPE_CHECKING:
@@ -157,3 +160,53 @@ def read_swarm(path: Path, shape: tuple[int, ...]) -> np.ndarray:
     if not np.isfinite(swarm).all():
         raise damaged(path, "holds values that are not finite numbers")
     return swarm
+
+
+# -- the pilot of `particles: auto` ---------------------------------------------------------------------
+
+def pilot_file(out: Path, cell: Cell) -> Path:
+    """The particle counts the pilot measured for a cell (:mod:`pfx.estimation.particle_count`):
+    particle_count.csv's rows of the cell without its columns; read back, a resumed or extended
+    run keeps the choice instead of measuring again."""
+    return out / PROGRESS / f"{cell.key}.particle_count.csv"
+
+
+def read_pilot(path: Path) -> tuple[list[Spread], int]:
+    """A cell's pilot file, checked as the other progress files are (module docstring): the rows
+    measured, in order, and the particle count marked chosen; or a ConfigError naming the file
+    and the line. (Whether the rows are those the rule measures, and its choice, the caller checks
+    by replaying the rule on them.)"""
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise damaged(path, "is not a text file") from None
+    lines = text.split("\n")
+    if lines[-1] != "":
+        raise damaged(path, "the last row is cut short (the file does not end with a line end)", len(lines))
+    expected = ",".join(PARTICLE_COUNT.own)
+    if lines[0] != expected:
+        raise damaged(path, f"its columns are {lines[0]!r}, not {expected!r}", 1)
+    rows, chosen = [], []
+    for number, line in enumerate(lines[1:-1], start=2):
+        fields = dict(zip(PARTICLE_COUNT.own, line.split(",")))
+        if line.count(",") != len(PARTICLE_COUNT.own) - 1:
+            raise damaged(path, f"{line.count(',') + 1} fields, not {len(PARTICLE_COUNT.own)}", number)
+        try:
+            particles, runs, finite = (int(fields[name]) for name in ("particles", "runs", "finite"))
+            mean, sd, _, seconds = (float(fields[name] or "nan") for name in ("mean", "sd", "sd_standard_error",
+                                                                              "seconds"))
+        except ValueError:
+            raise damaged(path, "a field is not a number of its column's kind", number) from None
+        if fields["chosen"] not in FLAGS:
+            raise damaged(path, f"chosen is {fields['chosen']!r}, not True or False", number)
+        plausible = (particles >= 1 and runs >= 2 and 0 <= finite <= runs and seconds >= 0
+                     and (math.isfinite(mean) if finite else mean == -math.inf)
+                     and (math.isfinite(sd) and sd >= 0 if finite > 1 else math.isnan(sd)))
+        if not plausible:
+            raise damaged(path, "a row that no measurement gives (counts, mean, sd or seconds out of range)", number)
+        rows.append(Spread(particles, runs, finite, mean, sd, seconds))
+        if FLAGS[fields["chosen"]]:
+            chosen.append(particles)
+    if len(chosen) != 1:
+        raise damaged(path, f"{len(chosen)} rows are marked chosen, not one", len(lines) - 1)
+    return rows, chosen[0]

@@ -71,12 +71,14 @@ def trial_bytes(particles: int, state_dimension: int, measurement_dimension: int
     return 8 * (particles * (8 * d + 4 * m + 12) + steps * (4 * d + m + 12))
 
 
-def cell_trial_bytes(cell, genealogy: bool = False) -> int:
+def cell_trial_bytes(cell, genealogy: bool = False, auto_particles: int = 1) -> int:
     """One trial's peak: the engine's, plus the recorded history the smoothers (or
     genealogy.csv, ``genealogy``) need: T N (d + 1) numbers and T N ancestors, and the smoothers'
     trajectories and temporaries (:func:`pfx.filters.particle.smoothing.history_bytes`)."""
     model = cell.filter_model
     particles = getattr(cell.filter, "particles", 1)
+    if particles == "auto":       # PMMH's pilot chooses it (pfx.estimation.particle_count), at most its cap
+        particles = auto_particles
     need = trial_bytes(particles, model.state_dimension, model.measurement_dimension, model.steps)
     if cell.filter.uses_particles:
         from pfx.filters.particle.smoothing import history_bytes
@@ -92,8 +94,10 @@ def cell_trial_bytes(cell, genealogy: bool = False) -> int:
 def check_fits(plan, budget: int) -> None:
     """Refuse the plan if one trial of some cell does not fit the budget."""
     genealogy = bool(getattr(plan.experiment.outputs, "genealogy", 0)) if plan.cells else False
+    estimation = getattr(plan.experiment, "estimation", None)
+    cap = estimation.pilot.largest if estimation is not None else 1
     for cell in plan.cells:
-        need = cell_trial_bytes(cell, genealogy)
+        need = cell_trial_bytes(cell, genealogy, cap)
         if need > budget:
             smoothing = " with its smoothers' history" if getattr(cell.filter, "smoothers", None) or genealogy else ""
             raise ConfigError(
