@@ -180,7 +180,7 @@ def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None,
 class ParticleCountResult:
     """:func:`choose_particles`'s answer: ``particles``, the N chosen; ``table``, every particle
     count measured (particle_count.csv's columns without the cell's: particles, runs, finite, mean,
-    sd, sd_standard_error, seconds, chosen)."""
+    sd, sd_standard_error, run_time_s, chosen)."""
 
     particles: int
     table: pd.DataFrame

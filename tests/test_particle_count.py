@@ -34,7 +34,7 @@ from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams
 from pfx.safe_yaml import load_config_file
 
-estimation_run = importlib.import_module("pfx.run.estimation")     # `pfx.run` is also the function
+pilot_module = importlib.import_module("pfx.run.particle_count_pilot")     # where the run measures the pilot
 
 # -- the rule, on spreads that follow the 1/N law exactly ----------------------------------------------
 
@@ -164,7 +164,7 @@ def no_pilot(monkeypatch):
     """Any measurement of the spread fails: what runs must read the choice back."""
     def refuse(*args, **kwargs):
         raise AssertionError("the pilot measured again")
-    monkeypatch.setattr(estimation_run, "log_likelihood_spread", refuse)
+    monkeypatch.setattr(pilot_module, "log_likelihood_spread", refuse)
 
 
 def test_the_folder_says_the_choice_in_its_table_and_manifest(auto_run):
@@ -213,7 +213,7 @@ def test_an_extended_run_reads_the_choice_back_instead_of_measuring(auto_run, tm
         no_pilot(patch)
         extended = pfx.run(longer, out=folder)
     whole = pfx.run(longer, out=tmp_path / "whole")
-    untimed = [name for name in PARTICLE_COUNT.own if name != "seconds"]
+    untimed = [name for name in PARTICLE_COUNT.own if name != "run_time_s"]
     assert extended.tables["particle_count"][untimed].equals(whole.tables["particle_count"][untimed])
     assert (extended.folder / "chains.csv").read_bytes() == (whole.folder / "chains.csv").read_bytes()
 

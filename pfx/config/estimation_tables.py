@@ -50,12 +50,12 @@ MAXIMUM_LIKELIHOOD = TableLayout("maximum_likelihood.csv", ("replicate",), ("log
 # likelihood_spread.csv: a flagged particle-filter cell's sd of the log-likelihood estimate, measured at
 # its posterior mean (the parameters' columns: the point); written only where a cell was measured
 LIKELIHOOD_SPREAD = TableLayout("likelihood_spread.csv", (),
-                                ("particles", "runs", "finite", "mean", "sd", "sd_standard_error", "seconds"))
+                                ("particles", "runs", "finite", "mean", "sd", "sd_standard_error", "run_time_s"))
 # particle_count.csv (PMMH with `particles: auto`): a row per particle count the pilot measured, no
 # parameter columns, so its names are not reserved (a parameter's column is never beside them; the
 # cell's label columns are `arm`, ... and swept keys with a dot made `_`, never one of these)
 PARTICLE_COUNT = TableLayout("particle_count.csv", ("particles", "runs", "finite", "mean", "sd", "sd_standard_error",
-                                                    "seconds", "chosen"), ())
+                                                    "run_time_s", "chosen"), ())
 
 # posterior.csv: a row per parameter and one for the log-likelihood; the quantiles by their probability
 QUANTILES = {"quantile_2_5": 0.025, "quantile_25": 0.25, "median": 0.5, "quantile_75": 0.75, "quantile_97_5": 0.975}

@@ -49,6 +49,13 @@ class Spread:
         """The sd's relative standard error, about 1 / sqrt(2 (R - 1)) for a near-normal estimate."""
         return 1.0 / np.sqrt(2.0 * (self.finite - 1)) if self.finite > 1 else np.nan
 
+    def columns(self) -> dict:
+        """The measurement as a table row: particles, runs, finite, mean, sd, sd_standard_error
+        and run_time_s, its seconds (particle_count.csv's and likelihood_spread.csv's columns)."""
+        return {"particles": self.particles, "runs": self.runs, "finite": self.finite, "mean": self.mean,
+                "sd": self.sd, "sd_standard_error": self.sd * self.relative_standard_error,
+                "run_time_s": round(self.seconds, 3)}
+
 
 def log_likelihood_spread(target: EstimationTarget, point: np.ndarray, particles: int, runs: int,
                           root_seed: int) -> Spread:

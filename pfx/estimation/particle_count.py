@@ -70,10 +70,8 @@ class ParticleChoice:
 
     def table(self) -> pd.DataFrame:
         """The rows as particle_count.csv has them, without the cell's columns."""
-        return pd.DataFrame([{"particles": row.particles, "runs": row.runs, "finite": row.finite, "mean": row.mean,
-                              "sd": row.sd, "sd_standard_error": row.sd * row.relative_standard_error,
-                              "seconds": row.seconds, "chosen": row.particles == self.particles}
-                             for row in self.rows], columns=list(COLUMNS))
+        return pd.DataFrame([{**row.columns(), "chosen": row.particles == self.particles} for row in self.rows],
+                            columns=list(COLUMNS))
 
 
 def effective_sd(row: Spread) -> float:

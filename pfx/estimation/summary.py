@@ -83,9 +83,7 @@ def spread_at_posterior_mean(target: EstimationTarget, summary: pd.DataFrame, ro
     means = summary.set_index("parameter")["mean"]
     point = np.array([means[name] for name in target.columns], dtype=float)
     spread = log_likelihood_spread(target, point, target.cell.filter.particles, SPREAD_RUNS, root_seed)
-    row = {**dict(zip(target.columns, point)), "particles": spread.particles, "runs": spread.runs,
-           "finite": spread.finite, "mean": spread.mean, "sd": spread.sd,
-           "sd_standard_error": spread.sd * spread.relative_standard_error, "seconds": round(spread.seconds, 3)}
+    row = {**dict(zip(target.columns, point)), **spread.columns()}
     return pd.DataFrame([row])[LIKELIHOOD_SPREAD.progress_columns(list(target.columns))]
 
 

@@ -33,14 +33,12 @@ import numpy as np
 import pandas as pd
 
 from pfx.analysis.estimation_flags import if2_advice, pmmh_advice, replicate_flags
-from pfx.config.estimation import AUTO
 from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM_LIKELIHOOD, PARTICLE_COUNT
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
-from pfx.estimation.likelihood_spread import log_likelihood_spread
-from pfx.estimation.particle_count import ParticleChoice, choose_particle_count
+from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
@@ -57,15 +55,14 @@ from pfx.result_folder import (
 from pfx.run.estimation_progress import (
     PROGRESS,
     damaged,
-    pilot_file,
     progress_file,
-    read_pilot,
     read_rows,
     read_swarm,
     save_swarm,
     swarm_file,
 )
 from pfx.run.interrupts import raise_if_requested
+from pfx.run.particle_count_pilot import is_auto, keep_pilots, particle_count, pilot_record, write_particle_count
 
 CHECKPOINT_SECONDS = 10.0
 # every table a run may write; likelihood_spread.csv only where a flagged cell's spread was measured,
@@ -114,12 +111,12 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                                                                "iterations": estimation.iterations,
                                                                "chains": estimation.chains}}
         manifest["figures"] = list(plan.experiment.outputs.figures)    # the method's, by default (pfx.config.plan)
-        manifest.update(_pilot_record(work))       # nothing without `particles: auto`
+        manifest.update(pilot_record(work))       # nothing without `particles: auto`
         manifest.pop("trials", None)
         earlier = {} if fresh else dict((state.manifest or {}).get("cell_wall_time_s") or {})
         write_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
-        _keep_pilots(out, work, report)
+        keep_pilots(out, work, report)
         cell_times: dict[str, float] = {}
         try:
             for item in work:
@@ -131,7 +128,7 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                 finally:
                     cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
             _assemble(plan, out, work, report)
-            _write_particle_count(plan, out, work)
+            write_particle_count(plan, out, work)
         except BaseException as error:
             kept = _keep_what_ran(out, manifest, _summed(cell_times, earlier), earlier_record)
             if isinstance(error, ConfigError) and not error.file:     # found while running (IF2's random walk)
@@ -187,7 +184,7 @@ def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellW
     for cell in plan.cells:
         before = earlier.get(cell.key)
         target = before.target if before else EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
-        pilot, measured = _particle_count(plan, target, out, state, before) if _auto(plan, cell) else (None, False)
+        pilot, measured = particle_count(plan, target, out, state, before) if is_auto(plan, cell) else (None, False)
         if pilot is not None:
             target = target.with_particles(pilot.particles)
         item = None
@@ -226,125 +223,6 @@ def _started(plan: Plan, target: EstimationTarget) -> CellWork:
     except ConfigError as error:
         raise error.located(file=plan.file) from None
     return CellWork(target.cell, target, rows, state, first=1, started=True, seconds=time.perf_counter() - started)
-
-
-# -- `particles: auto`: the pilot that chooses a PMMH cell's particle count ----------------------------
-
-def _auto(plan: Plan, cell: Cell) -> bool:
-    return plan.experiment.estimation.method == "pmmh" and cell.filter.uses_particles and cell.filter.particles == AUTO
-
-
-def _particle_count(plan: Plan, target: EstimationTarget, out: Path, state: FolderState,
-                    before: Optional[CellWork]) -> tuple[ParticleChoice, bool]:
-    """The cell's particle count and whether this run measured it: read back from the folder's
-    progress (a resumed or extended run; checked, as every progress file is), the count found
-    before the lock, or the pilot's (:mod:`pfx.estimation.particle_count`), writing nothing."""
-    path = pilot_file(out, target.cell)
-    if state.manifest is not None and path.is_file():
-        return _read_back_pilot(plan, target, path), False
-    if state.complete:
-        raise damaged(path, "is missing, and the folder's manifest.json records a finished run")
-    if before is not None and before.pilot is not None:
-        return before.pilot, before.pilot_measured
-    settings = plan.experiment.estimation.pilot
-    point, point_text = _pilot_point(plan, target)
-
-    def spread_at(particles: int):
-        return log_likelihood_spread(target, point, particles, settings.runs, plan.experiment.seed)
-
-    return choose_particle_count(spread_at, settings, key=_particles_key(plan, target.cell), point_text=point_text,
-                                 file=plan.file), True
-
-
-def _read_back_pilot(plan: Plan, target: EstimationTarget, path: Path) -> ParticleChoice:
-    """The pilot file's choice, if replaying the rule on its rows measures exactly them and
-    chooses the same count (else it was changed by something else: refused)."""
-    rows, chosen = read_pilot(path)
-    remaining = list(rows)
-
-    def recorded(particles: int):
-        if not remaining or remaining[0].particles != particles:
-            raise damaged(path, f"does not hold the particle counts the rule measures ({particles} next)")
-        return remaining.pop(0)
-
-    try:
-        choice = choose_particle_count(recorded, plan.experiment.estimation.pilot, key="", point_text="")
-    except ConfigError as error:
-        if error.file == str(path):
-            raise
-        raise damaged(path, "its rows end above the target sd, where the rule chooses nothing") from None
-    if remaining or choice.particles != chosen:
-        raise damaged(path, f"marks {chosen} particles chosen, and the rule on its rows chooses {choice.particles}")
-    return choice
-
-
-def _pilot_point(plan: Plan, target: EstimationTarget) -> tuple[np.ndarray, str]:
-    """Where the pilot measures (``particle_count.at``), and it in words: the given point, or the
-    chains' start (the per-parameter median of their starts where they differ: the median
-    commutes with the monotone transforms). Starts the model refuses are refused as PMMH's
-    iteration 0 refuses them (:meth:`EstimationTarget.check_starts`)."""
-    at = plan.experiment.estimation.pilot.at
-    if isinstance(at, dict):
-        point, origin, key = np.array([at[path] for path in target.paths]), "estimation.particle_count.at", "at"
-    else:
-        starts = target.starting_values(plan.experiment.seed, target.cell.stream_key)
-        refused = np.array([target.model_at(row) is None for row in starts])
-        try:
-            target.check_starts(starts, np.where(refused, -np.inf, 0.0))
-        except ConfigError as error:
-            raise error.located(file=plan.file) from None
-        common = bool((starts == starts[0]).all())
-        point, key = np.median(starts, axis=0), "at"
-        origin = "the chains' start" if common else "the median of the chains' starts"
-    text = ", ".join(f"{name}={value:.6g}" for name, value in zip(target.columns, point)) + f" ({origin})"
-    if target.model_at(point) is None:
-        raise ConfigError(f"the pilot of particles: auto measures at {text}, where the model refuses the parameters; "
-                          "give estimation.particle_count.at a point the model accepts", file=plan.file,
-                          key=f"estimation.particle_count.{key}")
-    return point, text
-
-
-def _particles_key(plan: Plan, cell: Cell) -> str:
-    """The key that made the cell's particles auto: its arm's, or the filter section's."""
-    arm = plan.experiment.arms.get(cell.labels["arm"])
-    return f"arms.{cell.labels['arm']}.particles" if arm is not None and "particles" in arm.model_fields_set \
-        else "filter.particles"
-
-
-def _pilot_record(work: list[CellWork]) -> dict:
-    """The manifest's ``particle_count``: each auto cell's chosen particle count (none: nothing)."""
-    chosen = {item.cell.key: item.pilot.particles for item in work if item.pilot is not None}
-    return {"particle_count": chosen} if chosen else {}
-
-
-def _keep_pilots(out: Path, work: list[CellWork], report: Callable[[str], None]) -> None:
-    """The write phase's first step for the cells with ``particles: auto``: the pilot files of
-    the counts measured by this run (kept at once, so that no later run measures again), and each
-    choice said in a line, with the ladder measured."""
-    for item in work:
-        if item.pilot is None:
-            continue
-        if item.pilot_measured:
-            write_csv(item.pilot.table(), pilot_file(out, item.cell))
-        best, target_sd = item.pilot.chosen, item.target.estimation.pilot.target_sd
-        how = "measured" if item.pilot_measured else f"read back from {pilot_file(out, item.cell).name}"
-        report(f"{out}: cell {item.cell.key}: particles auto -> {best.particles} (sd of the log-likelihood "
-               f"{best.sd:.3g}, target {target_sd:g}; {how})")
-        report("  " + ", ".join(f"N={row.particles}: sd {row.sd:.3g}" + ("" if row.finite == row.runs else
-                                f" ({row.runs - row.finite} of {row.runs} runs -inf)") for row in item.pilot.rows))
-
-
-def _write_particle_count(plan: Plan, out: Path, work: list[CellWork]) -> None:
-    """particle_count.csv: every auto cell's pilot rows, the cell's columns first."""
-    frames = []
-    for item in work:
-        if item.pilot is not None:
-            rows = item.pilot.table()
-            frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=rows.index), rows],
-                                    axis=1))
-    if frames:
-        table = pd.concat(frames, ignore_index=True)
-        write_csv(table[PARTICLE_COUNT.columns(plan.label_columns, [])], out / PARTICLE_COUNT.file)
 
 
 def _resumed_pmmh(plan: Plan, target: EstimationTarget, out: Path) -> CellWork | None:

@@ -194,7 +194,7 @@ def read_pilot(path: Path) -> tuple[list[Spread], int]:
         try:
             particles, runs, finite = (int(fields[name]) for name in ("particles", "runs", "finite"))
             mean, sd, _, seconds = (float(fields[name] or "nan") for name in ("mean", "sd", "sd_standard_error",
-                                                                              "seconds"))
+                                                                              "run_time_s"))
         except ValueError:
             raise damaged(path, "a field is not a number of its column's kind", number) from None
         if fields["chosen"] not in FLAGS:

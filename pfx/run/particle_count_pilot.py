@@ -1,0 +1,145 @@
+"""The pilot behind ``particles: auto``: a PMMH cell's particle count, measured or read back.
+
+A cell whose ``particles`` is ``auto`` gets its N in the run's read-and-check phase
+(:mod:`pfx.run.estimation`): read back from the folder's ``estimation/<cell>.particle_count.csv``
+when a resumed or extended run finds one (checked by replaying the rule on its rows), else
+measured by the rule of :mod:`pfx.estimation.particle_count` at ``estimation.particle_count.at``
+(the chains' start by default), which may refuse before anything is written. The write phase
+then keeps the measured rows at once (so that no later run measures again), says each choice in
+a line, and the tables end with particle_count.csv.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from pfx.config.estimation import AUTO
+from pfx.config.estimation_tables import PARTICLE_COUNT
+from pfx.config.plan import Cell, Plan
+from pfx.errors import ConfigError
+from pfx.estimation.likelihood_spread import log_likelihood_spread
+from pfx.estimation.particle_count import ParticleChoice, choose_particle_count
+from pfx.estimation.target import EstimationTarget
+from pfx.result_folder import FolderState, write_csv
+from pfx.run.estimation_progress import damaged, pilot_file, read_pilot
+
+
+def is_auto(plan: Plan, cell: Cell) -> bool:
+    return plan.experiment.estimation.method == "pmmh" and cell.filter.uses_particles and cell.filter.particles == AUTO
+
+
+def particle_count(plan: Plan, target: EstimationTarget, out: Path, state: FolderState,
+                    before) -> tuple[ParticleChoice, bool]:
+    """The cell's particle count and whether this run measured it: read back from the folder's
+    progress (a resumed or extended run; checked, as every progress file is), the count found
+    before the lock, or the pilot's (:mod:`pfx.estimation.particle_count`), writing nothing."""
+    path = pilot_file(out, target.cell)
+    if state.manifest is not None and path.is_file():
+        return _read_back_pilot(plan, target, path), False
+    if state.complete:
+        raise damaged(path, "is missing, and the folder's manifest.json records a finished run")
+    if before is not None and before.pilot is not None:
+        return before.pilot, before.pilot_measured
+    settings = plan.experiment.estimation.pilot
+    point, point_text = _pilot_point(plan, target)
+
+    def spread_at(particles: int):
+        return log_likelihood_spread(target, point, particles, settings.runs, plan.experiment.seed)
+
+    return choose_particle_count(spread_at, settings, key=_particles_key(plan, target.cell), point_text=point_text,
+                                 file=plan.file), True
+
+
+def _read_back_pilot(plan: Plan, target: EstimationTarget, path: Path) -> ParticleChoice:
+    """The pilot file's choice, if replaying the rule on its rows measures exactly them and
+    chooses the same count (else it was changed by something else: refused)."""
+    rows, chosen = read_pilot(path)
+    remaining = list(rows)
+
+    def recorded(particles: int):
+        if not remaining or remaining[0].particles != particles:
+            raise damaged(path, f"does not hold the particle counts the rule measures ({particles} next)")
+        return remaining.pop(0)
+
+    try:
+        choice = choose_particle_count(recorded, plan.experiment.estimation.pilot, key="", point_text="")
+    except ConfigError as error:
+        if error.file == str(path):
+            raise
+        raise damaged(path, "its rows end above the target sd, where the rule chooses nothing") from None
+    if remaining or choice.particles != chosen:
+        raise damaged(path, f"marks {chosen} particles chosen, and the rule on its rows chooses {choice.particles}")
+    return choice
+
+
+def _pilot_point(plan: Plan, target: EstimationTarget) -> tuple[np.ndarray, str]:
+    """Where the pilot measures (``particle_count.at``), and it in words: the given point, or the
+    chains' start (the per-parameter median of their starts where they differ: the median
+    commutes with the monotone transforms). Starts the model refuses are refused as PMMH's
+    iteration 0 refuses them (:meth:`EstimationTarget.check_starts`)."""
+    at = plan.experiment.estimation.pilot.at
+    if isinstance(at, dict):
+        point, origin, key = np.array([at[path] for path in target.paths]), "estimation.particle_count.at", "at"
+    else:
+        starts = target.starting_values(plan.experiment.seed, target.cell.stream_key)
+        refused = np.array([target.model_at(row) is None for row in starts])
+        try:
+            target.check_starts(starts, np.where(refused, -np.inf, 0.0))
+        except ConfigError as error:
+            raise error.located(file=plan.file) from None
+        common = bool((starts == starts[0]).all())
+        point, key = np.median(starts, axis=0), "at"
+        origin = "the chains' start" if common else "the median of the chains' starts"
+    text = ", ".join(f"{name}={value:.6g}" for name, value in zip(target.columns, point)) + f" ({origin})"
+    if target.model_at(point) is None:
+        raise ConfigError(f"the pilot of particles: auto measures at {text}, where the model refuses the parameters; "
+                          "give estimation.particle_count.at a point the model accepts", file=plan.file,
+                          key=f"estimation.particle_count.{key}")
+    return point, text
+
+
+def _particles_key(plan: Plan, cell: Cell) -> str:
+    """The key that made the cell's particles auto: its arm's, or the filter section's."""
+    arm = plan.experiment.arms.get(cell.labels["arm"])
+    return f"arms.{cell.labels['arm']}.particles" if arm is not None and "particles" in arm.model_fields_set \
+        else "filter.particles"
+
+
+def pilot_record(work: list) -> dict:
+    """The manifest's ``particle_count``: each auto cell's chosen particle count (none: nothing)."""
+    chosen = {item.cell.key: item.pilot.particles for item in work if item.pilot is not None}
+    return {"particle_count": chosen} if chosen else {}
+
+
+def keep_pilots(out: Path, work: list, report: Callable[[str], None]) -> None:
+    """The write phase's first step for the cells with ``particles: auto``: the pilot files of
+    the counts measured by this run (kept at once, so that no later run measures again), and each
+    choice said in a line, with the ladder measured."""
+    for item in work:
+        if item.pilot is None:
+            continue
+        if item.pilot_measured:
+            write_csv(item.pilot.table(), pilot_file(out, item.cell))
+        best, target_sd = item.pilot.chosen, item.target.estimation.pilot.target_sd
+        how = "measured" if item.pilot_measured else f"read back from {pilot_file(out, item.cell).name}"
+        report(f"{out}: cell {item.cell.key}: particles auto -> {best.particles} (sd of the log-likelihood "
+               f"{best.sd:.3g}, target {target_sd:g}; {how})")
+        report("  " + ", ".join(f"N={row.particles}: sd {row.sd:.3g}" + ("" if row.finite == row.runs else
+                                f" ({row.runs - row.finite} of {row.runs} runs -inf)") for row in item.pilot.rows))
+
+
+def write_particle_count(plan: Plan, out: Path, work: list) -> None:
+    """particle_count.csv: every auto cell's pilot rows, the cell's columns first."""
+    frames = []
+    for item in work:
+        if item.pilot is not None:
+            rows = item.pilot.table()
+            frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=rows.index), rows],
+                                    axis=1))
+    if frames:
+        table = pd.concat(frames, ignore_index=True)
+        write_csv(table[PARTICLE_COUNT.columns(plan.label_columns, [])], out / PARTICLE_COUNT.file)
