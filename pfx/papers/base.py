@@ -201,6 +201,13 @@ def shown(value: float, digits: int) -> float:
     return float(decimal.quantize(Decimal(1).scaleb(decimal.adjusted() - digits + 1), rounding=ROUND_HALF_UP))
 
 
+def flag_text(row) -> str:
+    """A posterior.csv row's ``flag`` for a gallery table: the checks it fails, or "none" (an
+    empty field, which pandas reads as NaN; a folder written before the column had none either)."""
+    flag = row.get("flag") if hasattr(row, "get") else None
+    return flag if isinstance(flag, str) and flag else "none"
+
+
 def markdown_table(frame, digits: int = 3, formats: Optional[dict[str, Callable]] = None) -> str:
     """A pandas DataFrame as a Markdown table (no extra dependency), numbers via format_number."""
     formats = formats or {}

@@ -65,6 +65,7 @@ from pfx.papers.base import (
     Text,
     Verdict,
     assemble,
+    flag_text,
     format_number,
     markdown_table,
     verdict_from_checks,
@@ -322,6 +323,9 @@ def posterior_table(exact: dict, numbers: ArmNumbers, manifest: dict) -> pd.Data
         table.append({"": label, "exact (grid)": "",
                       **{ARMS[arm]: numbers.listed(arm, column, parameters, 4 if column == "r_hat" else 3)
                          for arm in arms}})
+    table.append({"": "flags (posterior.csv: r, q, log-likelihood)", "exact (grid)": "",
+                  **{ARMS[arm]: "; ".join(f"{p}: {flag_text(numbers(arm, p))}" for p in ("r", "q", "log_likelihood"))
+                     for arm in arms}})
     table.append({"": "acceptance rate", "exact (grid)": "",
                   **{ARMS[arm]: format_number(numbers(arm, "r")["acceptance_rate"], 2) for arm in arms}})
     table.append({"": "draws after the warm-up (chains)", "exact (grid)": f"{GRID_POINTS} × {GRID_POINTS} points",

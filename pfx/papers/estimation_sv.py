@@ -63,6 +63,7 @@ from pfx.papers.base import (
     Text,
     Verdict,
     assemble,
+    flag_text,
     format_number,
     markdown_table,
     verdict_from_checks,
@@ -167,7 +168,8 @@ def posterior_part(results: PaperResults) -> Part:
                "pfx sd": format_number(ours["sd"], 3),
                "pfx 2.5%, 50%, 97.5%": ", ".join(format_number(ours[q], 3) for q in
                                                  ("quantile_2_5", "median", "quantile_97_5")),
-               "pfx R-hat": f"{ours['r_hat']:.3f}", "pfx bulk ESS": format_number(ours["ess_bulk"], 3)}
+               "pfx R-hat": f"{ours['r_hat']:.3f}", "pfx bulk ESS": format_number(ours["ess_bulk"], 3),
+               "pfx flag": flag_text(ours)}
         other = theirs.get(REFERENCE_NAMES.get(name, name))
         if other:
             z = mean_difference(ours, other)
@@ -254,7 +256,7 @@ def exact_posterior_part(results: PaperResults) -> Part:
         evidence.append(f"{name} {z:+.2f}")
         rows.append({"parameter": name, "exact mean ± mcse": f"{reference['mean']:.4f} ± {reference['mcse_mean']:.4f}",
                      "exact sd": format_number(reference["sd"], 3), "exact R-hat": f"{reference['r_hat']:.3f}",
-                     "exact bulk ESS": format_number(reference["ess_bulk"], 3),
+                     "exact bulk ESS": format_number(reference["ess_bulk"], 3), "exact flag": flag_text(reference),
                      "PMMH mean ± mcse": f"{ours['mean']:.4f} ± {ours['mcse_mean']:.4f}",
                      "PMMH sd": format_number(ours["sd"], 3), "difference / combined mcse": f"{z:+.2f}"})
     config = results.config(EXACT)
