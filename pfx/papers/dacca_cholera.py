@@ -126,7 +126,10 @@ def likelihood_part(results: PaperResults) -> Part:
               "The mean of log L̂ lies below log L by about half its variance (Jensen's inequality: L̂ is unbiased, "
               "log L̂ is not); the log-mean-exp is the log of the unbiased estimate of L averaged over the runs. "
               "Times: wall seconds per filter run; pfx runs a cell's trials as one batch, and its time per run "
-              "is the batch's share. Both were measured on the same shared 2-core machine, not at the same moment.")]
+              "is the batch's share. The two were measured at different moments (pypomp's once, as recorded in "
+              "the benchmark's paper.yaml; pfx's at each reproduction) on shared 2-core machines whose speed and "
+              "load vary between sessions by a factor of 2 to 3, so their ratio is rough; `pfx bench` measures "
+              "ratios in one command.")]
 
     verdicts = []
     if 1000 in ours.index and math.isfinite(target):

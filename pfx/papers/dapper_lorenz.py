@@ -167,8 +167,9 @@ def cases_part(results: PaperResults) -> Part:
         "the truth. Means include the lost runs, medians barely feel them."),
         Table("rmse.a: published, DAPPER here, pfx", markdown_table(table, digits=3),
               "pfx's time per run is its batch's filter time divided by its trials (the trials run together, "
-              "vectorised); DAPPER's is the median wall time of one run's assimilation. Both on the same shared "
-              "two-core machine, not at the same moment.")]
+              "vectorised); DAPPER's is the median wall time of one run's assimilation. The two were measured at "
+              "different moments (DAPPER's once, recorded in dapper-reference.csv; pfx's at each reproduction) on "
+              "shared two-core machines whose speed and load vary between sessions, so their ratio is rough.")]
     for experiment in EXPERIMENTS.values():
         if "error_over_time.png" in results.figures(experiment):
             items.append(Figure(experiment, "error_over_time.png",
