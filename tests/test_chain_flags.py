@@ -110,9 +110,9 @@ def test_posterior_summary_flags_chains_that_disagree_or_mix_slowly_and_not_inde
 # -- what the line says, in the order of diagnosis ---------------------------------------------------------------
 
 def posterior_rows(flag="r_hat 1.3 > 1.01", ess=(120.0, 300.0), acceptance=0.25, chains=4, draws=1000) -> pd.DataFrame:
-    return pd.DataFrame([{"parameter": "a", "n": chains * draws, "r_hat": 1.3, "ess_bulk": ess[0], "ess_tail": ess[1],
+    return pd.DataFrame([{"parameter": "a", "n": chains * draws, "mean": 1.5, "r_hat": 1.3, "ess_bulk": ess[0], "ess_tail": ess[1],
                           "acceptance_rate": acceptance, "chains": chains, "flag": flag},
-                         {"parameter": "log_likelihood", "n": chains * draws, "r_hat": 1.0, "ess_bulk": 900.0,
+                         {"parameter": "log_likelihood", "n": chains * draws, "mean": -80.0, "r_hat": 1.0, "ess_bulk": 900.0,
                           "ess_tail": 900.0, "acceptance_rate": acceptance, "chains": chains, "flag": ""}])
 
 
@@ -127,6 +127,18 @@ def test_the_line_asks_for_particles_first_when_the_estimate_is_too_noisy():
     assert "N = 160000, likely too many" in far and "`particles: auto`" in far
     zero = pmmh_advice(posterior_rows(), 1000, {"particles": 10, "runs": 40, "finite": 31, "sd": 1.0})
     assert "more particles" in zero and "zero in 9 of 40 runs" in zero
+
+
+def test_a_count_the_pilot_chose_is_measured_again_at_the_posterior_mean():
+    """`particles: auto` measured where it was told (the chains' start, by default), which can be
+    far from the posterior, where the estimate is noisier: the line says to measure there, not to
+    use `particles: auto`, which the cell already does."""
+    spread = {"particles": 256, "runs": 40, "finite": 40, "sd": 4.09}
+    line = pmmh_advice(posterior_rows(), 2500, spread, chosen_by_pilot=True)
+    assert "which chose 256 where it measured" in line and "estimation.particle_count.at" in line
+    assert "measure at the posterior mean, a 1.5 (" in line and "or `particles: auto`" not in line
+    far = pmmh_advice(posterior_rows(), 2500, {**spread, "sd": 28.0}, chosen_by_pilot=True)
+    assert "likely too many" in far and "estimation.particle_count.at" in far and "use `particles: auto`" not in far
 
 
 def test_then_a_proposal_scale_from_the_acceptance_rate_then_more_iterations():

@@ -132,11 +132,14 @@ def _two_figures(value: float) -> float:
     return max(round(value / scale) * scale, 1)
 
 
-def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mapping] = None) -> Optional[str]:
+def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mapping] = None,
+                chosen_by_pilot: bool = False) -> Optional[str]:
     """One line for a cell's posterior.csv rows ``posterior`` whose ``flag`` is not empty (None
     when none is): what to try first (module docstring). ``iterations``: the chains' iterations so
     far (warm-up included); ``spread``: the cell's row of likelihood_spread.csv (``particles``,
-    ``runs``, ``finite``, ``sd``), where the run measured one."""
+    ``runs``, ``finite``, ``sd``), where the run measured one; ``chosen_by_pilot``: the cell's
+    particles are ``auto`` (the manifest's ``particle_count``), so more particles means measuring
+    again nearer the posterior."""
     flagged = posterior[flag_texts(posterior["flag"]) != ""]
     if flagged.empty:
         return None
@@ -148,7 +151,7 @@ def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mappi
                        f"chains (at least {MINIMUM_DRAWS}, and {ESS_PER_CHAIN} effective per chain); raise "
                        "estimation.iterations")
     if spread is not None:
-        noisy = _noisy_estimate(spread)
+        noisy = _noisy_estimate(spread, chosen_by_pilot, posterior)
         if noisy:
             return head + noisy
     acceptance = float(posterior["acceptance_rate"].iloc[0])
@@ -179,10 +182,19 @@ def _worst(flagged: pd.DataFrame) -> str:
     return "".join(f"; {part}" for part in parts)
 
 
-def _noisy_estimate(spread: Mapping) -> Optional[str]:
-    """The "more particles" advice when the measured spread calls for it, else None."""
+def _noisy_estimate(spread: Mapping, chosen_by_pilot: bool = False,
+                    posterior: Optional[pd.DataFrame] = None) -> Optional[str]:
+    """The "more particles" advice when the measured spread calls for it, else None. For a cell
+    whose N the pilot of ``particles: auto`` chose, the pilot measured elsewhere (the chains'
+    start, by default), where the estimate can be far less noisy than at the posterior: the
+    advice is to measure again at the posterior mean (``estimation.particle_count.at``)."""
     particles, runs, finite, sd = int(spread["particles"]), int(spread["runs"]), int(spread["finite"]), spread["sd"]
     auto = "or `particles: auto`"
+    if chosen_by_pilot and posterior is not None:
+        means = posterior[posterior["parameter"] != "log_likelihood"]
+        at = ", ".join(f"{name} {value:.4g}" for name, value in zip(means["parameter"], means["mean"]))
+        auto = (f"or have `particles: auto` (which chose {particles} where it measured) measure at the posterior "
+                f"mean, {at} (estimation.particle_count.at)")
     if finite < runs:
         return (f"more particles: the filter's likelihood estimate at the posterior mean was zero in {runs - finite} "
                 f"of {runs} runs at N = {particles}; raise filter.particles, {auto}")
@@ -196,8 +208,7 @@ def _noisy_estimate(spread: Mapping) -> Optional[str]:
         # Var ℓ̂ ≈ c/N holds once the sd is near 1; far above, the sd falls faster than 1/√N at
         # first, so the law's N is likely far too many: measured, not extrapolated
         return measured + (f"the 1/N law, which holds near sd 1, would say N = {wanted}, likely too many this far "
-                           f"from it: use `particles: auto`, or raise N by factors of 4 until the sd is near "
-                           f"{SPREAD_TARGET}")
+                           f"from it: raise N by factors of 4 until the sd is near {SPREAD_TARGET}, {auto}")
     return measured + f"about N = {wanted} by the 1/N law, {auto}"
 
 

@@ -270,7 +270,8 @@ def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
         spreads = _likelihood_spreads(folder)
         iterations = int(manifest.get("estimation", {}).get("iterations") or 0)
         for cell, cell_rows in table.groupby("cell", sort=False):
-            advice = pmmh_advice(cell_rows, iterations, spreads.get(cell))
+            advice = pmmh_advice(cell_rows, iterations, spreads.get(cell),
+                                 chosen_by_pilot=cell in (manifest.get("particle_count") or {}))
             if advice:
                 notes.append(f"cell {_cell_name(cell_rows, labels, cell)}: {advice}")
     elif method == "if2" and (folder / "maximum_likelihood.csv").is_file():

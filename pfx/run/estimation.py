@@ -363,7 +363,8 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
             if spread is not None:
                 spreads.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=spread.index), spread],
                                          axis=1)[LIKELIHOOD_SPREAD.columns(labels, columns)])
-            advice = pmmh_advice(summary, estimation.iterations, None if spread is None else spread.iloc[0])
+            advice = pmmh_advice(summary, estimation.iterations, None if spread is None else spread.iloc[0],
+                                 chosen_by_pilot=item.pilot is not None)
             if advice:
                 report(f"{out}: cell {cell.key}: {advice}")
             summaries.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=summary.index),
