@@ -31,7 +31,7 @@ from pfx.estimation.particle_count import choose_particle_count, ladder
 from pfx.estimation.pmmh import ParticleMarginalMetropolisHastings
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.models.simulation import simulate_truth
-from pfx.numerics.seeding import TrialStreams
+from pfx.numerics.seeding import TrialStreams, restart_seed
 from pfx.safe_yaml import load_config_file
 
 pilot_module = importlib.import_module("pfx.run.particle_count_pilot")     # where the run measures the pilot
@@ -144,7 +144,9 @@ def test_the_pilot_chooses_where_the_committed_curve_puts_the_target_sd():
 
 # -- inside an estimation run ----------------------------------------------------------------------------
 
-PILOT = {"runs": 20, "smallest": 4, "largest": 512}
+# the tests of the count chosen before the chains keep it for every iteration (after_warm_up: false);
+# those of the second measurement, after the warm-up, are further down
+PILOT = {"runs": 20, "smallest": 4, "largest": 512, "after_warm_up": False}
 
 
 def auto_config(**pilot) -> dict:
@@ -171,7 +173,8 @@ def test_the_folder_says_the_choice_in_its_table_and_manifest(auto_run):
     table = auto_run.tables["particle_count"]
     cell = auto_run.chains["cell"].iloc[0]
     labels = build_plan(auto_config(), "auto.yaml").label_columns
-    assert list(table.columns) == PARTICLE_COUNT.columns(labels, [])
+    assert list(table.columns) == ["cell", *labels, "stage", *PARTICLE_COUNT.own]
+    assert (table["stage"] == "before_chains").all()
     assert table["chosen"].sum() == 1 and (table["cell"] == cell).all() and (table["n_particles"] == "auto").all()
     chosen = int(table.loc[table["chosen"], "particles"].iloc[0])
     assert auto_run.manifest["particle_count"] == {cell: chosen}
@@ -383,3 +386,93 @@ def test_particle_filter_refuses_auto():
         pfx.particle_filter(pfx.model("linear_gaussian", transition_matrix=[[1.0]], measurement_matrix=[[1.0]]),
                             particles="auto")
 
+
+
+# -- measured again after the warm-up (after_warm_up, the default) ---------------------------------------
+
+def test_the_count_is_measured_again_after_the_warm_up_by_default():
+    assert ParticleCount().after_warm_up is True
+
+
+@pytest.fixture(scope="module")
+def twice_run(tmp_path_factory):
+    return pfx.run(auto_config(after_warm_up=True), out=tmp_path_factory.mktemp("twice") / "run")
+
+
+def _tiny_problem():
+    plan = build_plan(auto_config(after_warm_up=True), "auto.yaml")
+    cell = plan.cells[0]
+    return plan, cell, EstimationTarget(cell, plan.experiment.estimation, dataset(cell, plan.experiment.seed))
+
+
+def test_after_the_warm_up_the_pilot_measures_where_the_chains_went(twice_run):
+    """The second measurement is the rule at the median of the chains over the warm-up's second
+    half (iteration 2 of a warm-up of 2), and the manifest gives the count the draws used."""
+    plan, cell, target = _tiny_problem()
+    table = twice_run.tables["particle_count"]
+    assert table["stage"].tolist() == sorted(table["stage"], key=["before_chains", "after_warm_up"].index)
+    after = table[table["stage"] == "after_warm_up"]
+    chains = twice_run.chains
+    point = np.median(chains[chains["iteration"] == 2][target.columns].to_numpy(), axis=0)
+    settings = plan.experiment.estimation.pilot
+    again = choose_particle_count(lambda n: log_likelihood_spread(target, point, n, settings.runs, plan.experiment.seed),
+                                  settings, key="filter.particles", point_text="")
+    assert after["particles"].tolist() == [row.particles for row in again.rows]
+    assert np.array_equal(after["sd"].to_numpy(), np.array([row.sd for row in again.rows]))
+    assert twice_run.manifest["particle_count"] == {cell.key: again.particles}
+
+
+def test_after_the_warm_up_the_chains_are_pmmh_at_the_new_count_from_where_the_warm_up_left_them(twice_run):
+    """Iterations 1-2 at the first count; then every chain's current estimate computed again at
+    the second count from its own restart stream, and iterations 3-6 at that count."""
+    plan, cell, target = _tiny_problem()
+    table = twice_run.tables["particle_count"]
+    first, second = (int(table[(table["stage"] == stage) & table["chosen"]]["particles"].iloc[0])
+                     for stage in ("before_chains", "after_warm_up"))
+    sampler = ParticleMarginalMetropolisHastings(target.with_particles(first), plan.experiment.seed, cell.stream_key)
+    chains = sampler.start()
+    rows = [(chains.values.copy(), chains.log_likelihood.copy())]
+    for iteration in range(1, 7):
+        if iteration == 3:
+            moved = target.with_particles(second)
+            chains.log_likelihood = moved.log_likelihoods(
+                chains.values, [restart_seed(plan.experiment.seed, cell.stream_key, chain) for chain in range(2)])
+            sampler = ParticleMarginalMetropolisHastings(moved, plan.experiment.seed, cell.stream_key)
+        sampler.iterate(chains, iteration)
+        rows.append((chains.values.copy(), chains.log_likelihood.copy()))
+    written = twice_run.chains
+    assert np.array_equal(written[target.columns].to_numpy().reshape(7, 2, -1), np.array([v for v, _ in rows]))
+    assert np.array_equal(written["log_likelihood"].to_numpy().reshape(7, 2), np.array([ll for _, ll in rows]))
+
+
+@pytest.mark.parametrize("stop", [3, 5])
+def test_a_run_stopped_after_the_warm_up_resumes_at_the_count_measured_after_it(twice_run, tmp_path, monkeypatch,
+                                                                                 stop):
+    """Stopped at iteration 3 (just after the second measurement) or 5: the same command reads
+    both counts back, measures nothing, and ends with the uninterrupted run's chains."""
+    folder = tmp_path / "stopped"
+    with monkeypatch.context() as patch:
+        interrupt_at(patch, "pmmh", stop)
+        with pytest.raises(KeyboardInterrupt):
+            pfx.run(auto_config(after_warm_up=True), out=folder)
+    assert list((folder / "estimation").glob("*.particle_count_after_warm_up.csv"))
+    with monkeypatch.context() as patch:
+        no_pilot(patch)
+        resumed = pfx.run(auto_config(after_warm_up=True), out=folder)
+    assert (resumed.folder / "chains.csv").read_bytes() == (twice_run.folder / "chains.csv").read_bytes()
+    pd.testing.assert_frame_equal(resumed.tables["particle_count"].drop(columns="run_time_s"),
+                                  twice_run.tables["particle_count"].drop(columns="run_time_s"))
+
+
+def test_chains_past_the_warm_up_without_their_second_count_are_refused(tmp_path, monkeypatch):
+    folder = tmp_path / "stopped"
+    with monkeypatch.context() as patch:
+        interrupt_at(patch, "pmmh", 5)
+        with pytest.raises(KeyboardInterrupt):
+            pfx.run(auto_config(after_warm_up=True), out=folder)
+    [after] = (folder / "estimation").glob("*.particle_count_after_warm_up.csv")
+    after.unlink()
+    before = snapshot(folder)
+    with pytest.raises(ConfigError, match="particle_count_after_warm_up.csv.*is missing, and the chains are past"):
+        pfx.run(auto_config(after_warm_up=True), out=folder)
+    assert snapshot(folder) == before

@@ -78,6 +78,11 @@ class ParticleCount(BaseModel):
         "start", description="where the sd is measured: `start` (the chains' common start, or the per-parameter "
                              "median of their starts) or a mapping dotted path -> value for every estimated parameter")
 
+    after_warm_up: StrictBool = Field(
+        True, description="measure again at the end of the warm-up, at the median of the chains' positions over its "
+                          "second half, and run the iterations after it with that count (each chain's current "
+                          "estimate computed again with it); no effect without a warm-up")
+
     @model_validator(mode="after")
     def _check(self):
         if self.largest < self.smallest:

@@ -54,6 +54,8 @@ LIKELIHOOD_SPREAD = TableLayout("likelihood_spread.csv", (),
 # particle_count.csv (PMMH with `particles: auto`): a row per particle count the pilot measured, no
 # parameter columns, so its names are not reserved (a parameter's column is never beside them; the
 # cell's label columns are `arm`, ... and swept keys with a dot made `_`, never one of these)
+# the folder's particle_count.csv has, between the cell's columns and these, the pilot's `stage`
+PARTICLE_COUNT_STAGES = ("before_chains", "after_warm_up")
 PARTICLE_COUNT = TableLayout("particle_count.csv", ("particles", "runs", "finite", "mean", "sd", "sd_standard_error",
                                                     "run_time_s", "chosen"), ())
 

@@ -39,6 +39,7 @@ FILTER_ROLE = 1
 STUDY_ROLE = 2
 ESTIMATION_ROLE = 3
 SPREAD_ROLE = 4
+RESTART_ROLE = 5
 
 
 def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int:
@@ -77,6 +78,13 @@ def spread_seed(root_seed: int, cell_key: int, particles: int, run: int) -> int:
     of its log-likelihood estimate (:mod:`pfx.estimation.likelihood_spread`); apart from every
     trial's and chain's stream, and the same whatever else the measurement runs."""
     sequence = np.random.SeedSequence(root_seed, spawn_key=(SPREAD_ROLE, cell_key, particles, run))
+    return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def restart_seed(root_seed: int, cell_key: int, chain: int) -> int:
+    """Seed of the one filter run that estimates a PMMH chain's likelihood again at its current
+    point when the chain changes particle count after its warm-up (``particles: auto``)."""
+    sequence = np.random.SeedSequence(root_seed, spawn_key=(RESTART_ROLE, cell_key, chain))
     return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 

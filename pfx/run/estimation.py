@@ -62,7 +62,16 @@ from pfx.run.estimation_progress import (
     swarm_file,
 )
 from pfx.run.interrupts import raise_if_requested
-from pfx.run.particle_count_pilot import is_auto, keep_pilots, particle_count, pilot_record, write_particle_count
+from pfx.run.particle_count_pilot import (
+    after_warm_up_applies,
+    is_auto,
+    keep_pilots,
+    measure_after_warm_up,
+    particle_count,
+    pilot_record,
+    read_back_after_warm_up,
+    write_particle_count,
+)
 
 CHECKPOINT_SECONDS = 10.0
 # every table a run may write; likelihood_spread.csv only where a flagged cell's spread was measured,
@@ -87,6 +96,7 @@ class CellWork:
     note: str = ""                      # what the run says when it takes the cell up
     pilot: Optional[ParticleChoice] = None      # `particles: auto`: the particle count chosen, and how
     pilot_measured: bool = False                # measured by this run (else read from the folder)
+    after_warm_up: Optional[ParticleChoice] = None  # `auto` measured again after the warm-up
 
 
 def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str], None], progress: bool,
@@ -124,7 +134,7 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                     report(f"{out}: cell {item.cell.key}: {item.note}")
                 started = time.perf_counter()
                 try:
-                    item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out)
+                    item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out, report)
                 finally:
                     cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
             _assemble(plan, out, work, report)
@@ -137,7 +147,8 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                 raise located from None
             error.add_note(kept)
             raise
-        manifest.update(finished=now(), complete=True, batched={item.cell.key: item.target.batched for item in work})
+        manifest.update(finished=now(), complete=True, batched={item.cell.key: item.target.batched for item in work},
+                        **pilot_record(work))      # the counts the posterior draws used
         # Times add up over the runs that made the folder (a resumed or extended run's own time
         # plus the earlier ones', an interrupted run's included), as a filter run's do.
         cell_times = _summed(cell_times, earlier)
@@ -196,6 +207,8 @@ def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellW
             same = before is not None and before.target.cell.filter.particles == target.cell.filter.particles
             item = before if same and before.started else _started(plan, target)
         item.pilot, item.pilot_measured = pilot, measured
+        if after_warm_up_applies(plan, item) and item.first > estimation.warm_up + 1:
+            item.target = read_back_after_warm_up(plan, item, out)
         held = int(item.rows["iteration"].iloc[-1])
         if finished is not None and held != finished:
             raise damaged(progress_file(out, cell), f"holds iterations 0 to {held}, and the folder's manifest.json "
@@ -283,7 +296,7 @@ def _iterated_filtering(plan: Plan, target: EstimationTarget) -> IteratedFilteri
 
 # -- running the iterations -----------------------------------------------------------------------------
 
-def _run_pmmh(item: CellWork, plan: Plan, out: Path) -> pd.DataFrame:
+def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None]) -> pd.DataFrame:
     """The cell's remaining iterations; its rows saved every CHECKPOINT_SECONDS, at the end, and
     when the run stops (all complete iterations: a stopped run keeps its work)."""
     estimation, target, chains = plan.experiment.estimation, item.target, item.state
@@ -291,6 +304,9 @@ def _run_pmmh(item: CellWork, plan: Plan, out: Path) -> pd.DataFrame:
     frames, unsaved, saved = [item.rows], item.started, time.perf_counter()
     try:
         for iteration in range(item.first, estimation.iterations + 1):
+            if iteration == estimation.warm_up + 1 and after_warm_up_applies(plan, item):
+                item.target = measure_after_warm_up(plan, item, chains, out, report)
+                sampler = _sampler(plan, item.target)
             accepted = sampler.iterate(chains, iteration)
             frames.append(_chain_rows(chains, iteration, accepted, target))
             unsaved = True
@@ -316,7 +332,7 @@ def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, target: Es
     return rows[CHAINS.progress_columns(columns)]
 
 
-def _run_if2(item: CellWork, plan: Plan, out: Path) -> pd.DataFrame:
+def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None]) -> pd.DataFrame:
     """The cell's remaining passes, each saved as it ends: the table, then the swarm (a run
     stopped between the two leaves the table a pass ahead, which the next run computes again)."""
     estimation, target, swarm, rows = plan.experiment.estimation, item.target, item.state, item.rows

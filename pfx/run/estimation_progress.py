@@ -164,11 +164,13 @@ def read_swarm(path: Path, shape: tuple[int, ...]) -> np.ndarray:
 
 # -- the pilot of `particles: auto` ---------------------------------------------------------------------
 
-def pilot_file(out: Path, cell: Cell) -> Path:
-    """The particle counts the pilot measured for a cell (:mod:`pfx.estimation.particle_count`):
-    particle_count.csv's rows of the cell without its columns; read back, a resumed or extended
-    run keeps the choice instead of measuring again."""
-    return out / PROGRESS / f"{cell.key}.particle_count.csv"
+def pilot_file(out: Path, cell: Cell, stage: str = "before_chains") -> Path:
+    """The particle counts the pilot measured for a cell (:mod:`pfx.estimation.particle_count`)
+    before the chains, or after their warm-up (``stage``): particle_count.csv's rows of the cell
+    and stage without their columns; read back, a resumed or extended run keeps the choice
+    instead of measuring again."""
+    suffix = "" if stage == "before_chains" else f"_{stage}"
+    return out / PROGRESS / f"{cell.key}.particle_count{suffix}.csv"
 
 
 def read_pilot(path: Path) -> tuple[list[Spread], int]:

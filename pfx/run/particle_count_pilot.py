@@ -18,12 +18,14 @@ import numpy as np
 import pandas as pd
 
 from pfx.config.estimation import AUTO
-from pfx.config.estimation_tables import PARTICLE_COUNT
+from pfx.config.estimation_tables import CELL, PARTICLE_COUNT
 from pfx.config.plan import Cell, Plan
 from pfx.errors import ConfigError
 from pfx.estimation.likelihood_spread import log_likelihood_spread
 from pfx.estimation.particle_count import ParticleChoice, choose_particle_count
+from pfx.estimation.pmmh import Chains
 from pfx.estimation.target import EstimationTarget
+from pfx.numerics.seeding import restart_seed
 from pfx.result_folder import FolderState, write_csv
 from pfx.run.estimation_progress import damaged, pilot_file, read_pilot
 
@@ -109,9 +111,70 @@ def _particles_key(plan: Plan, cell: Cell) -> str:
         else "filter.particles"
 
 
+# -- after the warm-up: measured again where the chains have gone ---------------------------------------
+
+def after_warm_up_applies(plan: Plan, item) -> bool:
+    """Whether the cell's count is measured again after the warm-up (``after_warm_up``, and a
+    warm-up to measure after)."""
+    estimation = plan.experiment.estimation
+    return item.pilot is not None and estimation.pilot.after_warm_up and estimation.warm_up >= 1
+
+
+def read_back_after_warm_up(plan: Plan, item, out: Path) -> EstimationTarget:
+    """For a run resumed or extended past the warm-up: the count measured after it, read back
+    (its file must be there), and the cell's problem at that count."""
+    path = pilot_file(out, item.cell, "after_warm_up")
+    if not path.is_file():
+        raise damaged(path, f"is missing, and the chains are past their warm-up of {plan.experiment.estimation.warm_up} "
+                            "iterations, after which particles: auto measured again")
+    item.after_warm_up = _read_back_pilot(plan, item.target, path)
+    return item.target.with_particles(item.after_warm_up.particles)
+
+
+def measure_after_warm_up(plan: Plan, item, chains: Chains, out: Path, report: Callable[[str], None]
+                          ) -> EstimationTarget:
+    """At the end of the warm-up: the pilot again, at the median of the chains' positions over
+    the warm-up's second half (where the posterior is, as far as the warm-up found it), and each
+    chain's current estimate computed again at the new count, from a stream of its own
+    (:func:`pfx.numerics.seeding.restart_seed`). The chains after the warm-up are then plain
+    PMMH chains at that count, started where the warm-up left them (the warm-up's draws are not
+    the posterior's, whatever their count). Returns the cell's problem at the new count."""
+    estimation, target = plan.experiment.estimation, item.target
+    path = pilot_file(out, item.cell, "after_warm_up")
+    if path.is_file():                      # a run stopped between the measurement and the next iteration
+        item.after_warm_up, how = _read_back_pilot(plan, target, path), f"read back from {path.name}"
+    else:
+        second_half = np.stack(chains.history[estimation.warm_up // 2 + 1:estimation.warm_up + 1])   # (k, C, p)
+        point = np.median(second_half.reshape(-1, target.dimension), axis=0)
+        text = (", ".join(f"{name}={value:.6g}" for name, value in zip(target.columns, point))
+                + " (the median of the chains over the warm-up's second half)")
+
+        def spread_at(particles: int):
+            return log_likelihood_spread(target, point, particles, estimation.pilot.runs, plan.experiment.seed)
+
+        item.after_warm_up = choose_particle_count(spread_at, estimation.pilot, key=_particles_key(plan, item.cell),
+                                                   point_text=text, file=plan.file)
+        write_csv(item.after_warm_up.table(), path)
+        how = f"measured at {text}"
+    best = item.after_warm_up.chosen
+    report(f"{out}: cell {item.cell.key}: particles auto after the warm-up -> {best.particles} (sd of the "
+           f"log-likelihood {best.sd:.3g}, target {estimation.pilot.target_sd:g}; {how})")
+    report("  " + _ladder_text(item.after_warm_up))
+    moved = target.with_particles(best.particles)
+    seeds = [restart_seed(plan.experiment.seed, item.cell.stream_key, chain) for chain in range(len(chains.values))]
+    chains.log_likelihood = moved.log_likelihoods(chains.values, seeds)
+    return moved
+
+
+def _ladder_text(choice: ParticleChoice) -> str:
+    return ", ".join(f"N={row.particles}: sd {row.sd:.3g}" + ("" if row.finite == row.runs else
+                     f" ({row.runs - row.finite} of {row.runs} runs -inf)") for row in choice.rows)
+
+
 def pilot_record(work: list) -> dict:
-    """The manifest's ``particle_count``: each auto cell's chosen particle count (none: nothing)."""
-    chosen = {item.cell.key: item.pilot.particles for item in work if item.pilot is not None}
+    """The manifest's ``particle_count``: each auto cell's particle count, the one its posterior
+    draws used (after the warm-up's measurement, where there was one; none: nothing)."""
+    chosen = {item.cell.key: (item.after_warm_up or item.pilot).particles for item in work if item.pilot is not None}
     return {"particle_count": chosen} if chosen else {}
 
 
@@ -128,18 +191,18 @@ def keep_pilots(out: Path, work: list, report: Callable[[str], None]) -> None:
         how = "measured" if item.pilot_measured else f"read back from {pilot_file(out, item.cell).name}"
         report(f"{out}: cell {item.cell.key}: particles auto -> {best.particles} (sd of the log-likelihood "
                f"{best.sd:.3g}, target {target_sd:g}; {how})")
-        report("  " + ", ".join(f"N={row.particles}: sd {row.sd:.3g}" + ("" if row.finite == row.runs else
-                                f" ({row.runs - row.finite} of {row.runs} runs -inf)") for row in item.pilot.rows))
+        report("  " + _ladder_text(item.pilot))
 
 
 def write_particle_count(plan: Plan, out: Path, work: list) -> None:
-    """particle_count.csv: every auto cell's pilot rows, the cell's columns first."""
+    """particle_count.csv: every auto cell's pilot rows, the cell's columns and the stage first."""
     frames = []
     for item in work:
-        if item.pilot is not None:
-            rows = item.pilot.table()
-            frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=rows.index), rows],
-                                    axis=1))
+        for stage, choice in (("before_chains", item.pilot), ("after_warm_up", item.after_warm_up)):
+            if choice is not None:
+                rows = choice.table()
+                frames.append(pd.concat([pd.DataFrame({CELL: item.cell.key, **item.cell.labels, "stage": stage},
+                                                      index=rows.index), rows], axis=1))
     if frames:
         table = pd.concat(frames, ignore_index=True)
-        write_csv(table[PARTICLE_COUNT.columns(plan.label_columns, [])], out / PARTICLE_COUNT.file)
+        write_csv(table[[CELL, *plan.label_columns, "stage", *PARTICLE_COUNT.own]], out / PARTICLE_COUNT.file)
