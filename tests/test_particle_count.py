@@ -476,3 +476,18 @@ def test_chains_past_the_warm_up_without_their_second_count_are_refused(tmp_path
     with pytest.raises(ConfigError, match="particle_count_after_warm_up.csv.*is missing, and the chains are past"):
         pfx.run(auto_config(after_warm_up=True), out=folder)
     assert snapshot(folder) == before
+
+
+def test_the_radar_example_runs_both_measurements(tmp_path, pfx_in_process):
+    """examples/plugins/radar-range-noise.yaml (its full run: docs/estimation.md), shrunk by
+    --set to a few iterations and pilot runs: it validates, measures before the chains and after
+    the warm-up, and names both counts."""
+    config = REPO_ROOT / "examples" / "plugins" / "radar-range-noise.yaml"
+    shrink = ["--set", "estimation.iterations=8", "--set", "estimation.warm_up=4",
+              "--set", "estimation.particle_count.runs=10"]
+    assert pfx_in_process("validate", config).returncode == 0
+    result = pfx_in_process("run", config, "--out", tmp_path / "radar", *shrink)
+    assert result.returncode == 0, result.stderr
+    assert "particles auto ->" in result.stderr and "particles auto after the warm-up ->" in result.stderr
+    table = pd.read_csv(tmp_path / "radar" / "particle_count.csv")
+    assert table.groupby("stage")["chosen"].sum().to_dict() == {"after_warm_up": 1, "before_chains": 1}
