@@ -49,7 +49,7 @@ without a truth file.
 config's key, without being read (:func:`pfx.user_files.read_user_file`). The cell keys include a digest of
 the data, so a result folder is never reused for other data; the resolved config holds the
 files' absolute paths, and a result folder's ``config.yaml`` names them relative to the folder
-(:func:`pfx.run.runner.write_record_config`), so that it reruns from the folder and a clone of a
+(:func:`pfx.run.folder_record.write_record_config`), so that it reruns from the folder and a clone of a
 repository holding both keeps the same record.
 
 :func:`prepare_recorded_data` reads and checks the files and fills the model's ``steps``,

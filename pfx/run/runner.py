@@ -20,29 +20,22 @@ process loads the plugins before it unpickles the arguments, whose model classes
 from __future__ import annotations
 
 import json
-import os
 import pickle
-import platform
 import shutil
-import subprocess
-import sys
 import time
 import traceback
 from contextlib import nullcontext
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np
 import pandas as pd
-import yaml
 
-import pfx
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
 from pfx.config.plugin_faults import locate, run_time_fault
-from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, copied_entries, ensure_loaded, recorded_names
+from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded, recorded_names
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.folder_lock import folder_lock
@@ -56,32 +49,19 @@ from pfx.result_folder import (
     clear_outputs,
     inspect_folder,
     read_table,
-    write_bytes,
     write_csv,
     write_manifest,
     write_text,
 )
 from pfx.run.batch import BatchResult, run_batch
 from pfx.run.executors import Executor, make_executor
+from pfx.run.folder_record import now, provenance, run_manifest, write_record_config
 from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
 OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "genealogy.csv",
                 "scene.csv", "config.yaml", "manifest.json")
 CELL_TABLES = ("steps", "steps_summary", "particles", "genealogy", "trials")     # per cell in cells/; trials last
-
-
-def _git_revision() -> Optional[str]:
-    try:
-        output = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(pfx.__file__).parent,
-                                capture_output=True, text=True, timeout=5)
-        return output.stdout.strip() or None if output.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
@@ -131,7 +111,7 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
         from pfx.run.estimation import run_estimation
 
         return run_estimation(plan, out, fresh=fresh, report=report, progress=progress,
-                              manifest_of=_manifest, write_config=write_record_config, now=_now)
+                              manifest_of=run_manifest, write_config=write_record_config, now=now)
     budget = memory_budget or default_budget()
     check_fits(plan, budget)
     check_folder(plan, out, fresh)                # refuse early, before making anything
@@ -163,7 +143,7 @@ def _run_and_assemble(plan: Plan, out: Path, state: FolderState, executor: Execu
     earlier_record = {name: (out / name).read_text() for name in ("config.yaml", MANIFEST)
                       if state.complete and (out / name).exists()}
     (out / CELLS).mkdir(exist_ok=True)
-    manifest = _manifest(plan, started=_now())
+    manifest = run_manifest(plan, started=now())
     if first:
         manifest["extending_from"] = first
     write_record_config(plan, out)
@@ -262,45 +242,18 @@ def run_study(plan: StudyPlan, out: Path, *, fresh: bool = False,
             path.unlink(missing_ok=True)
         shutil.rmtree(out / "figures", ignore_errors=True)
         study = plan.experiment.study
-        manifest = {**_provenance(plan, started=_now()), "study": study.kind, "units": dict(study.units)}
+        manifest = {**provenance(plan, started=now()), "study": study.kind, "units": dict(study.units)}
         write_record_config(plan, out)
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         started = time.perf_counter()
         tables = study.tables(study_generator(plan.experiment.seed))
         for name, table in tables.items():
             write_csv(table, out / f"{name}.csv")
-        manifest.update(tables=list(tables), finished=_now(), complete=True,
+        manifest.update(tables=list(tables), finished=now(), complete=True,
                         wall_time_s=time.perf_counter() - started)
         _render_then_mark_drawn(out, manifest, plan.experiment.outputs.figures,
                                 tuple(plan.experiment.outputs.formats))
     return out
-
-
-def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
-    """The folder's ``config.yaml``, the config as it ran, and beside it in ``plugins/`` a copy of
-    each plugin file's code (the very bytes that ran, whose sha256 the manifest records), which
-    its ``plugins:`` list names: the folder reruns from anywhere, on its own."""
-    resolved = plan.resolved
-    if resolved.get("data"):
-        resolved = {**resolved, "data": {key: path if path is None else _recorded_path(path, out)
-                                         for key, path in resolved["data"].items()}}
-    if plan.plugins:
-        for plugin, entry in zip(plan.plugins, copied_entries(plan.plugins)):
-            if plugin.is_file:
-                (out / PLUGIN_COPIES).mkdir(exist_ok=True)
-                write_bytes(plugin.source, out / entry)
-        resolved = {**resolved, "plugins": copied_entries(plan.plugins)}
-    write_text(yaml.safe_dump(resolved, sort_keys=False), out / "config.yaml")
-
-
-def _recorded_path(path: str, out: Path) -> str:
-    """A data file's path as the folder's config.yaml records it: relative to the folder (a
-    config's paths are read relative to its own folder), so that a repository holding both, cloned
-    anywhere, keeps the same record; absolute where the two share no folder but the root."""
-    folder = Path(out).resolve()
-    if os.path.commonpath([os.path.abspath(path), str(folder)]) == folder.anchor:
-        return str(path)
-    return Path(os.path.relpath(path, folder)).as_posix()
 
 
 def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
@@ -413,55 +366,6 @@ def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: d
     cell_times[cell.key] = sum(r.wall_time for r in results)
 
 
-def _provenance(plan: Plan | StudyPlan, started: str) -> dict:
-    """What every manifest records: the config, the software, the machine, the times."""
-    return {
-        "name": plan.experiment.name,
-        "description": plan.experiment.description,
-        "config_file": plan.file,
-        "config_hash": plan.config_hash,
-        "results_hash": plan.results_hash,
-        "seed": plan.experiment.seed,
-        "pfx_version": pfx.__version__,
-        "git_revision": _git_revision(),
-        "python": sys.version.split()[0],
-        "numpy": np.__version__,
-        "platform": platform.platform(),
-        "started": started,
-        "finished": None,
-        "complete": False,
-        "figures": list(plan.experiment.outputs.figures),
-        "formats": list(plan.experiment.outputs.formats),
-        **({"plugins": [plugin.record(name) for plugin, name in zip(plan.plugins, recorded_names(plan.plugins))]}
-           if plan.plugins else {}),
-    }
-
-
-def _manifest(plan: Plan, started: str) -> dict:
-    model = plan.cells[0].truth_model
-    return {
-        **_provenance(plan, started),
-        "trials": plan.experiment.trials,
-        "label_columns": plan.label_columns,
-        "legend_columns": plan.legend_columns,
-        "units": {"time": model.time_unit, "position": model.position_unit,
-                  **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
-        "position_states": [model.state_names[i] for i in model.position_components],
-        "angular_states": [model.state_names[i] for i in model.angular_components],
-        "full_turn": model.full_turn,
-        "cells": [{"cell": c.key, **c.labels, **_auxiliary_mark(c)} for c in plan.cells],
-        # every trial filters the same recorded measurements: one dataset (figures need to know)
-        **({"recorded_data": True} if plan.cells[0].data is not None else {}),
-    }
-
-
-def _auxiliary_mark(cell) -> dict:
-    """``auxiliary: true`` for a cell of the auxiliary particle filter, whose ESS (that of its
-    second-stage weights) figures must name; its labels say so only when the setting is swept."""
-    auxiliary = cell.filter.uses_particles and getattr(cell.filter, "auxiliary", False)
-    return {"auxiliary": True} if auxiliary and "auxiliary" not in cell.labels else {}
-
-
 def _cell_tables(out: Path, key: str, name: str, kept: Optional[pd.DataFrame]) -> list[pd.DataFrame]:
     """One cell's rows of a table: those the folder kept from earlier trials, then the new ones."""
     frames = [kept[kept["cell"] == key]] if kept is not None and not kept.empty else []
@@ -511,5 +415,5 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
         wall_time += state.manifest.get("wall_time_s") or 0.0
     # cells/ goes before the manifest says complete: a complete folder never holds stale cells.
     shutil.rmtree(out / CELLS, ignore_errors=True)
-    manifest.update(finished=_now(), complete=True, wall_time_s=wall_time)
+    manifest.update(finished=now(), complete=True, wall_time_s=wall_time)
     _render_then_mark_drawn(out, manifest, plan.experiment.outputs.figures, tuple(plan.experiment.outputs.formats))

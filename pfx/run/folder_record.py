@@ -1,0 +1,114 @@
+"""A result folder's record of how it was made: ``config.yaml`` (the config as it ran, its data
+files named relative to the folder, its plugins' code copied beside it) and the provenance every
+``manifest.json`` starts with (the config's hashes, the software, the machine, the times).
+
+:mod:`pfx.run.runner` writes them for a filter run or a study, :mod:`pfx.run.estimation` for an
+estimation run (handed these functions), so every kind of folder records the same things.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import yaml
+
+import pfx
+from pfx.config.plan import Plan, StudyPlan
+from pfx.config.plugins import PLUGIN_COPIES, copied_entries, recorded_names
+from pfx.result_folder import write_bytes, write_text
+
+
+def git_revision() -> Optional[str]:
+    try:
+        output = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(pfx.__file__).parent,
+                                capture_output=True, text=True, timeout=5)
+        return output.stdout.strip() or None if output.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
+    """The folder's ``config.yaml``, the config as it ran, and beside it in ``plugins/`` a copy of
+    each plugin file's code (the very bytes that ran, whose sha256 the manifest records), which
+    its ``plugins:`` list names: the folder reruns from anywhere, on its own."""
+    resolved = plan.resolved
+    if resolved.get("data"):
+        resolved = {**resolved, "data": {key: path if path is None else _recorded_path(path, out)
+                                         for key, path in resolved["data"].items()}}
+    if plan.plugins:
+        for plugin, entry in zip(plan.plugins, copied_entries(plan.plugins)):
+            if plugin.is_file:
+                (out / PLUGIN_COPIES).mkdir(exist_ok=True)
+                write_bytes(plugin.source, out / entry)
+        resolved = {**resolved, "plugins": copied_entries(plan.plugins)}
+    write_text(yaml.safe_dump(resolved, sort_keys=False), out / "config.yaml")
+
+
+def _recorded_path(path: str, out: Path) -> str:
+    """A data file's path as the folder's config.yaml records it: relative to the folder (a
+    config's paths are read relative to its own folder), so that a repository holding both, cloned
+    anywhere, keeps the same record; absolute where the two share no folder but the root."""
+    folder = Path(out).resolve()
+    if os.path.commonpath([os.path.abspath(path), str(folder)]) == folder.anchor:
+        return str(path)
+    return Path(os.path.relpath(path, folder)).as_posix()
+
+
+def provenance(plan: Plan | StudyPlan, started: str) -> dict:
+    """What every manifest records: the config, the software, the machine, the times."""
+    return {
+        "name": plan.experiment.name,
+        "description": plan.experiment.description,
+        "config_file": plan.file,
+        "config_hash": plan.config_hash,
+        "results_hash": plan.results_hash,
+        "seed": plan.experiment.seed,
+        "pfx_version": pfx.__version__,
+        "git_revision": git_revision(),
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "started": started,
+        "finished": None,
+        "complete": False,
+        "figures": list(plan.experiment.outputs.figures),
+        "formats": list(plan.experiment.outputs.formats),
+        **({"plugins": [plugin.record(name) for plugin, name in zip(plan.plugins, recorded_names(plan.plugins))]}
+           if plan.plugins else {}),
+    }
+
+
+def run_manifest(plan: Plan, started: str) -> dict:
+    model = plan.cells[0].truth_model
+    return {
+        **provenance(plan, started),
+        "trials": plan.experiment.trials,
+        "label_columns": plan.label_columns,
+        "legend_columns": plan.legend_columns,
+        "units": {"time": model.time_unit, "position": model.position_unit,
+                  **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
+        "position_states": [model.state_names[i] for i in model.position_components],
+        "angular_states": [model.state_names[i] for i in model.angular_components],
+        "full_turn": model.full_turn,
+        "cells": [{"cell": c.key, **c.labels, **_auxiliary_mark(c)} for c in plan.cells],
+        # every trial filters the same recorded measurements: one dataset (figures need to know)
+        **({"recorded_data": True} if plan.cells[0].data is not None else {}),
+    }
+
+
+def _auxiliary_mark(cell) -> dict:
+    """``auxiliary: true`` for a cell of the auxiliary particle filter, whose ESS (that of its
+    second-stage weights) figures must name; its labels say so only when the setting is swept."""
+    auxiliary = cell.filter.uses_particles and getattr(cell.filter, "auxiliary", False)
+    return {"auxiliary": True} if auxiliary and "auxiliary" not in cell.labels else {}
