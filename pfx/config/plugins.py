@@ -97,7 +97,7 @@ class LoadedPlugin:
         return self.source is not None
 
     def record(self, recorded_as: str) -> dict:
-        """What manifest.json says of it (``recorded_as``: :func:`recorded_names`)."""
+        """What manifest.json says of it (``recorded_as``: :func:`pfx.config.plugin_record.recorded_names`)."""
         entry = {"name": self.name, "file": self.path, "sha256": self.sha256}
         if self.is_file:
             entry["copy"] = f"{PLUGIN_COPIES}/{recorded_as}"
@@ -243,55 +243,6 @@ def _declared_kind(component_class, decorator: str) -> str:
     return kind
 
 
-# -- recording ------------------------------------------------------------------------------------
-
-
-def recorded_names(plugins: Iterable[LoadedPlugin]) -> list[str]:
-    """The name each plugin is recorded under: a file's name (``coordinated_turn.py``; a second
-    file of the same name gets ``coordinated_turn-2.py``), a module's name. It is what the config
-    and results hashes know a plugin by, with its code's sha256, and a file plugin's copy in a
-    result folder is ``plugins/<name>``: so a config that names the plugin by another path (the
-    result folder's own ``config.yaml`` names the copy) has the same hashes."""
-    names: list[str] = []
-    for plugin in plugins:
-        name = Path(plugin.path).name if plugin.is_file else plugin.name
-        if name in names:
-            stem, suffix = Path(name).stem, Path(name).suffix
-            name = next(f"{stem}-{number}{suffix}" for number in range(2, len(names) + 2)
-                        if f"{stem}-{number}{suffix}" not in names)
-        names.append(name)
-    return names
-
-
-def copied_entries(plugins: list[LoadedPlugin]) -> list[str]:
-    """A result folder's ``plugins:`` list: each file plugin as its copy in the folder
-    (``plugins/<name>``), each module plugin as it was named."""
-    return [f"{PLUGIN_COPIES}/{name}" if plugin.is_file else plugin.name
-            for plugin, name in zip(plugins, recorded_names(plugins))]
-
-
-def _check_copies(plugins: list[LoadedPlugin], config_file: str) -> None:
-    """A result folder's ``config.yaml`` runs the copies of its plugins in ``plugins/``: each must
-    still be the code its results were computed with (the manifest's sha256)."""
-    from pfx.result_folder import read_manifest
-
-    folder = Path(config_file).parent
-    manifest = read_manifest(folder) if (folder / PLUGIN_COPIES).is_dir() else None
-    if not manifest:
-        return
-    recorded = {entry.get("copy"): entry.get("sha256") for entry in manifest.get("plugins", [])
-                if isinstance(entry, dict)}
-    for plugin in plugins:
-        path = Path(plugin.path)
-        if not plugin.is_file or path.parent.resolve() != (folder / PLUGIN_COPIES).resolve():
-            continue
-        expected = recorded.get(f"{PLUGIN_COPIES}/{path.name}")
-        if expected is not None and expected != plugin.sha256:
-            raise ConfigError(f"this copy differs from the code the folder's results were computed with "
-                              f"(sha256 {plugin.sha256[:12]} != {str(expected)[:12]} in manifest.json); restore "
-                              "it, or run an edited plugin from a config of your own", file=plugin.path)
-
-
 # -- loading ---------------------------------------------------------------------------------------
 
 MODULE_PREFIX = "pfx_plugin_"                # a file plugin runs as the module pfx_plugin_<stem>_<hash>
@@ -316,7 +267,9 @@ def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
     folder = Path(config_file).parent
     plugins = [load_plugin(entry, folder, config_file=config_file, key=f"plugins[{index}]")
                for index, entry in enumerate(entries)]
-    _check_copies(plugins, config_file)
+    from pfx.config.plugin_record import check_copies  # it reads result folders: imported when used
+
+    check_copies(plugins, config_file)
     return plugins
 
 

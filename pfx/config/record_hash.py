@@ -13,13 +13,14 @@ from typing import Any
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from pfx.config.plugins import LoadedPlugin, recorded_names
+from pfx.config.plugin_record import recorded_names
+from pfx.config.plugins import LoadedPlugin
 
 
 def with_plugin_code(record: dict, plugins: list[LoadedPlugin]) -> dict:
     """``record`` with the sha256 of each plugin's code, for hashing: changed plugin code changes
     the hashes, so a result folder is not resumed or kept with it. A plugin counts by its code
-    and its recorded name (:func:`~pfx.config.plugins.recorded_names`), not by the path a config
+    and its recorded name (:func:`~pfx.config.plugin_record.recorded_names`), not by the path a config
     reaches it by: the result folder's ``config.yaml``, which names the folder's copy of the
     plugin, has the hashes of the config it was made from. Without plugins, ``record`` itself:
     the hashes of configs without plugins are what they always were."""

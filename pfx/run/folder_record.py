@@ -21,7 +21,8 @@ import yaml
 
 import pfx
 from pfx.config.plan import Plan, StudyPlan
-from pfx.config.plugins import PLUGIN_COPIES, copied_entries, recorded_names
+from pfx.config.plugin_record import copied_entries, recorded_names
+from pfx.config.plugins import PLUGIN_COPIES
 from pfx.result_folder import write_bytes, write_text
 
 

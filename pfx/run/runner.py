@@ -35,7 +35,8 @@ from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
 from pfx.config.plugin_faults import locate, run_time_fault
-from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded, recorded_names
+from pfx.config.plugin_record import recorded_names
+from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.folder_lock import folder_lock
