@@ -25,7 +25,7 @@ then one column per component, in any order:
 * covariates: a ``time`` column (any increasing grid, not tied to the steps), then one column
   per covariate the model reads (``Model.covariate_names``); no blanks. It fills the model's
   ``covariates`` (so the table is part of the cell key), read by ``Model.covariates_at(time)``
-  with linear interpolation; :func:`check_covariate_spans` checks that it covers the times the
+  with linear interpolation; :func:`pfx.config.covariate_files.check_covariate_spans` checks that it covers the times the
   transition reads. It is the one file allowed without measurements (then they are simulated).
 
 Every other file must have the same first column as the measurements (``step`` or ``time``) with the
@@ -64,7 +64,6 @@ import hashlib
 import io
 import math
 import os
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -72,6 +71,7 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from pfx.config.covariate_files import fill_covariates
 from pfx.config.validation import validate
 from pfx.errors import ConfigError
 from pfx.models import MODELS
@@ -348,7 +348,7 @@ def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedDa
     if config.covariates is not None:
         covariates = read_table(config.covariates, config_file=file, key="data.covariates", blanks=False)
         if isinstance(model, dict):
-            _fill_covariates(model, covariates, file)
+            fill_covariates(model, covariates, file)
     raw["data"] = {key: os.path.abspath(_display_path(value, file)[1])
                    for key, value in config.model_dump().items() if value is not None}
     if config.measurements is None:
@@ -412,47 +412,6 @@ def _fill_controls(model: dict, controls: DataTable, file: Optional[str]) -> Non
         if error.key and error.key.startswith("model.controls"):
             raise controls.column_error(f"{len(controls.columns)} control column(s) for model {kind}: "
                                         f"{error.reason}") from None
-
-
-def _fill_covariates(model: dict, covariates: DataTable, file: Optional[str]) -> None:
-    """The model's ``covariates`` from the table: ``time`` and one list per column (the model
-    checks the names against its ``covariate_names`` when it is validated)."""
-    if covariates.index_name != "time":
-        raise ConfigError("the first column of a covariates file must be `time` (covariates are read by time, "
-                          "between the steps too)", file=covariates.file, line=covariates.header_line, key="column 1")
-    if model.get("covariates") is not None:
-        raise ConfigError("covariates are given twice: in model.covariates and in data.covariates; keep one",
-                          file=file, key="data.covariates")
-    table = {"time": covariates.index.tolist()}
-    table.update({name: covariates.values[:, c].tolist() for c, name in enumerate(covariates.columns)})
-    model["covariates"] = table
-    kind = model.get("kind")
-    if kind not in MODELS:
-        return                       # the config's validation names the unknown kind
-    try:                             # the model's own check of the columns, located in the file
-        validate(MODELS[kind], model, file=file, prefix="model")
-    except ConfigError as error:
-        if error.key and error.key.startswith("model.covariates"):
-            # A value's row and column (model.covariates.NAME[ROW]), else the header
-            cell = re.fullmatch(r"model\.covariates\.([^.\[]+)\[(\d+)\]", error.key)
-            if cell and cell.group(1) in covariates.columns and int(cell.group(2)) < len(covariates.lines):
-                raise ConfigError(error.reason, file=covariates.file, line=covariates.lines[int(cell.group(2))],
-                                  key=f"column {cell.group(1)}") from None
-            raise ConfigError(error.reason, file=covariates.file, line=covariates.header_line) from None
-
-
-def check_covariate_spans(cells: list, raw: dict, file: Optional[str]) -> None:
-    """Every cell's models have covariates for all the times their transitions read (once the
-    recorded times, if any, are known); ``raw`` is the config (where the table came from)."""
-    from_data = isinstance(raw.get("data"), dict) and raw["data"].get("covariates") is not None
-    for cell in cells:
-        for where, model in (("model", cell.truth_model), ("filter.model", cell.filter_model)):
-            try:
-                model.check_covariate_span()
-            except ValueError as error:
-                reason = str(error).split(": ", 1)[-1]
-                raise ConfigError(reason, file=file, key="data.covariates" if from_data
-                                  else f"{where}.covariates") from None
 
 
 # -- after the cells exist: columns against the models, and each cell's arrays ---------------------

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 from pfx.analysis.metrics import MetricsConfig
-from pfx.config.data import CellData, attach_recorded_data, check_covariate_spans, prepare_recorded_data
+from pfx.config.covariate_files import check_covariate_spans
+from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
 from pfx.config.estimation import (
     ESTIMATION_FIGURES,
@@ -31,6 +32,7 @@ from pfx.config.estimation import (
 )
 from pfx.config.plugin_faults import locate as locate_plugin_fault
 from pfx.config.plugin_faults import plan_time_fault
+from pfx.config.plugin_record import check_copies
 from pfx.config.plugins import LoadedPlugin, load_config_plugins, unknown_name_hint
 from pfx.config.record_hash import identity_dump, with_data_content, with_plugin_code
 from pfx.config.schema import ConfigSchema, config_schema
@@ -262,6 +264,8 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     plugins the config names are imported first (and only they: docs/plugins.md).
     """
     plugins = load_config_plugins(raw, file)
+    if plugins:
+        check_copies(plugins, file)
     schema = config_schema([plugin.origin for plugin in plugins])
     try:
         plan = _expand(raw, file, trials, schema, tuple(plugins))

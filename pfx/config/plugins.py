@@ -256,7 +256,8 @@ def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
     """Import the plugins a config names (``plugins:``; files relative to its folder).
 
     Only the list's shape is checked here; everything else in the config is validated after,
-    with the plugins' components known.
+    with the plugins' components known (and a result folder's copies checked against its
+    manifest: :func:`pfx.config.plugin_record.check_copies`, which the plan calls).
     """
     entries = raw.get("plugins") if isinstance(raw, dict) else None
     if entries is None or entries == []:
@@ -267,9 +268,6 @@ def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
     folder = Path(config_file).parent
     plugins = [load_plugin(entry, folder, config_file=config_file, key=f"plugins[{index}]")
                for index, entry in enumerate(entries)]
-    from pfx.config.plugin_record import check_copies  # it reads result folders: imported when used
-
-    check_copies(plugins, config_file)
     return plugins
 
 
