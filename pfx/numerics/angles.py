@@ -22,24 +22,29 @@ models (a change of heading, a bearing, the rotation error :math:`\hat\gamma`):
 A model names its angular components (:attr:`pfx.models.base.Model.angular_components`) and its
 full turn (:attr:`pfx.models.base.Model.full_turn`); the engine's estimate and the metrics' errors
 use these functions for those components only.
+
+Every function takes NumPy or JAX arrays (:mod:`pfx.numerics.arrays`): one code for both backends.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pfx.numerics.arrays import namespace, with_values
+
 
 def wrap_into_turn(angle: np.ndarray, full_turn: float) -> np.ndarray:
     """An angle reduced into [0, full_turn)."""
-    reduced = np.mod(angle, full_turn)
+    xp = namespace(angle)
+    reduced = xp.mod(angle, full_turn)
     # mod of a tiny negative angle rounds up to full_turn itself
-    return np.where(reduced >= full_turn, 0.0, reduced)
+    return xp.where(reduced >= full_turn, 0.0, reduced)
 
 
 def wrap_difference(difference: np.ndarray, full_turn: float) -> np.ndarray:
     """An angle difference wrapped into (-full_turn / 2, full_turn / 2]."""
     half = full_turn / 2.0
-    return half - np.mod(half - difference, full_turn)
+    return half - namespace(difference).mod(half - difference, full_turn)
 
 
 def wrap_to_pi(angle):
@@ -49,10 +54,11 @@ def wrap_to_pi(angle):
 
 def circular_mean(weights: np.ndarray, angles: np.ndarray, full_turn: float) -> np.ndarray:
     """Weighted circular mean per row, in [0, full_turn): (R, N), (R, N, k) -> (R, k)."""
+    xp = namespace(weights, angles)
     radians = angles * (2.0 * np.pi / full_turn)
-    sine = np.einsum("rn,rnk->rk", weights, np.sin(radians))
-    cosine = np.einsum("rn,rnk->rk", weights, np.cos(radians))
-    return wrap_into_turn(np.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)
+    sine = xp.einsum("rn,rnk->rk", weights, xp.sin(radians))
+    cosine = xp.einsum("rn,rnk->rk", weights, xp.cos(radians))
+    return wrap_into_turn(xp.arctan2(sine, cosine) * (full_turn / (2.0 * np.pi)), full_turn)
 
 
 def wrap_components(difference: np.ndarray, components, full_turn: float) -> np.ndarray:
@@ -60,6 +66,4 @@ def wrap_components(difference: np.ndarray, components, full_turn: float) -> np.
     into (-full_turn / 2, full_turn / 2] (:func:`wrap_difference`); a copy, the other
     components unchanged. The innovation z - h(x) of a model with angular measurements."""
     components = list(components)
-    wrapped = np.array(difference, dtype=float)
-    wrapped[..., components] = wrap_difference(wrapped[..., components], full_turn)
-    return wrapped
+    return with_values(difference, (..., components), wrap_difference(difference[..., components], full_turn))

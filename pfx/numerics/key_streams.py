@@ -1,0 +1,153 @@
+"""Counter-based random streams for the JAX backend: one threefry key per trial.
+
+The :class:`Random` protocol is what a model, a noise law or a resampler draws from: batched
+draws of shape ``(trials, *shape)`` whose slice ``r`` belongs to trial ``r`` alone. The NumPy
+backend's implementation is :class:`~pfx.numerics.seeding.TrialStreams` (one NumPy generator
+per trial, stepped in place); the JAX backend's is :class:`KeyStreams`.
+
+A JAX key is not a generator with a state: a draw is a pure function of a key. So the key of
+every draw is *derived* from the trial's key by folding in counters (threefry is a counter-based
+generator: Salmon et al. 2011):
+
+    key(trial, step, draw) = fold_in(fold_in(key_trial, step), draw)
+
+* ``key_trial`` is made from the trial's filter seed, the same 63-bit integer that seeds the
+  trial's NumPy generator (``filter_seed`` in trials.csv), so it depends on (seed, cell, trial)
+  only: batching and chunking change nothing;
+* ``step`` is the filter step (0 for the prior), folded in by :meth:`KeyStreams.at`;
+* ``draw`` counts the draws made within the step, in the order the code makes them: the
+  counter is a Python integer, advanced while JAX traces the step, so the compiled step holds
+  the counters as constants and no key is carried from step to step.
+
+The same keys give the same draws on a CPU and a GPU (threefry is defined bit for bit); what
+is computed from them may differ in the last bits between devices.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Optional, Protocol, Sequence
+
+import numpy as np
+
+
+class Random(Protocol):
+    """Batched draws, one independent stream per trial (leading axis): what a model's
+    transition, a noise law and a resampler draw from, on either backend."""
+
+    def __len__(self) -> int: ...
+
+    def standard_normal(self, shape) -> Any: ...
+
+    def uniform(self, shape) -> Any: ...
+
+    def standard_exponential(self, shape) -> Any: ...
+
+    def standard_t(self, degrees_of_freedom: float, shape) -> Any: ...
+
+
+def threefry_keys(seeds: Sequence[int]) -> np.ndarray:
+    """The raw threefry keys (trials, 2) of 64-bit seeds: the high and low 32-bit words, which
+    is what ``jax.random.PRNGKey(seed)`` makes of a seed when 64-bit types are enabled."""
+    seeds = np.asarray([int(seed) for seed in seeds], dtype=np.uint64)
+    return np.stack([seeds >> np.uint64(32), seeds & np.uint64(0xFFFFFFFF)], axis=-1).astype(np.uint32)
+
+
+class KeyStreams:
+    """The JAX implementation of :class:`Random`: one threefry key per trial (module docstring).
+
+    ``keys`` is a (trials, 2) uint32 array (a JAX array, or a tracer inside a compiled step);
+    draws are made in ``dtype`` (float64, or float32 for ``precision: float32``).
+    """
+
+    def __init__(self, keys: Any, dtype: Any = None, *, counter: int = 0):
+        import jax.numpy as jnp
+
+        self.keys = keys
+        self.dtype = jnp.float64 if dtype is None else dtype
+        self.counter = counter
+
+    @classmethod
+    def from_seeds(cls, seeds: Sequence[int], dtype: Any = None) -> "KeyStreams":
+        import jax.numpy as jnp
+
+        return cls(jnp.asarray(threefry_keys(seeds)), dtype)
+
+    def __len__(self) -> int:
+        return int(self.keys.shape[0])
+
+    def at(self, *counters: Any) -> "KeyStreams":
+        """The streams of a place in the run (a step, a stage): each counter folded into every
+        trial's key, the draw counter back at 0. Counters may be traced integers."""
+        import jax
+
+        keys = self.keys
+        for counter in counters:
+            keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, counter)
+        return KeyStreams(keys, self.dtype)
+
+    def _next_keys(self) -> Any:
+        """The keys of the next draw (one per trial), and the counter advanced."""
+        import jax
+
+        keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(self.keys, self.counter)
+        self.counter += 1
+        return keys
+
+    def _draw(self, sample, shape) -> Any:
+        import jax
+
+        shape = tuple(int(size) for size in shape)
+        return jax.vmap(lambda key: sample(key, shape))(self._next_keys())
+
+    def standard_normal(self, shape) -> Any:
+        import jax
+
+        return self._draw(lambda key, size: jax.random.normal(key, size, self.dtype), shape)
+
+    def uniform(self, shape) -> Any:
+        """U[0, 1)."""
+        import jax
+
+        return self._draw(lambda key, size: jax.random.uniform(key, size, self.dtype), shape)
+
+    def standard_exponential(self, shape) -> Any:
+        import jax
+
+        return self._draw(lambda key, size: jax.random.exponential(key, size, self.dtype), shape)
+
+    def standard_t(self, degrees_of_freedom: float, shape) -> Any:
+        import jax
+
+        return self._draw(lambda key, size: jax.random.t(key, degrees_of_freedom, size, self.dtype), shape)
+
+    def normal(self, mean: Any = 0.0, sd: Any = 1.0, *, shape: Optional[Sequence[int]] = None) -> Any:
+        """N(mean, sd^2), parameters broadcast as in :class:`~pfx.numerics.seeding.TrialStreams`
+        (leading axis the trial axis)."""
+        import jax.numpy as jnp
+
+        mean, sd = jnp.asarray(mean, self.dtype), jnp.asarray(sd, self.dtype)
+        if shape is None:
+            shape = jnp.broadcast_shapes(mean.shape, sd.shape)[1:] if max(mean.ndim, sd.ndim) else ()
+        draws = self.standard_normal(shape)
+        return _trial_leading(mean, draws.ndim) + _trial_leading(sd, draws.ndim) * draws
+
+    def exponential(self, scale: Any = 1.0, *, shape: Optional[Sequence[int]] = None) -> Any:
+        import jax.numpy as jnp
+
+        scale = jnp.asarray(scale, self.dtype)
+        draws = self.standard_exponential(scale.shape[1:] if shape is None and scale.ndim else (shape or ()))
+        return _trial_leading(scale, draws.ndim) * draws
+
+    def __getattr__(self, name: str):
+        if name in ("binomial", "poisson", "gamma", "subset"):
+            raise NotImplementedError(f"random.{name} is not available on the jax backend yet; run this model "
+                                      "with filter.backend: numpy")
+        raise AttributeError(name)
+
+
+def _trial_leading(parameter: Any, dimensions: int) -> Any:
+    """A parameter with trailing axes of length 1 added up to ``dimensions`` (a scalar as is):
+    its leading axis stays the trial axis, as TrialStreams reads parameters."""
+    if parameter.ndim == 0:
+        return parameter
+    return parameter.reshape(parameter.shape + (1,) * (dimensions - parameter.ndim))
