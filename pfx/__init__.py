@@ -48,6 +48,9 @@ _LAZY_NAMES = {
     "PointLaw": "pfx.laws.initial",
     "GaussianLaw": "pfx.laws.initial",
     "UniformLaw": "pfx.laws.initial",
+    # a model's methods written once for the numpy and jax backends (docs/plugins.md)
+    "namespace": "pfx.numerics.arrays",
+    "with_values": "pfx.numerics.arrays",
     # one filter from Python, on arrays (pfx/filtering.py; docs/python-api.md)
     "model": "pfx.filtering",
     "particle_filter": "pfx.filtering",

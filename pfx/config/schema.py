@@ -160,6 +160,12 @@ def _build(plugins: frozenset) -> ConfigSchema:
         auxiliary: StrictBool = Field(
             False, description="the auxiliary particle filter (Pitt & Shephard 1999): resample by the "
                                "look-ahead weights w p(z | f(x)) before proposing")
+        backend: Literal["numpy", "jax"] = Field(
+            "numpy", description="where the particle filter runs (docs/backends.md): numpy (NumPy and numba, the "
+                                 "CPU default) or jax (compiled with JAX, on a CPU or a GPU; pip install 'pfx[jax]')")
+        precision: Literal["float64", "float32"] = Field(
+            "float64", description="the jax backend's floating point: float64 (default) or float32 (faster on a "
+                                   "GPU; the resamplers' sums stay float64); the numpy backend is float64")
         smoothers: list[Smoother] = Field(  # type: ignore[valid-type]
             default_factory=list,
             description="smoothers run after the filter on the whole record (`pfx list smoothers`): "
@@ -187,6 +193,11 @@ def _build(plugins: frozenset) -> ConfigSchema:
                 if getattr(self, key) is not None and self.kind not in self.KIND_SPECIFIC.get(key, ()):
                     raise ValueError(f"@{key}: the {self.kind} filter has no resampling stage to apply it to "
                                      f"(use kind particle)")
+            if self.backend == "numpy" and self.precision != "float64":
+                raise ValueError("@precision: the numpy backend computes in float64; float32 is for backend: jax")
+            if self.backend == "jax" and self.kind not in self.KIND_SPECIFIC.get("backend", ()):
+                raise ValueError(f"@backend: the jax backend runs the particle filters (kind particle or sis); the "
+                                 f"{self.kind} filter runs on numpy: set backend: numpy for it")
             # smoothers run only after the kinds that run them: never silently left out
             if self.smoothers and self.kind not in self.KIND_SPECIFIC.get("smoothers", ()):
                 raise ValueError(f"@smoothers: no smoother runs after the {self.kind} filter (particle and sis "

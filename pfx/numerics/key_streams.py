@@ -104,11 +104,13 @@ class KeyStreams:
 
         return self._draw(lambda key, size: jax.random.normal(key, size, self.dtype), shape)
 
-    def uniform(self, shape) -> Any:
-        """U[0, 1)."""
+    def uniform(self, shape, dtype: Any = None) -> Any:
+        """U[0, 1), in the streams' dtype or the one given (the resamplers' points are float64
+        whatever the precision: :mod:`pfx.filters.particle.jax_resampling`)."""
         import jax
 
-        return self._draw(lambda key, size: jax.random.uniform(key, size, self.dtype), shape)
+        dtype = self.dtype if dtype is None else dtype
+        return self._draw(lambda key, size: jax.random.uniform(key, size, dtype), shape)
 
     def standard_exponential(self, shape) -> Any:
         import jax

@@ -117,6 +117,7 @@ class TrialStreams:
 
     def __init__(self, generators: Sequence[np.random.Generator], *, addresses=None):
         self.generators = list(generators)
+        self.seeds: Optional[list[int]] = None      # the trials' seeds, when made from them (from_seeds)
         # The generators' PCG64 state addresses for the compiled loops: found on the first
         # draw (that imports numba), None if some generator is not a PCG64.
         self._addresses = addresses
@@ -125,11 +126,15 @@ class TrialStreams:
     def __getstate__(self) -> dict:
         # The addresses are this process's memory of these very generators: a copy (pickled to
         # another process, or deep-copied with new generators) finds its own.
-        return {"generators": self.generators, "_addresses": None, "_addresses_known": False}
+        return {"generators": self.generators, "_addresses": None, "_addresses_known": False,
+                "seeds": self.seeds}
 
     @classmethod
     def from_seeds(cls, seeds: Sequence[int]) -> "TrialStreams":
-        return cls([np.random.default_rng(int(seed)) for seed in seeds])
+        streams = cls([np.random.default_rng(int(seed)) for seed in seeds])
+        # the JAX backend makes each trial's threefry key from the same seed (pfx.numerics.key_streams)
+        streams.seeds = [int(seed) for seed in seeds]
+        return streams
 
     def __len__(self) -> int:
         return len(self.generators)

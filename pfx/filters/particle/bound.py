@@ -29,13 +29,14 @@ diagnostics to record (they cost nothing unless asked for).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Optional
 
 import numpy as np
 
 from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.engine import ParticleFilter
+from pfx.filters.particle.jax_support import check_jax_settings
 from pfx.filters.particle.recorders import Recording
 from pfx.filters.particle.resampling import RESAMPLERS, Resampling
 from pfx.filters.particle.smoothing import FilterHistory
@@ -60,6 +61,9 @@ class BoundParticleFilter:
     adaptive: Any = None                # KLD-sampling settings; None: N fixed
     injection: Any = None               # augmented MCL settings; None: no injection
     smoothers: tuple = ()               # run after the filter on its recorded clouds (pfx.filters.smoothers)
+    backend: str = "numpy"              # where it runs: numpy (engine.py) or jax (jax_engine.py)
+    precision: str = "float64"          # the jax backend's floating point
+    compiled: Any = field(default=None, compare=False, repr=False)    # the jax backend's program
 
     @property
     def uses_compiled_step(self) -> bool:
@@ -77,7 +81,10 @@ class BoundParticleFilter:
         if self.smoothers:          # what they run on is recorded too
             recording = replace(recording, history=recording.history or any(s.needs_history for s in self.smoothers),
                                 genealogy=recording.genealogy or any(s.needs_genealogy for s in self.smoothers))
-        trace = ParticleFilter(self, measurements, random, recording).run()
+        if self.compiled is not None:
+            trace = self.compiled.run(measurements, random, recording)
+        else:
+            trace = ParticleFilter(self, measurements, random, recording).run()
         if self.smoothers:
             history = FilterHistory(trace.particles, trace.log_weights, trace.ancestors)
             for smoother in self.smoothers:     # after the filter's draws, from the same streams
@@ -110,12 +117,22 @@ def bind_particle_filter(kind: str, model, settings, prior) -> BoundParticleFilt
     if settings.auxiliary:
         _check_auxiliary(kind, settings)
     check_smoothers(kind, model, settings)
-    return BoundParticleFilter(
+    backend = getattr(settings, "backend", "numpy")
+    if backend == "jax":
+        check_jax_settings(settings)
+    bound = BoundParticleFilter(
         kind=kind, model=model, prior=prior, particles=settings.particles,
         resampling=Resampling(RESAMPLERS[settings.resampler], 0.0 if never_resamples else settings.ess_threshold),
         weighting=weighting, diffusion=settings.diffusion, proposal=bound_proposal,
         auxiliary=AuxiliaryFirstStage() if settings.auxiliary else None, move=bound_move,
-        adaptive=adaptive, injection=injection, smoothers=tuple(getattr(settings, "smoothers", ()) or ()))
+        adaptive=adaptive, injection=injection, smoothers=tuple(getattr(settings, "smoothers", ()) or ()),
+        backend=backend, precision=getattr(settings, "precision", "float64"))
+    if backend == "jax":
+        from pfx.filters.particle.jax_engine import JaxParticleFilter
+
+        bound = replace(bound, compiled=JaxParticleFilter(bound))
+        bound.compiled.check_model()
+    return bound
 
 
 def _check_auxiliary(kind: str, settings) -> None:

@@ -21,7 +21,7 @@ class SampleImportanceResampling(FilterKind):
 
     kind = "particle"
     reads = frozenset({"particles", "resampler", "ess_threshold", "weighting", "diffusion", "move", "adaptive",
-                       "injection", "proposal", "auxiliary", "smoothers"})
+                       "injection", "proposal", "auxiliary", "smoothers", "backend", "precision"})
     carries_particles = True
     takes_trace_rows = True
 
@@ -53,7 +53,7 @@ class SequentialImportanceSampling(SampleImportanceResampling):
     """Sequential importance sampling: a particle filter that never resamples."""
 
     kind = "sis"
-    reads = frozenset({"particles", "weighting", "proposal", "auxiliary", "smoothers"})
+    reads = frozenset({"particles", "weighting", "proposal", "auxiliary", "smoothers", "backend", "precision"})
 
     @classmethod
     def ess_threshold(cls, settings) -> float:

@@ -1,0 +1,388 @@
+r"""The particle filter on the JAX backend: one pure step, scanned over the steps, compiled once.
+
+The algorithm is :mod:`pfx.filters.particle.engine`'s (predict, weight, normalise, estimate,
+resample by the ESS rule; its docstring states each stage), written as a function of explicit
+values so that XLA can compile the whole run, on a CPU or a GPU:
+
+    step(cloud, inputs) -> (cloud, outputs)
+
+* ``cloud`` (:class:`Cloud`) is everything carried from step to step: the particles (trials, N,
+  d), their log-weights, each trial's log-likelihood so far, its lost particles, and the
+  ancestors of the current particles;
+* ``inputs`` (:class:`StepInputs`) is what step k reads, arrays indexed by the step and prepared
+  on the host before the run: k itself, the measurements (trials, m), which trials have one,
+  the control u_k and the substep times;
+* the random numbers come from the trials' threefry keys folded with k
+  (:class:`~pfx.numerics.key_streams.KeyStreams`): nothing random is carried;
+* ``outputs`` (:class:`StepOutputs`) are the trace's columns at step k: the estimate, the ESS,
+  whether the trial resampled, whether its weights underflowed, the log-likelihood increment,
+  and what a :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a
+  diagnostic not asked for is not computed).
+
+Three things differ in form from the NumPy engine, not in what they compute:
+
+* **masks, not subsets**: every trial draws its resampling points and is resampled; the trials
+  whose ESS is above the threshold keep their particles by a select. (The NumPy engine touches
+  only the trials that resample.)
+* **error flags, not exceptions**: a trial whose particles all left the model's domain, a NaN
+  or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``; after the
+  scan the first one is raised as the NumPy engine raises it (:class:`~pfx.errors.ModelNumericalError`,
+  same message, same step).
+* **precision**: ``float32`` keeps the particles and weights in single precision; the model's
+  arithmetic is traced with 64-bit types off, so its float64 constants become float32 too. The
+  resamplers' cumulative sums and the log-likelihood's running sum stay float64
+  (:mod:`pfx.filters.particle.jax_resampling` says why).
+
+The NumPy and JAX backends draw from different generators, so their results agree in
+distribution, not number for number (tests/test_jax_backend.py checks that they do).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any, NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from pfx.errors import ModelContractError, ModelNumericalError
+from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
+from pfx.filters.trace import FilterTrace
+from pfx.numerics.angles import circular_mean, wrap_difference
+from pfx.numerics.key_streams import KeyStreams
+
+# the bits of a step's ``failures``, per trial
+EVERY_PARTICLE_LOST, BAD_LIKELIHOOD, NON_FINITE_ESTIMATE = 1, 2, 4
+
+
+class Cloud(NamedTuple):
+    """What one step hands the next."""
+
+    particles: Any            # (R, N, d)
+    log_weights: Any          # (R, N), normalised
+    log_likelihood: Any       # (R,), float64
+    lost_particles: Any       # (R,), int
+    ancestors: Any            # (R, N): each particle's index in the previous step's weighted cloud
+
+
+class StepInputs(NamedTuple):
+    """What step k reads (one slice of arrays indexed by the step)."""
+
+    step: Any                 # k = 1..T
+    measurement: Any          # (R, m); a missing one holds 0 (``observed`` says which)
+    observed: Any             # (R,) bool
+    control: Any              # (c,) u_k, or None
+    times: Any                # (s,) the substeps' start times
+
+
+class StepOutputs(NamedTuple):
+    """The trace's columns at step k; None where not asked for."""
+
+    estimate: Any             # (R, d)
+    ess: Any                  # (R,)
+    resampled: Any            # (R,) bool
+    degenerate: Any           # (R,) bool
+    increment: Any            # (R,) L_k
+    failures: Any             # (R,) bits
+    spread: Any = None        # (R,) weighted RMS distance of the positions from their mean
+    within_radius: Any = None  # (R,) the spread criterion's share within its radius
+    standard_deviations: Any = None   # (R, d)
+    ancestors: Any = None     # (R, N) the genealogy
+    particles: Any = None     # (R, N, d) the weighted cloud (the history the smoothers read)
+    log_weights: Any = None   # (R, N)
+
+
+class JaxParticleFilter:
+    """A bound particle filter (:class:`~pfx.filters.particle.bound.BoundParticleFilter`) as a JAX
+    program: :meth:`run` filters a batch of trials; the program is compiled once per shape of
+    the batch and per set of diagnostics asked for, and reused."""
+
+    def __init__(self, bound):
+        self.bound, self.model = bound, bound.model
+        self.dtype = jnp.float32 if bound.precision == "float32" else jnp.float64
+        self.resampler = JAX_RESAMPLERS[bound.resampling.resampler.function.__name__]
+        self.threshold = bound.resampling.threshold
+        self.particles = bound.particles
+        self._programs: dict = {}
+
+    def check_model(self) -> None:
+        """Trace the model's laws once on a tiny batch (2 trials x 3 particles, nothing computed):
+        a model written for NumPy only (np.* on the state, a write in place) is refused here, at
+        plan time, in one line naming the method, rather than deep inside a compiled run."""
+        model, trials, count = self.model, 2, 3
+        control = model.control(1)
+        probes = (
+            ("its initial law (the filter's prior)", lambda random, state: self.bound.prior.sample(random, (count,))),
+            ("process_noise.sample", lambda random, state: model.process_noise.sample(random, (count,))),
+            ("propagate", lambda random, state: model.propagate_at(
+                model.reset_accumulators(state), None if control is None else jnp.asarray(control),
+                jnp.zeros(state.shape[:-1] + (model.process_noise_dimension,), self.dtype),
+                jnp.asarray(model.substep_time(1, 0)))),
+            ("log_likelihood", lambda random, state: model.log_likelihood(
+                jnp.zeros((trials, 1, model.measurement_dimension), self.dtype), state)),
+        )
+        with jax.enable_x64(True):
+            keys = jnp.zeros((trials, 2), jnp.uint32)
+            state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
+            for method, probe in probes:
+                try:
+                    with self._model_precision():
+                        jax.eval_shape(lambda k, x: probe(KeyStreams(k, self.dtype), x), keys, state)
+                except Exception as error:      # any failure to trace: the method is NumPy-only
+                    reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+                    raise ValueError(
+                        f"@backend: model {model.kind}'s {method} does not run on the jax backend ({reason[:160]}); "
+                        "write it against the array namespace, xp = pfx.namespace(state), without writing into "
+                        "arrays (docs/plugins.md, 'Writing a model for both backends'), or set backend: numpy"
+                    ) from None
+
+    # -- on the host: inputs in, trace out ---------------------------------------------------
+
+    def run(self, measurements: np.ndarray, random, recording) -> FilterTrace:
+        """Filter ``measurements`` (trials, T, m); ``random`` is the batch's
+        :class:`~pfx.numerics.seeding.TrialStreams`, whose seeds make the threefry keys."""
+        if getattr(random, "seeds", None) is None:
+            raise RuntimeError("the jax backend needs the trials' seeds (TrialStreams.from_seeds)")
+        trials, steps, _ = measurements.shape
+        flags = _Flags.of(recording)
+        with jax.enable_x64(True):
+            program = self._programs.get(flags)
+            if program is None:
+                program = self._programs[flags] = jax.jit(lambda keys, inputs: self._filter(keys, inputs, flags))
+            keys = KeyStreams.from_seeds(random.seeds).keys
+            cloud, outputs = program(keys, self._inputs(measurements))
+            cloud, outputs = jax.device_get((cloud, outputs))
+        _raise_first_failure(self.model, np.asarray(outputs.failures))
+        return self._trace(cloud, outputs, recording, trials, steps)
+
+    def _inputs(self, measurements: np.ndarray) -> StepInputs:
+        model, steps = self.model, measurements.shape[1]
+        missing = np.isnan(measurements).any(axis=-1)
+        controls = [model.control(k) for k in range(1, steps + 1)]
+        if all(control is None for control in controls):
+            control = None
+        else:
+            control = np.stack([np.asarray(c, dtype=float) for c in controls])
+        times = np.array([[model.substep_time(k, j) for j in range(model.propagations_per_step)]
+                          for k in range(1, steps + 1)])
+        return StepInputs(step=np.arange(1, steps + 1, dtype=np.int32),
+                          measurement=np.nan_to_num(measurements, nan=0.0).swapaxes(0, 1),
+                          observed=(~missing).T, control=control, times=times)
+
+    def _trace(self, cloud: Cloud, outputs: StepOutputs, recording, trials: int, steps: int) -> FilterTrace:
+        def by_trial(values):        # (T, R, ...) -> (R, T, ...)
+            return None if values is None else np.ascontiguousarray(np.swapaxes(np.asarray(values), 0, 1))
+
+        spread = by_trial(outputs.spread)
+        deviations = by_trial(outputs.standard_deviations)
+        rows = recording.trace_rows
+        if rows is not None and spread is not None and recording.spread_criterion is None:
+            untraced = np.setdiff1d(np.arange(trials), rows)     # steps.csv shows the traced rows only
+            spread[untraced] = np.nan
+            if deviations is not None:
+                deviations[untraced] = np.nan
+        trace = FilterTrace(
+            estimates=by_trial(outputs.estimate).astype(float), ess=by_trial(outputs.ess).astype(float),
+            resampled=by_trial(outputs.resampled), degenerate=by_trial(outputs.degenerate),
+            spread=np.full((trials, steps), np.nan) if spread is None else spread.astype(float),
+            log_likelihood=np.asarray(cloud.log_likelihood, dtype=float),
+            log_likelihood_increments=by_trial(outputs.increment).astype(float),
+            lost_particles=np.asarray(cloud.lost_particles, dtype=np.int64),
+            particle_counts=np.full((trials, steps), self.particles),
+            within_radius=by_trial(outputs.within_radius),
+            standard_deviations=None if deviations is None else deviations.astype(float),
+            ancestors=by_trial(outputs.ancestors),
+            particles=None if outputs.particles is None else by_trial(outputs.particles).astype(float),
+            log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
+        return trace
+
+    # -- compiled: the run and its step --------------------------------------------------------
+
+    def _filter(self, keys, inputs: StepInputs, flags: "_Flags"):
+        random = KeyStreams(keys, self.dtype)
+        trials, count = keys.shape[0], self.particles
+        with self._model_precision():
+            state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
+        _check_shape(self.model, "the filter's prior (initial law)", state, (trials, count, self.model.state_dimension))
+        cloud = Cloud(particles=state,
+                      log_weights=jnp.full((trials, count), -np.log(count), self.dtype),
+                      log_likelihood=jnp.zeros(trials, jnp.float64),
+                      lost_particles=jnp.zeros(trials, jnp.int32),
+                      ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)))
+        return jax.lax.scan(lambda carried, step_inputs: self.step(carried, step_inputs, random, flags), cloud, inputs)
+
+    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "_Flags"):
+        """Step k: predict, weight and normalise, estimate, resample (module docstring)."""
+        random = random.at(inputs.step)
+        state, lost, log_weights = self.predict(cloud, inputs, random)
+        all_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
+        log_weights, weights, increment, degenerate, bad = self.update_weights(log_weights, state, inputs)
+        ess = 1.0 / jnp.sum(weights * weights, axis=-1)
+        estimate = self.estimate(weights, state)
+        failures = (jnp.where(all_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad, BAD_LIKELIHOOD, 0)
+                    | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
+        weighted = (state, log_weights)
+        resampling = self.resample(state, log_weights, weights, ess, random)
+        state, log_weights, weights, ancestors, resampled = resampling
+        outputs = StepOutputs(
+            estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
+            failures=failures.astype(jnp.int8),
+            spread=self.spread(weights, state) if flags.spread else None,
+            within_radius=self.within_radius(weights, state, flags) if flags.radius is not None else None,
+            standard_deviations=self.standard_deviations(jnp.exp(weighted[1]), weighted[0], estimate)
+            if flags.deviations else None,
+            ancestors=cloud.ancestors if flags.genealogy else None,
+            particles=weighted[0] if flags.history else None, log_weights=weighted[1] if flags.history else None)
+        carried = Cloud(particles=state, log_weights=log_weights,
+                        log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
+                        lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
+                        ancestors=ancestors)
+        return carried, outputs
+
+    def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams):
+        r"""x_k ~ p(x_k | x_{k-1}, u_k): the accumulators reset, then the substeps' propagate calls,
+        each with its own process noise (:meth:`pfx.models.base.Model.transition`). A particle
+        that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
+        model, state = self.model, cloud.particles
+        with self._model_precision():
+            state = model.reset_accumulators(state)
+            substeps = inputs.times.shape[0]
+            if substeps == 1:
+                noise = model.process_noise.sample(random, state.shape[1:-1])
+                state = model.propagate_at(state, inputs.control, noise, inputs.times[0])
+            else:
+                def substep(current, place):
+                    index, time = place
+                    streams = random.at(index)
+                    noise = model.process_noise.sample(streams, current.shape[1:-1])
+                    return jnp.asarray(model.propagate_at(current, inputs.control, noise, time), current.dtype), None
+                state, _ = jax.lax.scan(substep, state, (jnp.arange(substeps), inputs.times))
+        state = jnp.asarray(state)
+        _check_shape(model, "the transition (propagate)", state, cloud.particles.shape)
+        state = state.astype(self.dtype)
+        lost = ~jnp.all(jnp.isfinite(state), axis=-1)
+        state = jnp.where(lost[..., None], 0.0, state)
+        log_weights = jnp.where(lost, -jnp.inf, cloud.log_weights)
+        return state, lost, log_weights
+
+    def update_weights(self, log_weights, state, inputs: StepInputs):
+        r"""log w_k = log w_{k-1} + log p(z_k | x_k), normalised by log-sum-exp; L_k the normaliser
+        (0 for a trial without a measurement); a trial whose weights all underflow is degenerate
+        and restarts from uniform weights; a zero-weight particle stays at zero whatever its
+        likelihood evaluates to."""
+        count = self.particles
+        with self._model_precision():
+            likelihood = jnp.asarray(self.model.log_likelihood(inputs.measurement[:, None, :], state))
+        _check_shape(self.model, "log_likelihood", likelihood, log_weights.shape)
+        observed = inputs.observed
+        increment = jnp.where(observed[:, None], likelihood.astype(self.dtype), 0.0)
+        updated = jnp.where(jnp.isneginf(log_weights), -jnp.inf, log_weights + increment)
+        peak = jnp.max(updated, axis=-1, keepdims=True)
+        shifted = updated - jnp.where(jnp.isfinite(peak), peak, 0.0)
+        total = jnp.sum(jnp.exp(shifted), axis=-1, keepdims=True)
+        normaliser = (jnp.log(total) + jnp.where(jnp.isfinite(peak), peak, 0.0))[..., 0]
+        bad = jnp.isnan(normaliser) | jnp.isposinf(normaliser)
+        degenerate = jnp.isneginf(normaliser)
+        uniform = -np.log(count)
+        normalised = jnp.where(degenerate[:, None], uniform, shifted - jnp.log(total))
+        weights = jnp.where(degenerate[:, None], 1.0 / count, jnp.exp(shifted) / total)
+        return normalised, weights, jnp.where(observed, normaliser, 0.0), degenerate, bad
+
+    def estimate(self, weights, state):
+        """The weighted mean, the model's angular components averaged on the circle."""
+        mean = jnp.einsum("rn,rnd->rd", weights, state)
+        angular = list(self.model.angular_components)
+        if angular:
+            mean = mean.at[:, angular].set(circular_mean(weights, state[..., angular], self.model.full_turn))
+        return mean
+
+    def resample(self, state, log_weights, weights, ess, random: KeyStreams):
+        """The trials whose ESS is below the threshold (every trial at 1, none at 0) take their
+        resampled particles and uniform weights; the others keep theirs (a select: every trial drew)."""
+        trials, count = weights.shape
+        identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
+        if self.threshold <= 0.0:        # sis: never
+            return state, log_weights, weights, identity, jnp.zeros(trials, bool)
+        resampled = jnp.ones(trials, bool) if self.threshold >= 1.0 else ess < self.threshold * count
+        indices = self.resampler(weights, random)
+        chosen = jnp.where(resampled[:, None], indices, identity)
+        state = jnp.take_along_axis(state, chosen[..., None], axis=1)
+        log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_weights.dtype), log_weights)
+        weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
+        return state, log_weights, weights, chosen, resampled
+
+    # -- diagnostics (static flags) ------------------------------------------------------------
+
+    def spread(self, weights, state):
+        """Weighted RMS distance of the positions from their weighted mean (after resampling)."""
+        positions = state[..., list(self.model.position_components)]
+        centre = jnp.einsum("rn,rnd->rd", weights, positions)[:, None, :]
+        squared = jnp.sum((positions - centre) ** 2, axis=-1)
+        return jnp.sqrt(jnp.sum(weights * squared, axis=-1))
+
+    def within_radius(self, weights, state, flags: "_Flags"):
+        """The share of particles (by weight, or by count) within the radius of the mean."""
+        radius, weighted = flags.radius
+        positions = state[..., list(self.model.position_components)]
+        if not weighted:
+            weights = jnp.full_like(weights, 1.0 / weights.shape[-1])
+        centre = jnp.einsum("rn,rnd->rd", weights, positions)[:, None, :]
+        inside = jnp.sum((positions - centre) ** 2, axis=-1) <= radius ** 2
+        return jnp.sum(weights * inside, axis=-1)
+
+    def standard_deviations(self, weights, state, estimate):
+        """Each component's weighted posterior sd before resampling (angles: wrapped deviations)."""
+        centred = state - estimate[:, None, :]
+        angular = list(self.model.angular_components)
+        if angular:
+            centred = centred.at[..., angular].set(wrap_difference(centred[..., angular], self.model.full_turn))
+        return jnp.sqrt(jnp.einsum("rn,rnd->rd", weights, centred * centred))
+
+    def _model_precision(self):
+        """Trace the model's arithmetic in float32 when the filter runs in float32 (its float64
+        constants become float32); otherwise nothing changes."""
+        return jax.enable_x64(False) if self.dtype == jnp.float32 else contextlib.nullcontext()
+
+
+class _Flags(NamedTuple):
+    """The diagnostics a run computes (static: each set of flags is its own compiled program)."""
+
+    spread: bool
+    radius: Optional[tuple]
+    deviations: bool
+    genealogy: bool
+    history: bool
+
+    @classmethod
+    def of(cls, recording) -> "_Flags":
+        traced = recording.trace_rows is not None and len(recording.trace_rows) > 0
+        criterion = recording.spread_criterion
+        return cls(spread=traced or criterion is not None,
+                   radius=None if criterion is None else (float(criterion.radius), bool(criterion.weighted)),
+                   deviations=traced, genealogy=recording.genealogy, history=recording.history)
+
+
+def _check_shape(model, source: str, value, expected: tuple) -> None:
+    """The contract's shapes, checked while tracing (shapes are static): the NumPy engine's message."""
+    if tuple(value.shape) != tuple(expected):
+        raise ModelContractError(f"model {model.kind}: {source} returned shape {tuple(value.shape)} on the jax "
+                                 f"backend; expected {tuple(expected)}")
+
+
+def _raise_first_failure(model, failures: np.ndarray) -> None:
+    """Raise the first step's failure as the NumPy engine would have raised it mid-run."""
+    flagged = np.argwhere(failures != 0)        # (step, trial) pairs, in step order
+    if flagged.size == 0:
+        return
+    index = int(flagged[0, 0])
+    bits = int(np.bitwise_or.reduce(failures[index]))
+    step = index + 1
+    if bits & EVERY_PARTICLE_LOST:
+        raise ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
+                                  f"{step} of the filter (check the prior and the noise)")
+    if bits & BAD_LIKELIHOOD:
+        raise ModelNumericalError(f"model {model.kind} gave NaN or an infinite log-likelihood at step {step} of "
+                                  "the filter (did particles leave the model's domain? check the prior and the noise)")
+    raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {step} of the filter "
+                              "(check the prior and the noise)")
