@@ -381,6 +381,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                               "remove the repeated sweep value", file=file, key="sweep")
         seen[cell.key] = index
 
+    _label_backends(cells, experiment, file)
+
     if "figures" not in experiment.outputs.model_fields_set and experiment.estimation is not None:
         experiment.outputs.figures = list(ESTIMATION_FIGURES[experiment.estimation.method])
     elif "figures" not in experiment.outputs.model_fields_set and _sweeps_particle_count(sweep):
@@ -412,6 +414,28 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         for cell in cells:
             check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
+
+
+def _label_backends(cells: list[Cell], experiment, file: str) -> None:
+    """A config that runs any cell on the jax backend gets ``backend`` and ``precision`` columns
+    in its tables, for every cell (a config on numpy alone keeps the tables it always had);
+    what the jax backend cannot record yet is refused by its key."""
+    on_jax = [cell for cell in cells if getattr(cell.filter, "backend", "numpy") == "jax"]
+    if not on_jax:
+        return
+    if experiment.estimation is not None:
+        raise ConfigError("parameter estimation (PMMH, IF2) runs on backend: numpy for now (docs/backends.md); "
+                          "set filter.backend: numpy", file=file, key="filter.backend")
+    if any(cell.metrics.consistency for cell in on_jax):
+        raise ConfigError("the jax backend does not record the posterior covariances and NIS yet; drop "
+                          "metrics.consistency or set filter.backend: numpy", file=file, key="metrics.consistency")
+    if experiment.outputs.particles is not None and experiment.outputs.particles.steps:
+        raise ConfigError("the jax backend does not keep particle clouds (particles.csv) yet; drop "
+                          "outputs.particles or set filter.backend: numpy", file=file, key="outputs.particles")
+    for cell in cells:
+        particles = cell.filter.uses_particles
+        cell.labels["backend"] = cell.filter.backend if particles else None
+        cell.labels["precision"] = cell.filter.precision if particles else None
 
 
 def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:

@@ -28,10 +28,12 @@ Three things differ in form from the NumPy engine, not in what they compute:
   or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``; after the
   scan the first one is raised as the NumPy engine raises it (:class:`~pfx.errors.ModelNumericalError`,
   same message, same step).
-* **precision**: ``float32`` keeps the particles and weights in single precision; the model's
-  arithmetic is traced with 64-bit types off, so its float64 constants become float32 too. The
-  resamplers' cumulative sums and the log-likelihood's running sum stay float64
-  (:mod:`pfx.filters.particle.jax_resampling` says why).
+* **precision**: ``float32`` keeps the particles, the process noise and the weights in single
+  precision: what is stored and carried from step to step, hence the memory traffic that bounds
+  a GPU. A model's arithmetic follows JAX's promotion rules: a constant held as a NumPy float64
+  array promotes its expression to float64 (the result is stored as float32 again), a Python
+  float does not. The resamplers' cumulative sums and the log-likelihood's running sum stay
+  float64 (:mod:`pfx.filters.particle.jax_resampling` says why).
 
 The NumPy and JAX backends draw from different generators, so their results agree in
 distribution, not number for number (tests/test_jax_backend.py checks that they do).
@@ -39,7 +41,6 @@ distribution, not number for number (tests/test_jax_backend.py checks that they 
 
 from __future__ import annotations
 
-import contextlib
 from typing import Any, NamedTuple, Optional
 
 import jax
@@ -127,8 +128,7 @@ class JaxParticleFilter:
             state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
             for method, probe in probes:
                 try:
-                    with self._model_precision():
-                        jax.eval_shape(lambda k, x: probe(KeyStreams(k, self.dtype), x), keys, state)
+                    jax.eval_shape(lambda k, x: probe(KeyStreams(k, self.dtype), x), keys, state)
                 except Exception as error:      # any failure to trace: the method is NumPy-only
                     reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
                     raise ValueError(
@@ -202,8 +202,7 @@ class JaxParticleFilter:
     def _filter(self, keys, inputs: StepInputs, flags: "_Flags"):
         random = KeyStreams(keys, self.dtype)
         trials, count = keys.shape[0], self.particles
-        with self._model_precision():
-            state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
+        state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
         _check_shape(self.model, "the filter's prior (initial law)", state, (trials, count, self.model.state_dimension))
         cloud = Cloud(particles=state,
                       log_weights=jnp.full((trials, count), -np.log(count), self.dtype),
@@ -245,19 +244,18 @@ class JaxParticleFilter:
         each with its own process noise (:meth:`pfx.models.base.Model.transition`). A particle
         that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
         model, state = self.model, cloud.particles
-        with self._model_precision():
-            state = model.reset_accumulators(state)
-            substeps = inputs.times.shape[0]
-            if substeps == 1:
-                noise = model.process_noise.sample(random, state.shape[1:-1])
-                state = model.propagate_at(state, inputs.control, noise, inputs.times[0])
-            else:
-                def substep(current, place):
-                    index, time = place
-                    streams = random.at(index)
-                    noise = model.process_noise.sample(streams, current.shape[1:-1])
-                    return jnp.asarray(model.propagate_at(current, inputs.control, noise, time), current.dtype), None
-                state, _ = jax.lax.scan(substep, state, (jnp.arange(substeps), inputs.times))
+        control = None if inputs.control is None else inputs.control.astype(self.dtype)
+        state = model.reset_accumulators(state)
+        substeps = inputs.times.shape[0]
+        if substeps == 1:
+            noise = model.process_noise.sample(random, state.shape[1:-1])
+            state = model.propagate_at(state, control, noise, inputs.times[0])
+        else:
+            def substep(current, place):
+                index, time = place
+                noise = model.process_noise.sample(random.at(index), current.shape[1:-1])
+                return jnp.asarray(model.propagate_at(current, control, noise, time), current.dtype), None
+            state, _ = jax.lax.scan(substep, state, (jnp.arange(substeps), inputs.times))
         state = jnp.asarray(state)
         _check_shape(model, "the transition (propagate)", state, cloud.particles.shape)
         state = state.astype(self.dtype)
@@ -272,8 +270,8 @@ class JaxParticleFilter:
         and restarts from uniform weights; a zero-weight particle stays at zero whatever its
         likelihood evaluates to."""
         count = self.particles
-        with self._model_precision():
-            likelihood = jnp.asarray(self.model.log_likelihood(inputs.measurement[:, None, :], state))
+        measurement = inputs.measurement.astype(self.dtype)[:, None, :]
+        likelihood = jnp.asarray(self.model.log_likelihood(measurement, state))
         _check_shape(self.model, "log_likelihood", likelihood, log_weights.shape)
         observed = inputs.observed
         increment = jnp.where(observed[:, None], likelihood.astype(self.dtype), 0.0)
@@ -284,7 +282,7 @@ class JaxParticleFilter:
         normaliser = (jnp.log(total) + jnp.where(jnp.isfinite(peak), peak, 0.0))[..., 0]
         bad = jnp.isnan(normaliser) | jnp.isposinf(normaliser)
         degenerate = jnp.isneginf(normaliser)
-        uniform = -np.log(count)
+        uniform = float(-np.log(count))
         normalised = jnp.where(degenerate[:, None], uniform, shifted - jnp.log(total))
         weights = jnp.where(degenerate[:, None], 1.0 / count, jnp.exp(shifted) / total)
         return normalised, weights, jnp.where(observed, normaliser, 0.0), degenerate, bad
@@ -338,11 +336,6 @@ class JaxParticleFilter:
         if angular:
             centred = centred.at[..., angular].set(wrap_difference(centred[..., angular], self.model.full_turn))
         return jnp.sqrt(jnp.einsum("rn,rnd->rd", weights, centred * centred))
-
-    def _model_precision(self):
-        """Trace the model's arithmetic in float32 when the filter runs in float32 (its float64
-        constants become float32); otherwise nothing changes."""
-        return jax.enable_x64(False) if self.dtype == jnp.float32 else contextlib.nullcontext()
 
 
 class _Flags(NamedTuple):

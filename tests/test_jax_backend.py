@@ -1,0 +1,255 @@
+"""The JAX backend's particle filter (pfx/filters/particle/jax_engine.py): checks of what it
+computes, on JAX's CPU build.
+
+The two backends draw from different generators (NumPy's PCG64 per trial, threefry keys per
+trial), so every check here is **backend-invariant**: a property of the algorithm checked
+within Monte Carlo error (the Kalman filter's exact answer, the likelihood estimate's
+unbiasedness, the offspring counts' unbiasedness), or the JAX backend against itself (reruns,
+batching). The NumPy backend's bit-exact checks are the rest of the suite (and results/).
+Statistical tolerances are 3 standard errors of the quantity compared, from the sample itself;
+every seed is fixed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import pfx
+from pfx.errors import ConfigError, ModelNumericalError
+
+jax = pytest.importorskip("jax")
+import jax.numpy as jnp  # noqa: E402
+
+from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS, cumulative_weights  # noqa: E402
+from pfx.numerics.key_streams import KeyStreams, threefry_keys  # noqa: E402
+from pfx.numerics.seeding import TrialStreams  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("fresh_plugins")
+
+
+def random_walk(steps: int = 30, **overrides):
+    """x_k = 0.9 x_{k-1} + w_k, z_k = x_k + v_k, unit variances: the Kalman filter is exact."""
+    parameters = dict(steps=steps, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
+                      process_noise={"variance": 1.0}, measurement_noise={"variance": 1.0},
+                      initial={"kind": "gaussian", "mean": [0.0], "covariance": 1.0})
+    return pfx.model("linear_gaussian", **{**parameters, **overrides})
+
+
+def simulated(model, trials: int, seed: int = 0):
+    from pfx.models.simulation import simulate_truth
+
+    truth, measurements = simulate_truth(model, TrialStreams.from_seeds(range(seed, seed + trials)))
+    return truth[:, 1:], measurements
+
+
+def test_threefry_keys_are_the_keys_jax_makes_of_the_seeds():
+    seeds = [0, 1, 2**40 + 7, 2**62 + 12345]
+    with jax.enable_x64(True):
+        expected = np.stack([np.asarray(jax.random.key_data(jax.random.PRNGKey(seed))) for seed in seeds])
+    assert (threefry_keys(seeds) == expected).all()
+
+
+def test_mean_squared_error_is_the_riccati_covariance():
+    """The filter's squared error against the truth, divided by the Kalman filter's posterior
+    variance P_k (the Riccati recursion), averages 1 over trials and steps: the particle filter's
+    own error adds O(1/N), far below the 3 standard errors allowed at N = 2000."""
+    model = random_walk()
+    truth, measurements = simulated(model, 200)
+    variances = pfx.filter(model, measurements, kind="kf").trace.covariances[..., 0, 0]
+    estimates = pfx.filter(model, measurements, particles=2000, backend="jax", seed=1).estimates[..., 0]
+    ratio = ((estimates - truth[..., 0]) ** 2 / variances).mean(axis=1)      # one value per trial
+    standard_error = ratio.std(ddof=1) / np.sqrt(len(ratio))
+    assert abs(ratio.mean() - 1.0) < 3 * standard_error, (ratio.mean(), standard_error)
+
+
+def test_likelihood_estimate_is_unbiased():
+    """E[exp(log L-hat - log L)] = 1 (the particle filter's likelihood estimate is unbiased), over
+    4000 runs on one data set, with the exact log L from the Kalman filter."""
+    model = random_walk(steps=10)
+    _, measurements = simulated(model, 1, seed=3)
+    exact = pfx.filter(model, measurements[0], kind="kf").log_likelihood[0]
+    estimates = pfx.filter(model, measurements[0], trials=4000, particles=50, backend="jax", seed=5).log_likelihood
+    ratios = np.exp(estimates - exact)
+    standard_error = ratios.std(ddof=1) / np.sqrt(len(ratios))
+    assert abs(ratios.mean() - 1.0) < 3 * standard_error, (ratios.mean(), standard_error)
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("name", sorted(JAX_RESAMPLERS))
+def test_offspring_counts_are_unbiased(name, precision):
+    """E[N_j] = N w_j for every particle, over 20,000 resamplings of fixed weights (some zero:
+    never chosen), within 4.5 standard errors per particle (20 particles, 8 cases)."""
+    count, rows = 20, 20_000
+    weights = np.random.default_rng(11).exponential(size=count)
+    weights[[3, 4, 17]] = 0.0
+    weights = (weights / weights.sum()).astype(precision)
+    expected = count * weights.astype(float) / weights.astype(float).sum()
+    with jax.enable_x64(True):
+        indices = JAX_RESAMPLERS[name](jnp.asarray(np.tile(weights, (rows, 1))), KeyStreams.from_seeds(range(rows)))
+    indices = np.asarray(indices)
+    counts = np.stack([np.bincount(row, minlength=count) for row in indices])
+    assert (counts.sum(axis=1) == count).all()
+    assert (counts[:, [3, 4, 17]] == 0).all()
+    mean, standard_error = counts.mean(axis=0), counts.std(axis=0, ddof=1) / np.sqrt(rows)
+    exact = standard_error == 0        # systematic may have no spread for a particle
+    assert np.all(np.abs(mean - expected)[exact] < 1e-9)
+    assert np.all(np.abs(mean - expected)[~exact] < 4.5 * standard_error[~exact]), (mean - expected) / standard_error
+
+
+def test_cumulative_weights_stay_exact_for_a_million_float32_weights():
+    """With 2^20 float32 weights, systematic resampling gives the first half of the particles
+    N C_half offspring to within 1 (C summed in float64), where a float32 running sum would be
+    off by more than one particle: the single-precision bias the resamplers avoid."""
+    count = 2**20
+    weights = np.random.default_rng(2).exponential(size=count).astype(np.float32)
+    weights /= weights.sum(dtype=np.float64)
+    exact_half = weights[: count // 2].astype(np.float64).sum()
+    single_precision_half = np.cumsum(weights, dtype=np.float32)[count // 2 - 1]
+    assert abs(count * (single_precision_half - exact_half)) > 1.0       # the test can tell
+    with jax.enable_x64(True):
+        cumulative = np.asarray(cumulative_weights(jnp.asarray(weights[None, :])))
+        indices = np.asarray(JAX_RESAMPLERS["systematic"](jnp.asarray(weights[None, :]), KeyStreams.from_seeds([4])))
+    assert cumulative.dtype == np.float64
+    assert abs(cumulative[0, count // 2 - 1] - exact_half) < 1e-12
+    assert abs((indices[0] < count // 2).sum() - count * exact_half) <= 1.0
+
+
+def test_float32_runs_in_single_precision_and_agrees_with_float64():
+    model = random_walk(steps=20)
+    _, measurements = simulated(model, 1, seed=4)
+    runs = {precision: pfx.filter(model, measurements[0], trials=300, particles=200, backend="jax",
+                                  precision=precision, seed=9).log_likelihood for precision in ("float64", "float32")}
+    single, double = runs["float32"], runs["float64"]
+    standard_error = np.sqrt(single.var(ddof=1) / len(single) + double.var(ddof=1) / len(double))
+    assert abs(single.mean() - double.mean()) < 3 * standard_error
+
+
+def test_batching_changes_nothing_and_a_rerun_is_identical():
+    model = random_walk(steps=15)
+    _, measurements = simulated(model, 6)
+    bound = pfx.particle_filter(model, particles=64, backend="jax")
+    seeds = [101, 102, 103, 104, 105, 106]
+    whole = bound(measurements, seeds=seeds)
+    halves = [bound(measurements[part], seeds=seeds[part]) for part in (slice(0, 3), slice(3, 6))]
+    again = bound(measurements, seeds=seeds)
+    assert np.array_equal(whole.estimates, again.estimates)
+    assert np.array_equal(whole.log_likelihood, again.log_likelihood)
+    np.testing.assert_allclose(np.concatenate([h.log_likelihood for h in halves]), whole.log_likelihood,
+                               rtol=1e-12)
+    np.testing.assert_allclose(np.concatenate([h.estimates for h in halves]), whole.estimates, rtol=1e-10,
+                               atol=1e-12)
+
+
+def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept():
+    model = random_walk(steps=8)
+    _, measurements = simulated(model, 3)
+    measurements[:, 2] = np.nan
+    measurements[1, 5] = np.nan
+    result = pfx.filter(model, measurements, particles=32, backend="jax", genealogy=True, ess_threshold=1.0)
+    increments = result.trace.log_likelihood_increments
+    assert (increments[:, 2] == 0).all() and increments[1, 5] == 0
+    assert np.isfinite(increments).all() and (increments[0, 5] != 0)
+    np.testing.assert_allclose(increments.sum(axis=1), result.log_likelihood)
+    assert result.ancestors.shape == (3, 8, 32)
+    assert (result.ancestors[:, 0] == np.arange(32)).all()          # step 1 descends from the prior
+    assert result.trace.resampled.all()
+
+
+def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
+    model = random_walk(steps=5)
+    cases = {"resampler": {"resampler": "han_lee_iv"}, "move": {"move": {"kind": "mcmc"}},
+             "proposal": {"proposal": "locally_optimal"}, "auxiliary": {"auxiliary": True},
+             "diffusion": {"diffusion": {"kind": "gaussian", "std": 0.1}},
+             "backend": {"kind": "kf"}}
+    for key, settings in cases.items():
+        kind = settings.pop("kind", "particle")
+        with pytest.raises(ConfigError) as caught:
+            pfx.particle_filter(model, kind=kind, backend="jax", **settings)
+        assert f"filter.{key}" in str(caught.value) and "backend: numpy" in str(caught.value), str(caught.value)
+    with pytest.raises(ConfigError, match="filter.precision"):
+        pfx.particle_filter(model, precision="float32")
+
+
+def test_a_missing_jax_is_named_with_its_extra(monkeypatch):
+    monkeypatch.setattr("pfx.filters.particle.jax_support.jax_installed", lambda: False)
+    with pytest.raises(ConfigError, match=r"pip install 'pfx\[jax\]'"):
+        pfx.particle_filter(random_walk(steps=5), backend="jax")
+
+
+NUMPY_ONLY_PLUGIN = '''
+from typing import Literal
+
+import numpy as np
+import pfx
+
+
+@pfx.register_model
+class NumpyOnlyWalk(pfx.Model):
+    kind: Literal["numpy_only_walk"] = "numpy_only_walk"
+
+    def presets(self):
+        return {"steps": 5, "process_noise": pfx.Noise(variance=1.0), "measurement_noise": pfx.Noise(variance=1.0),
+                "initial": pfx.GaussianLaw(mean=[0.0], covariance=1.0)}
+
+    @property
+    def state_names(self):
+        return ("x",)
+
+    @property
+    def measurement_dimension(self):
+        return 1
+
+    def propagate(self, state, control, noise):
+        out = np.empty_like(state)
+        out[..., 0] = state[..., 0] + noise[..., 0]
+        return out
+
+    def measurement_mean(self, state):
+        xp = pfx.namespace(state)
+        return xp.where(state > 50.0, xp.nan, state)
+'''
+
+
+def test_a_numpy_only_plugin_is_refused_in_one_line_saying_how(tmp_path):
+    path = tmp_path / "numpy_only.py"
+    path.write_text(NUMPY_ONLY_PLUGIN)
+    pfx.load_plugin(str(path))
+    model = pfx.model("numpy_only_walk")
+    pfx.particle_filter(model, particles=10)                  # fine on numpy
+    with pytest.raises(ConfigError) as caught:
+        pfx.particle_filter(model, particles=10, backend="jax")
+    message = str(caught.value)
+    assert "\n" not in message and "propagate" in message and "pfx.namespace" in message, message
+
+
+def test_a_trial_whose_particles_all_leave_the_domain_is_raised_at_its_step_after_the_scan():
+    """x_k = 1e200 x_{k-1} overflows at step 2: the flag set inside the scan becomes the NumPy
+    engine's error, at the same step."""
+    exploding = random_walk(steps=6, transition_matrix=[[1e200]])
+    with pytest.raises(ModelNumericalError, match="every particle of a trial became NaN or infinite at step 2"):
+        pfx.filter(exploding, np.zeros((6, 1)), particles=10, backend="jax")
+    with pytest.raises(ModelNumericalError, match="at step 2"):
+        pfx.filter(exploding, np.zeros((6, 1)), particles=10)
+
+
+def test_a_config_on_jax_reruns_identically_with_backend_columns(tmp_path, tiny_config_dict):
+    config = tiny_config_dict()
+    config["arms"] = {"jax": {"backend": "jax"}, "numpy": {"backend": "numpy"}}
+    tables = []
+    for run in ("first", "second"):
+        pfx.run(config, out=tmp_path / run)
+        tables.append(pd.read_csv(tmp_path / run / "trials.csv").drop(columns=["run_time_s"]))
+    pd.testing.assert_frame_equal(tables[0], tables[1])
+    assert set(tables[0]["backend"]) == {"jax", "numpy"} and set(tables[0]["precision"]) == {"float64"}
+
+
+def test_a_config_asking_jax_for_estimation_is_refused_by_its_key(tmp_path, tiny_config_dict):
+    config = tiny_config_dict()
+    config["filter"]["backend"] = "jax"
+    config["filter"]["precision"] = "float32"
+    config["metrics"] = {"consistency": True}
+    with pytest.raises(ConfigError, match="metrics.consistency"):
+        pfx.run(config, out=tmp_path / "out")
+    assert not (tmp_path / "out").exists()
