@@ -493,6 +493,9 @@ def resolved_config(experiment: Experiment, raw: dict, arms: dict[str, Optional[
     all_kinds = set().union(*kinds_by_arm.values()) if kinds_by_arm else {experiment.filter.kind}
     section = experiment.filter.model_dump(mode="json")
     resolved["filter"] = experiment.filter.applicable_dump(all_kinds)
+    if all(cell.filter.backend == "numpy" for cell in cells):
+        for key in ("backend", "precision"):      # the record of a config on numpy alone is unchanged
+            resolved["filter"].pop(key, None)
     if experiment.arms:
         resolved["arms"] = {}
         for name, arm_raw in arms.items():

@@ -137,6 +137,10 @@ class JaxParticleFilter:
                         "arrays (docs/plugins.md, 'Writing a model for both backends'), or set backend: numpy"
                     ) from None
 
+    def __getstate__(self) -> dict:
+        # compiled programs belong to this process: a copy sent to a worker compiles its own
+        return {**self.__dict__, "_programs": {}}
+
     # -- on the host: inputs in, trace out ---------------------------------------------------
 
     def run(self, measurements: np.ndarray, random, recording) -> FilterTrace:
