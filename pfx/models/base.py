@@ -62,6 +62,12 @@ A measurement that is not "h(x) + noise" (multiplicative noise, say) overrides b
 ``simulate_measurement`` (how the truth's measurements are drawn; every draw from ``random``)
 and ``log_likelihood`` (log p(z | x), in the log domain).
 
+**Two backends.** The composed operations here (:meth:`Model.transition`,
+:meth:`Model.mean_transition`, :meth:`Model.reset_accumulators`, :meth:`Model.propagate_at`, the
+default :meth:`Model.log_likelihood`) take NumPy or JAX arrays and return the same kind: they ask
+the state for its array namespace (:mod:`pfx.numerics.arrays`) and update functionally. On NumPy
+they compute exactly what they always did; a model written the same way runs on both backends.
+
 **This module holds the contract**: the :class:`Model` class (its fields, what a subclass
 provides, the composed operations, validation), the ``MODELS`` registry and :func:`bind_law`.
 Two jobs live beside it: the time axis (the steps' and substeps' times and the covariates over
@@ -86,6 +92,7 @@ from pfx.laws.noise import Noise
 from pfx.models.contract_checks import NOISE_VARIANCES, check_contract
 from pfx.models.time_axis import TimeAxis, covariate_table
 from pfx.numerics.angles import wrap_components
+from pfx.numerics.arrays import namespace, with_values
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
@@ -377,24 +384,26 @@ class Model(TimeAxis, BaseModel):
         :math:`x^{(j)} = f(x^{(j-1)}, u_k, 0; t_{k-1} + (j-1) h)` for j = 1..s, and
         :math:`\bar f_k(x_{k-1}) = x^{(s)}`; with one substep, :math:`f(x_{k-1}, u_k, 0)`. What
         "the prediction of x_k without noise" means for the transition density, the guided
-        proposals, the look-ahead and the histogram filter.
+        proposals, the look-ahead and the histogram filter. ``previous`` may be a NumPy or a JAX
+        array; the result is of the same kind (for a ``propagate`` written generically).
         """
         control = self.control(step)
         state = self.reset_accumulators(previous)
-        zeros = np.zeros(previous.shape[:-1] + (self.process_noise_dimension,))
+        xp = namespace(previous)
+        shape = previous.shape[:-1] + (self.process_noise_dimension,)
+        # NumPy's zeros are float64, as always; JAX's take the state's precision (a float32 run stays float32)
+        zeros = xp.zeros(shape) if xp is np else xp.zeros(shape, dtype=previous.dtype)
         for substep in range(self.propagations_per_step):
             state = self.propagate_at(state, control, zeros, self.substep_time(step, substep))
         return state
 
     def reset_accumulators(self, state: np.ndarray) -> np.ndarray:
-        """``state`` with its accumulating components set to 0 (a copy; ``state`` itself when the
-        model has none)."""
+        """``state`` with its accumulating components set to 0 (a copy, on NumPy in float64; ``state``
+        itself when the model has none). NumPy or JAX arrays alike (:mod:`pfx.numerics.arrays`)."""
         components = list(self.accumulating_components)
         if not components:
             return state
-        state = np.array(state, dtype=float)
-        state[..., components] = 0.0
-        return state
+        return with_values(state, (..., components), 0.0)     # functional: a JAX array cannot be written
 
     @property
     def propagate_reads_time(self) -> bool:

@@ -37,9 +37,12 @@ makes of the ``covariates`` field when the model is validated).
 
 from __future__ import annotations
 
-from typing import ClassVar, Optional
+from types import ModuleType
+from typing import Any, ClassVar, Optional
 
 import numpy as np
+
+from pfx.numerics.arrays import namespace
 
 # Times read from files carry their printing precision (15 significant digits, say): two times
 # this close, relative to the largest time's magnitude, are the same time. Recorded data's
@@ -127,14 +130,22 @@ class TimeAxis:
             raise ValueError(f"@substeps: model {self.kind} declares variable_dt (irregular measurement times), "
                              "and pfx does not take substeps between irregular times; leave substeps at 1")
 
-    def covariates_at(self, time: float) -> np.ndarray:
+    def covariates_at(self, time: Any) -> Any:
         r"""The covariates at ``time``, one per :attr:`covariate_names`, linearly interpolated
         between the two rows of the table around it:
         :math:`c(t) = c_j + (t - t_j) (c_{j+1} - c_j) / (t_{j+1} - t_j)` for
         :math:`t_j \le t \le t_{j+1}`. ValueError outside the table's times (pfx checks before a
-        run that the table covers the model's times, :meth:`check_covariate_span`)."""
+        run that the table covers the model's times, :meth:`check_covariate_span`).
+
+        ``time`` is a number, or on the ``jax`` backend a JAX scalar, traced inside a compiled
+        scan: its value is not known when the code runs, so it is not checked against the table
+        (the span was checked before the run) but clamped to the table's ends, and the columns are
+        interpolated by ``jax.numpy.interp``, the same formula, giving a JAX array."""
         if self._covariate_table is None:
             raise ValueError(f"model {self.kind} reads no covariates (its covariate_names is empty)")
+        xp = namespace(time)
+        if xp is not np:
+            return _interpolate_traced(self._covariate_table, time, xp)
         times, values = self._covariate_table
         slack = time_slack(times)
         if not times[0] - slack <= time <= times[-1] + slack:
@@ -171,6 +182,17 @@ class TimeAxis:
             raise ValueError(f"@covariates: the table's times run from {table[0]:.12g} to {table[-1]:.12g}; the "
                              f"model reads covariates from {start:.12g} (the start of step 1) to {end:.12g} "
                              f"(step {self.steps}): give rows that cover them")
+
+
+def _interpolate_traced(table: tuple[np.ndarray, np.ndarray], time: Any, xp: ModuleType) -> Any:
+    """:meth:`TimeAxis.covariates_at` for a JAX ``time``: (c,) interpolated column by column,
+    clamped to the table's ends (``jax.numpy.interp`` holds the end rows' values beyond them).
+    Its formula is the NumPy path's: the row j with t_j <= t < t_(j+1) (the last two rows at the
+    table's end), then c_j + (t - t_j) / (t_(j+1) - t_j) (c_(j+1) - c_j)."""
+    times, values = table
+    if len(times) == 1:      # a table of one row: constant covariates
+        return xp.asarray(values[0])
+    return xp.stack([xp.interp(time, times, values[:, column]) for column in range(values.shape[1])])
 
 
 def covariate_table(model) -> Optional[tuple[np.ndarray, np.ndarray]]:
