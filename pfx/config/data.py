@@ -75,7 +75,7 @@ from pfx.config.covariate_files import fill_covariates
 from pfx.config.validation import validate
 from pfx.errors import ConfigError
 from pfx.models import MODELS
-from pfx.models.base import RELATIVE_TIME_TOLERANCE, time_slack
+from pfx.models.time_axis import RELATIVE_TIME_TOLERANCE, time_slack
 from pfx.numerics.hashing import canonical_hash
 from pfx.user_files import UnreadableFile, read_user_file
 

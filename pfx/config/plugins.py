@@ -118,17 +118,18 @@ def register_model(model_class):
     ``measurement_dimension``, ``propagate`` and ``measurement_mean``. (The shapes and dtypes
     its methods return are checked at plan time, on a tiny batch: :meth:`pfx.models.base.Model.check_contract`.)
     """
-    from pfx.models.base import MODELS, Model, methods_meant_as_properties, missing_methods
+    from pfx.models.base import MODELS, Model
+    from pfx.models.contract_checks import methods_meant_as_properties, missing_methods
 
     if not (isinstance(model_class, type) and issubclass(model_class, Model)):
         raise PluginError(f"register_model: {getattr(model_class, '__name__', model_class)!r} "
                           "is not a subclass of pfx.Model")
     kind = _declared_kind(model_class, "register_model")
-    missing = missing_methods(model_class)
+    missing = missing_methods(model_class, Model)
     if missing:
         raise PluginError(f"model {kind} (class {model_class.__name__}) does not define "
                           f"{', '.join(missing)}, which every model must (docs/plugins.md)")
-    for name, line in methods_meant_as_properties(model_class):     # the most common slip
+    for name, line in methods_meant_as_properties(model_class, Model):     # the most common slip
         raise PluginError(f"model {kind} (class {model_class.__name__}): {name} is a method, and pfx reads it "
                           f"as a property: write @property on the line above `def {name}`", line=line)
     with _owner(MODELS, kind, model_class):

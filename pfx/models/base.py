@@ -27,8 +27,8 @@ Cross-field checks raise ``ValueError("@key.path: reason")`` so errors point at 
 
 **The public contract** (``pfx.Model``, for plugins: docs/plugins.md). Its method names and
 array shapes are stable. A model must define ``state_names``, ``measurement_dimension``,
-``propagate`` and ``measurement_mean`` (:func:`missing_methods`); everything else has a
-default. With ``R`` trials, ``N`` particles, ``d`` states, ``m`` measurement components and
+``propagate`` and ``measurement_mean`` (:func:`~pfx.models.contract_checks.missing_methods`);
+everything else has a default. With ``R`` trials, ``N`` particles, ``d`` states, ``m`` measurement components and
 ``q`` process noise components, and ``...`` standing for the leading dimensions (``(R,)`` for
 the truth, ``(R, N)`` for particles):
 
@@ -60,8 +60,20 @@ composition with every :math:`w^{(j)} = 0`. With ``substeps: 1`` (the default) t
 
 A measurement that is not "h(x) + noise" (multiplicative noise, say) overrides both
 ``simulate_measurement`` (how the truth's measurements are drawn; every draw from ``random``)
-and ``log_likelihood`` (log p(z | x), in the log domain). :meth:`Model.check_contract` checks
-the shapes and dtypes once, on a tiny batch, before a plugin's model runs.
+and ``log_likelihood`` (log p(z | x), in the log domain).
+
+**Two backends.** The composed operations here (:meth:`Model.transition`,
+:meth:`Model.mean_transition`, :meth:`Model.reset_accumulators`, :meth:`Model.propagate_at`, the
+default :meth:`Model.log_likelihood`) take NumPy or JAX arrays and return the same kind: they ask
+the state for its array namespace (:mod:`pfx.numerics.arrays`) and update functionally. On NumPy
+they compute exactly what they always did; a model written the same way runs on both backends.
+
+**This module holds the contract**: the :class:`Model` class (its fields, what a subclass
+provides, the composed operations, validation), the ``MODELS`` registry and :func:`bind_law`.
+Two jobs live beside it: the time axis (the steps' and substeps' times and the covariates over
+time), a mixin of :class:`Model` in :mod:`pfx.models.time_axis`, and the checks of a model
+against the contract (:meth:`Model.check_contract`: shapes and dtypes on a tiny batch, before a
+plugin's model runs; names and declarations; reproducibility) in :mod:`pfx.models.contract_checks`.
 """
 
 from __future__ import annotations
@@ -70,7 +82,6 @@ import copy
 import functools
 import inspect
 import math
-from types import FunctionType
 from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
@@ -78,13 +89,12 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, Str
 
 from pfx.laws.initial import InitialLaw
 from pfx.laws.noise import Noise
-from pfx.models.contract_checks import check_component_indices
+from pfx.models.contract_checks import NOISE_VARIANCES, check_contract
+from pfx.models.time_axis import TimeAxis, covariate_table
 from pfx.numerics.angles import wrap_components
+from pfx.numerics.arrays import namespace, with_values
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
-
-# The two noise parameters a model may take as arrays (Model.vectorised_parameters)
-NOISE_VARIANCES = ("process_noise.variance", "measurement_noise.variance")
 
 
 def _as_data(value: Any) -> Any:
@@ -92,8 +102,9 @@ def _as_data(value: Any) -> Any:
     return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
 
 
-class Model(BaseModel):
-    """Base class of all models (see the module docstring)."""
+class Model(TimeAxis, BaseModel):
+    """Base class of all models (see the module docstring); its times and covariates come from
+    :class:`~pfx.models.time_axis.TimeAxis`."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
@@ -216,32 +227,6 @@ class Model(BaseModel):
         measurements (deaths counted between observations: pomp's accumulator variables)."""
         return ()
 
-    @property
-    def substep_duration(self) -> float:
-        """h = dt / substeps: the time one ``propagate`` call advances in a model that
-        integrates substeps (``integrates_substeps``)."""
-        return self.dt / self.substeps
-
-    @property
-    def propagations_per_step(self) -> int:
-        """How many times the transition calls ``propagate`` between two measurements:
-        ``substeps``, or 1 for a model whose own ``propagate`` integrates the whole interval
-        (``substeps_inside_propagate``)."""
-        return 1 if self.substeps_inside_propagate else self.substeps
-
-    time_unit: ClassVar[str] = "s"
-    # Whether ``propagate`` advances one substep of ``substep_duration`` (so that ``substeps``
-    # may exceed 1). A model whose propagate integrates a whole ``dt`` must not declare it:
-    # with substeps it would integrate s times too far.
-    integrates_substeps: ClassVar[bool] = False
-    # Whether the model's own ``substeps`` field counts integration steps inside one
-    # ``propagate`` call that spans the whole interval, with the process noise added once per
-    # interval (the falling body, whose field is older than the substeps of every model):
-    # the transition then calls propagate once per step.
-    substeps_inside_propagate: ClassVar[bool] = False
-    # Whether the model reads :meth:`step_duration` (the time between steps may vary), so that
-    # recorded data with irregular times can be filtered with it; no built-in model does.
-    variable_dt: ClassVar[bool] = False
     # The parameters (dotted paths under ``model``) whose values the model's methods can take as
     # arrays over the leading axes, (R, 1, 1) for one value per trial row or (R, N, 1) for one
     # per particle, broadcasting against state arrays (R, N, d): parameter estimation then runs
@@ -399,35 +384,26 @@ class Model(BaseModel):
         :math:`x^{(j)} = f(x^{(j-1)}, u_k, 0; t_{k-1} + (j-1) h)` for j = 1..s, and
         :math:`\bar f_k(x_{k-1}) = x^{(s)}`; with one substep, :math:`f(x_{k-1}, u_k, 0)`. What
         "the prediction of x_k without noise" means for the transition density, the guided
-        proposals, the look-ahead and the histogram filter.
+        proposals, the look-ahead and the histogram filter. ``previous`` may be a NumPy or a JAX
+        array; the result is of the same kind (for a ``propagate`` written generically).
         """
         control = self.control(step)
         state = self.reset_accumulators(previous)
-        zeros = np.zeros(previous.shape[:-1] + (self.process_noise_dimension,))
+        xp = namespace(previous)
+        shape = previous.shape[:-1] + (self.process_noise_dimension,)
+        # NumPy's zeros are float64, as always; JAX's take the state's precision (a float32 run stays float32)
+        zeros = xp.zeros(shape) if xp is np else xp.zeros(shape, dtype=previous.dtype)
         for substep in range(self.propagations_per_step):
             state = self.propagate_at(state, control, zeros, self.substep_time(step, substep))
         return state
 
     def reset_accumulators(self, state: np.ndarray) -> np.ndarray:
-        """``state`` with its accumulating components set to 0 (a copy; ``state`` itself when the
-        model has none)."""
+        """``state`` with its accumulating components set to 0 (a copy, on NumPy in float64; ``state``
+        itself when the model has none). NumPy or JAX arrays alike (:mod:`pfx.numerics.arrays`)."""
         components = list(self.accumulating_components)
         if not components:
             return state
-        state = np.array(state, dtype=float)
-        state[..., components] = 0.0
-        return state
-
-    def substep_time(self, step: int, substep: int) -> float:
-        """t_(k-1) + j h: the time at the start of substep j = 0..s-1 of step k (h the substep
-        duration), with t_(k-1) the time of step k-1 (:meth:`times`) and, for k = 1,
-        t_1 - dt. What a ``propagate`` with a ``time`` parameter is given."""
-        if step >= 2:
-            start = float(self._recorded_times[step - 2]) if self._recorded_times is not None else self.dt * (step - 1)
-        else:
-            first = float(self._recorded_times[0]) if self._recorded_times is not None else self.dt
-            start = first - self.step_duration(1)
-        return start + substep * self.substep_duration if substep else start
+        return with_values(state, (..., components), 0.0)     # functional: a JAX array cannot be written
 
     @property
     def propagate_reads_time(self) -> bool:
@@ -466,118 +442,19 @@ class Model(BaseModel):
         """Sample z_k ~ p(z_k | x_k)."""
         return self.measure(state, self.measurement_noise.sample(random, state.shape[1:-1]))
 
-    def times(self) -> np.ndarray:
-        """Time of steps 1..T (recorded data's own times when its file has a ``time`` column)."""
-        if self._recorded_times is not None:
-            return self._recorded_times.copy()
-        return self.dt * np.arange(1, self.steps + 1)
-
-    def step_duration(self, step: int) -> float:
-        """The time from step k-1 to step k: ``dt``, or with recorded irregular times (only for
-        a model that declares ``variable_dt``) t_k - t_(k-1), and ``dt`` before the first step."""
-        if self._recorded_times is None or step <= 1:
-            return self.dt
-        return float(self._recorded_times[step - 1] - self._recorded_times[step - 2])
-
-    def covariates_at(self, time: float) -> np.ndarray:
-        r"""The covariates at ``time``, one per :attr:`covariate_names`, linearly interpolated
-        between the two rows of the table around it:
-        :math:`c(t) = c_j + (t - t_j) (c_{j+1} - c_j) / (t_{j+1} - t_j)` for
-        :math:`t_j \le t \le t_{j+1}`. ValueError outside the table's times (pfx checks before a
-        run that the table covers the model's times, :meth:`check_covariate_span`)."""
-        if self._covariate_table is None:
-            raise ValueError(f"model {self.kind} reads no covariates (its covariate_names is empty)")
-        times, values = self._covariate_table
-        slack = time_slack(times)
-        if not times[0] - slack <= time <= times[-1] + slack:
-            raise ValueError(f"model {self.kind}: covariates asked at time {time:.12g}, outside their table "
-                             f"({times[0]:.12g} to {times[-1]:.12g})")
-        time = min(max(time, times[0]), times[-1])      # an end's row, for a time within the slack of it
-        row = min(int(np.searchsorted(times, time, side="right")) - 1, len(times) - 2)
-        if row < 0:          # a table of one row: constant covariates
-            return values[0].copy()
-        share = (time - times[row]) / (times[row + 1] - times[row])
-        return values[row] + share * (values[row + 1] - values[row])
-
-    def check_covariate_span(self) -> None:
-        """ValueError('@covariates: ...') unless the covariate table covers the times the
-        transition reads: from the start of step 1 (its time minus the step's duration) to the
-        last step's time."""
-        if self._covariate_table is None:
-            return
-        times = self.times()
-        start, end = float(times[0] - self.step_duration(1)), float(times[-1])
-        table = self._covariate_table[0]
-        slack = time_slack(table)
-        if start < table[0] - slack or end > table[-1] + slack:
-            raise ValueError(f"@covariates: the table's times run from {table[0]:.12g} to {table[-1]:.12g}; the "
-                             f"model reads covariates from {start:.12g} (the start of step 1) to {end:.12g} "
-                             f"(step {self.steps}): give rows that cover them")
-
-    def use_recorded_times(self, times: np.ndarray) -> None:
-        """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`)."""
-        self._recorded_times = np.asarray(times, dtype=float).copy()
-
     def check_contract(self, random: TrialStreams) -> None:
         """Call the model's methods once on a tiny batch (2 trials, 3 particles drawn from the
         initial law) and raise ``ValueError("<method> returned ...")`` where a result has the
-        wrong shape or is not a floating-point array, or a declared index list is not one
-        (:func:`~pfx.models.contract_checks.check_component_indices`): the public contract
-        (module docstring), checked before a run rather than deep inside the engine."""
-        trials, particles = 2, 3
-        self._check_names()
-        d, m = self.state_dimension, self.measurement_dimension
-        check_component_indices(self)
-        for path in type(self).vectorised_parameters:
-            value = getattr(self, path, None) if path not in NOISE_VARIANCES else 0.0
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"vectorised_parameters names {path!r}, which is not a number of the model; "
-                                 f"expected its scalar fields or {' or '.join(NOISE_VARIANCES)}")
-        cloud = np.asarray(self.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
-        truth = cloud[:, 0, :].copy()
-        noise = np.zeros((trials, particles, self.process_noise_dimension))
-        time = self.substep_time(1, 0)
-        if self._covariate_table is not None:   # shapes only: a time the table has (its span is checked
-            time = float(np.clip(time, self._covariate_table[0][0], self._covariate_table[0][-1]))   # with the run's times)
-        _check_result("propagate", self.propagate_at(cloud, self.control(1), noise, time),
-                      (trials, particles, d))
-        _check_result("measurement_mean", self.measurement_mean(cloud), (trials, particles, m))
-        measurement = _check_result("simulate_measurement", self.simulate_measurement(truth, random), (trials, m))
-        _check_result("log_likelihood", self.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
-
-    def _check_names(self) -> None:
-        """The model agrees with itself: names and sizes (``state_names``, ``state_units``,
-        ``measurement_dimension``, ``measurement_names``, ``process_noise_dimension``)."""
-        names = self.state_names
-        if not (isinstance(names, (tuple, list)) and names and all(isinstance(n, str) and n for n in names)):
-            raise ValueError(f"state_names returned {names!r}; expected a tuple of names, one per state "
-                             "component, e.g. ('x', 'v')")
-        if len(set(names)) != len(names):
-            raise ValueError(f"state_names returned {tuple(names)!r}, which repeats a name; each state "
-                             "component needs its own (they become column names)")
-        for name in ("measurement_dimension", "process_noise_dimension"):
-            size = getattr(self, name)
-            if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
-                raise ValueError(f"{name} returned {size!r}; expected a whole number of at least 1")
-        lists = (("measurement_names", self.measurement_dimension, "measurement_dimension"),
-                 ("state_units", len(names), "state_names"))
-        for name, size, source in lists:
-            value = getattr(self, name)
-            if not (isinstance(value, (tuple, list)) and all(isinstance(item, str) for item in value)):
-                raise ValueError(f"{name} returned {value!r}; expected a tuple of {size} strings")
-            if len(value) != size:
-                raise ValueError(f"{name} returned {len(value)} name(s) {tuple(value)!r}, and {source} says "
-                                 f"{size}: give one per component")
-        measurement_names = tuple(self.measurement_names)
-        if len(set(measurement_names)) != len(measurement_names) or "" in measurement_names:
-            raise ValueError(f"measurement_names returned {measurement_names!r}; expected distinct, non-empty "
-                             "names (they become the column names of a measurements file)")
+        wrong shape or is not a floating-point array, or a declared index list is not one: the
+        public contract (module docstring), checked before a run rather than deep inside the
+        engine (:func:`pfx.models.contract_checks.check_contract`)."""
+        check_contract(self, random)
 
     # -- validation ----------------------------------------------------------------------------
 
     @model_validator(mode="after")
     def _resolve(self) -> "Model":
-        self._covariate_table = _covariate_table(self)     # first: presets may read the covariates
+        self._covariate_table = covariate_table(self)     # first: presets may read the covariates
         for name, value in self.presets().items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
@@ -595,19 +472,6 @@ class Model(BaseModel):
         self.setup()
         self._transition_density = None           # derived again from these parameters when asked
         return self
-
-    def _check_substeps(self) -> None:
-        """substeps > 1 only for a model whose propagate advances one substep."""
-        cls = type(self)
-        if self.substeps == 1 or cls.substeps_inside_propagate:
-            return
-        if not cls.integrates_substeps:
-            raise ValueError(f"@substeps: model {self.kind}'s propagate advances a whole dt, so it cannot take "
-                             f"{self.substeps} substeps between measurements; a model whose propagate advances "
-                             "self.substep_duration (dt / substeps) declares integrates_substeps = True")
-        if cls.variable_dt:
-            raise ValueError(f"@substeps: model {self.kind} declares variable_dt (irregular measurement times), "
-                             "and pfx does not take substeps between irregular times; leave substeps at 1")
 
     def with_parameter_arrays(self, values: dict[str, np.ndarray]) -> "Model":
         """A copy of the model whose parameters at the dotted paths of ``values`` (each one of
@@ -642,72 +506,6 @@ class Model(BaseModel):
         return fresh
 
 
-# Times read from files carry their printing precision (15 significant digits, say): two times
-# this close, relative to the largest time's magnitude, are the same time. Recorded data's
-# spacings (pfx.config.data) and the ends of a covariate table are compared with it.
-RELATIVE_TIME_TOLERANCE = 1e-9
-
-
-def time_slack(times: np.ndarray) -> float:
-    """How far apart two of ``times`` (increasing) may be and still count as equal:
-    RELATIVE_TIME_TOLERANCE times the largest magnitude among them, which is at one end (a time
-    1 month before a table's first row, computed as t_1 - dt from printed times, may fall 1e-11
-    short of it). Two lookups, not a pass over the times: covariates_at asks at every substep."""
-    return RELATIVE_TIME_TOLERANCE * max(abs(float(times[0])), abs(float(times[-1])))
-
-
-def _covariate_table(model: Model) -> Optional[tuple[np.ndarray, np.ndarray]]:
-    """The model's ``covariates`` as (times (n,), values (n, c)) in ``covariate_names`` order,
-    checked against the names the model reads; None for a model that reads none."""
-    names, table = tuple(model.covariate_names), model.covariates
-    if not names:
-        if table is not None:
-            raise ValueError(f"@covariates: model {model.kind} reads no covariates; drop them")
-        return None
-    if table is None:
-        raise ValueError(f"@covariates: model {model.kind} reads the covariates {', '.join(names)} over time: "
-                         "give a table of them (data.covariates: a CSV file with `time` and those columns)")
-    if "time" not in table:
-        raise ValueError("@covariates: the table has no `time`")
-    unknown = [name for name in table if name != "time" and name not in names]
-    missing = [name for name in names if name not in table]
-    if missing or unknown:
-        what = f"has no {missing[0]!r}" if missing else f"has {unknown[0]!r}, which the model does not read"
-        raise ValueError(f"@covariates: the table {what}; model {model.kind} reads {', '.join(names)}")
-    times = np.asarray(table["time"], dtype=float)
-    if times.size == 0 or not np.all(np.diff(times) > 0):
-        raise ValueError("@covariates.time: the times must increase strictly (and there must be at least one)")
-    lengths = {name: len(table[name]) for name in names if len(table[name]) != times.size}
-    if lengths:
-        name, length = next(iter(lengths.items()))
-        raise ValueError(f"@covariates.{name}: {length} values for {times.size} times")
-    values = np.column_stack([np.asarray(table[name], dtype=float) for name in names])
-    # Interpolation steps from one row to the next by their difference; a difference that
-    # overflows (values of opposite signs near the largest float, 1.8e308) would give inf and
-    # NaN between the rows, and the model would be blamed for them.
-    with np.errstate(over="ignore", invalid="ignore"):
-        jumps = np.diff(values, axis=0)
-    if not np.isfinite(jumps).all():
-        row, column = (int(index) for index in np.argwhere(~np.isfinite(jumps))[0])
-        raise ValueError(f"@covariates.{names[column]}[{row + 1}]: {values[row + 1, column]:g} after "
-                         f"{values[row, column]:g}: the change between the two rows is too large to be represented "
-                         "as a number, so the values between them cannot be interpolated; use smaller values "
-                         "(other units)")
-    return times, values
-
-
-def _check_result(method: str, value, shape: tuple) -> np.ndarray:
-    """A method's result, if it is a floating-point array of ``shape``; else ValueError."""
-    if not isinstance(value, np.ndarray):
-        raise ValueError(f"{method} returned {type(value).__name__}, not a numpy array of shape {shape}")
-    if value.shape != shape:
-        raise ValueError(f"{method} returned shape {value.shape} for a batch of 2 trials x 3 particles; "
-                         f"expected {shape}")
-    if not np.issubdtype(value.dtype, np.floating):
-        raise ValueError(f"{method} returned dtype {value.dtype}; expected floating point (float64)")
-    return value
-
-
 def _bind(component, dimension: int, key: str, **options) -> None:
     try:
         component.bind(dimension, **options)
@@ -725,29 +523,6 @@ def _takes_time(method: Callable) -> bool:
         return "time" in inspect.signature(method).parameters
     except (TypeError, ValueError):      # a builtin or C function: called without time
         return False
-
-
-# What every model must define itself: the rest of the interface has defaults.
-REQUIRED_METHODS = ("state_names", "measurement_dimension", "propagate", "measurement_mean")
-
-
-def methods_meant_as_properties(model_class: type) -> list[tuple[str, Optional[int]]]:
-    """(name, line of its ``def``) of each member that :class:`Model` declares as a property
-    and ``model_class`` defines as a plain method: ``def state_names(self)`` without
-    ``@property``, which pfx would read as a bound method, not a tuple."""
-    slips = []
-    for name, member in vars(Model).items():
-        if not isinstance(member, property):
-            continue
-        defined = inspect.getattr_static(model_class, name)
-        if isinstance(defined, FunctionType):
-            slips.append((name, defined.__code__.co_firstlineno))
-    return slips
-
-
-def missing_methods(model_class: type) -> list[str]:
-    """The required members (:data:`REQUIRED_METHODS`) a model class leaves to :class:`Model`."""
-    return [name for name in REQUIRED_METHODS if getattr(model_class, name) is getattr(Model, name)]
 
 
 def bind_law(law, dimension: int, key: str):

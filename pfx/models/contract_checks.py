@@ -1,16 +1,26 @@
-r"""Plan-time checks of a model against the contract, beyond shapes: what it declares, and that it
-is reproducible.
+r"""The checks of a model against the contract (docs/plugins.md), made before anything runs.
 
-:meth:`pfx.models.base.Model.check_contract` calls a model's methods once on a tiny batch and
-checks the shapes and dtypes of what they return. Two more promises of the contract
-(docs/plugins.md) are checked here, before anything runs, for a plugin's model
-(:func:`pfx.config.plan.check_plugin_model` calls them):
+The contract is :class:`pfx.models.base.Model`: the members a model must define, their array
+shapes and dtypes, the index lists it declares, and that its randomness comes from the trial's
+streams. A mistake in a plugin is refused here in one line that names the member, never met later
+as ``'int' object is not iterable`` or a broadcasting error deep in the engine. Four checks, from
+the cheapest:
+
+* **The class** (at ``pfx.register_model``, :mod:`pfx.config.plugins`):
+  :func:`missing_methods` names the required members (:data:`REQUIRED_METHODS`) a class leaves to
+  the contract, and :func:`methods_meant_as_properties` the members written as plain methods that
+  the contract declares as properties (``def state_names(self)`` without ``@property``). Both are
+  given the contract class, which imports this module (it cannot import it back).
+
+* **Shapes** (:func:`check_contract`, :meth:`pfx.models.base.Model.check_contract`): the model's
+  methods called once on a tiny batch (2 trials, 3 particles from the initial law), each result a
+  floating-point NumPy array of the contract's shape, and names and sizes that agree with each
+  other (``state_names``, ``state_units``, ``measurement_names``, the dimensions).
 
 * **Declarations** (:func:`check_component_indices`): ``position_components``,
   ``angular_components`` and ``accumulating_components`` are tuples of state indices,
   ``measurement_angular_components`` a tuple of measurement indices, and the full turns positive
-  numbers. A slip (an ``int`` for a tuple, a name for an index) is refused in one line naming
-  the property, never met later as ``'int' object is not iterable`` deep in the engine.
+  numbers.
 
 * **Reproducibility** (:func:`reproducibility_fault`): every random draw of a model comes from
   the trial's stream, the ``noise`` argument of ``propagate`` or the ``random`` argument of
@@ -21,13 +31,16 @@ checks the shapes and dtypes of what they return. Two more promises of the contr
   global generator has moved on between the two calls, so they differ. A method that ignores
   the stream it is given but is deterministic passes: its results are the same every run.
 
-The probe is cheap (2 trials x 3 particles, one step) and its verdict is kept per model class
-and settings, so that many cells of one model pay it once.
+The plan (:func:`pfx.config.plan.check_plugin_model`) runs the last three for a plugin's model.
+The probes are cheap (2 trials x 3 particles, one step), and the reproducibility verdict is kept
+per model class and settings, so that many cells of one model pay it once.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
+from types import FunctionType
 from typing import Callable, Optional
 
 import numpy as np
@@ -35,12 +48,117 @@ import numpy as np
 from pfx.numerics.hashing import SettingsCache
 from pfx.numerics.seeding import TrialStreams
 
+# What every model must define itself: the rest of the interface has defaults.
+REQUIRED_METHODS = ("state_names", "measurement_dimension", "propagate", "measurement_mean")
+# The two noise parameters a model may take as arrays beside its own scalar fields
+# (Model.vectorised_parameters, Model.with_parameter_arrays).
+NOISE_VARIANCES = ("process_noise.variance", "measurement_noise.variance")
 # The private streams of the reproducibility probe (any fixed numbers: the same each call).
 PROBE_SEEDS = (20_240_341, 20_240_342)
 # The state indices a model declares, checked by check_component_indices.
 STATE_INDEX_PROPERTIES = ("position_components", "angular_components", "accumulating_components")
 
 _verdicts = SettingsCache()                   # reproducibility_fault's answers
+
+
+# -- the class --------------------------------------------------------------------------------------
+
+
+def missing_methods(model_class: type, contract: type) -> list[str]:
+    """The required members (:data:`REQUIRED_METHODS`) that ``model_class`` leaves to
+    ``contract`` (:class:`pfx.models.base.Model`), which only declares them."""
+    return [name for name in REQUIRED_METHODS if getattr(model_class, name) is getattr(contract, name)]
+
+
+def methods_meant_as_properties(model_class: type, contract: type) -> list[tuple[str, Optional[int]]]:
+    """(name, line of its ``def``) of each member that ``contract`` (:class:`pfx.models.base.Model`)
+    declares as a property and ``model_class`` defines as a plain method: ``def state_names(self)``
+    without ``@property``, which pfx would read as a bound method, not a tuple."""
+    declared = {}                 # the contract's members and its mixins' (the time axis), nearest first
+    for klass in contract.__mro__:
+        if klass.__module__.startswith("pfx."):
+            for name, member in vars(klass).items():
+                declared.setdefault(name, member)
+    slips = []
+    for name, member in declared.items():
+        if not isinstance(member, property):
+            continue
+        defined = inspect.getattr_static(model_class, name)
+        if isinstance(defined, FunctionType):
+            slips.append((name, defined.__code__.co_firstlineno))
+    return slips
+
+
+# -- shapes and names -------------------------------------------------------------------------------
+
+
+def check_contract(model, random: TrialStreams) -> None:
+    """Call the model's methods once on a tiny batch (2 trials, 3 particles drawn from the
+    initial law) and raise ``ValueError("<method> returned ...")`` where a result has the
+    wrong shape or is not a floating-point array, a name or size disagrees with another
+    (:func:`_check_names`), a declared index list is not one (:func:`check_component_indices`),
+    or ``vectorised_parameters`` names what is not a number of the model."""
+    trials, particles = 2, 3
+    _check_names(model)
+    d, m = model.state_dimension, model.measurement_dimension
+    check_component_indices(model)
+    for path in type(model).vectorised_parameters:
+        value = getattr(model, path, None) if path not in NOISE_VARIANCES else 0.0
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"vectorised_parameters names {path!r}, which is not a number of the model; "
+                             f"expected its scalar fields or {' or '.join(NOISE_VARIANCES)}")
+    cloud = np.asarray(model.initial.sample(random, (particles,)), dtype=float).reshape(trials, particles, d)
+    truth = cloud[:, 0, :].copy()
+    noise = np.zeros((trials, particles, model.process_noise_dimension))
+    time = model.within_covariate_table(model.substep_time(1, 0))   # shapes only: the run's span is checked apart
+    _check_result("propagate", model.propagate_at(cloud, model.control(1), noise, time), (trials, particles, d))
+    _check_result("measurement_mean", model.measurement_mean(cloud), (trials, particles, m))
+    measurement = _check_result("simulate_measurement", model.simulate_measurement(truth, random), (trials, m))
+    _check_result("log_likelihood", model.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
+
+
+def _check_names(model) -> None:
+    """The model agrees with itself: names and sizes (``state_names``, ``state_units``,
+    ``measurement_dimension``, ``measurement_names``, ``process_noise_dimension``)."""
+    names = model.state_names
+    if not (isinstance(names, (tuple, list)) and names and all(isinstance(n, str) and n for n in names)):
+        raise ValueError(f"state_names returned {names!r}; expected a tuple of names, one per state "
+                         "component, e.g. ('x', 'v')")
+    if len(set(names)) != len(names):
+        raise ValueError(f"state_names returned {tuple(names)!r}, which repeats a name; each state "
+                         "component needs its own (they become column names)")
+    for name in ("measurement_dimension", "process_noise_dimension"):
+        size = getattr(model, name)
+        if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 1:
+            raise ValueError(f"{name} returned {size!r}; expected a whole number of at least 1")
+    lists = (("measurement_names", model.measurement_dimension, "measurement_dimension"),
+             ("state_units", len(names), "state_names"))
+    for name, size, source in lists:
+        value = getattr(model, name)
+        if not (isinstance(value, (tuple, list)) and all(isinstance(item, str) for item in value)):
+            raise ValueError(f"{name} returned {value!r}; expected a tuple of {size} strings")
+        if len(value) != size:
+            raise ValueError(f"{name} returned {len(value)} name(s) {tuple(value)!r}, and {source} says "
+                             f"{size}: give one per component")
+    measurement_names = tuple(model.measurement_names)
+    if len(set(measurement_names)) != len(measurement_names) or "" in measurement_names:
+        raise ValueError(f"measurement_names returned {measurement_names!r}; expected distinct, non-empty "
+                         "names (they become the column names of a measurements file)")
+
+
+def _check_result(method: str, value, shape: tuple) -> np.ndarray:
+    """A method's result, if it is a floating-point array of ``shape``; else ValueError."""
+    if not isinstance(value, np.ndarray):
+        raise ValueError(f"{method} returned {type(value).__name__}, not a numpy array of shape {shape}")
+    if value.shape != shape:
+        raise ValueError(f"{method} returned shape {value.shape} for a batch of 2 trials x 3 particles; "
+                         f"expected {shape}")
+    if not np.issubdtype(value.dtype, np.floating):
+        raise ValueError(f"{method} returned dtype {value.dtype}; expected floating point (float64)")
+    return value
+
+
+# -- declarations -----------------------------------------------------------------------------------
 
 
 def check_component_indices(model) -> None:
@@ -114,9 +232,7 @@ def _probe_reproducibility(model) -> Optional[str]:
     prior.bind(d)                          # a law default_prior() made afresh is not bound yet
     states = np.asarray(model.initial.sample(fresh(), (particles,)), dtype=float)
     noise = np.asarray(model.process_noise.sample(fresh(), (particles,)), dtype=float)
-    control, time = model.control(1), model.substep_time(1, 0)
-    if model._covariate_table is not None:    # a time the covariate table has (its span is checked elsewhere)
-        time = float(np.clip(time, model._covariate_table[0][0], model._covariate_table[0][-1]))
+    control, time = model.control(1), model.within_covariate_table(model.substep_time(1, 0))
     measurement = np.asarray(model.simulate_measurement(states[:, 0].copy(), fresh()), dtype=float)
 
     draw_hint = "draw from the random argument it is given (the trial's streams)"
