@@ -43,6 +43,12 @@ the book's EKF prediction (Table 7.2, :math:`V_t M_t V_t^\top`) with the extra r
 measurement's. The histogram filter refuses this model (its noise is not additive).
 
 ``angular_components = (2,)``: theta is an angle (for circular means and wrapped errors).
+
+**Both backends.** ``transition``, ``propagate``, ``measurement_mean``, ``measure`` and the
+likelihood compute in the state's array namespace (:mod:`pfx.numerics.arrays`): NumPy arrays on
+the ``numpy`` backend, JAX arrays on the ``jax`` backend, the same operations. The controls
+(commands, nominal path) are NumPy arrays made once on the host; ``transition`` draws from the
+``random`` it is given (TrialStreams or KeyStreams). The Jacobians are the EKF's (NumPy only).
 """
 
 from __future__ import annotations
@@ -61,6 +67,7 @@ from pfx.motion.distributions import MotionNoise
 from pfx.motion.odometry import OdometryAlphas, move_by_odometry, relative_motion, sample_motion_model_odometry
 from pfx.motion.velocity import VelocityAlphas, move_on_arc, sample_motion_model_velocity
 from pfx.numerics.angles import wrap_to_pi
+from pfx.numerics.arrays import namespace, with_values
 from pfx.registry import kind_union, list_form
 
 Point = tuple[StrictFloat, StrictFloat]
@@ -244,17 +251,18 @@ class PlanarRobot(Model):
 
     def propagate(self, state, control, noise):
         """f(x, u, w) with standardised noise w (for the Gaussian filters; see the module docstring)."""
+        xp = namespace(state, control, noise)
         if self.motion.kind == "velocity":
             v, w = control[..., 0], control[..., 1]
             variance_v, variance_w, variance_gamma = self.motion.alphas.variances(v, w)
-            return move_on_arc(state, v + np.sqrt(variance_v) * noise[..., 0],
-                               w + np.sqrt(variance_w) * noise[..., 1],
-                               np.sqrt(variance_gamma) * noise[..., 2], self.dt)
+            return move_on_arc(state, v + xp.sqrt(variance_v) * noise[..., 0],
+                               w + xp.sqrt(variance_w) * noise[..., 1],
+                               xp.sqrt(variance_gamma) * noise[..., 2], self.dt)
         rotation1, translation, rotation2 = relative_motion(control[..., 0, :], control[..., 1, :])
         variance1, variance_trans, variance2 = self.motion.alphas.variances(rotation1, translation, rotation2)
-        return move_by_odometry(state, rotation1 - np.sqrt(variance1) * noise[..., 0],
-                                translation - np.sqrt(variance_trans) * noise[..., 1],
-                                rotation2 - np.sqrt(variance2) * noise[..., 2])
+        return move_by_odometry(state, rotation1 - xp.sqrt(variance1) * noise[..., 0],
+                                translation - xp.sqrt(variance_trans) * noise[..., 1],
+                                rotation2 - xp.sqrt(variance2) * noise[..., 2])
 
     def transition_jacobian(self, state, control):
         moved = self.propagate(state, control, np.zeros(state.shape[:-1] + (3,)))
@@ -267,18 +275,19 @@ class PlanarRobot(Model):
     # -- measurement -----------------------------------------------------------------------------
 
     def measurement_mean(self, state):
+        xp = namespace(state)
         difference = self._landmark_array - state[..., None, :2]              # (..., m, 2): robot -> landmark
-        ranges = np.sqrt(np.sum(difference * difference, axis=-1))
+        ranges = xp.sqrt(xp.sum(difference * difference, axis=-1))
         if not self.bearings:
             return ranges
-        bearings = wrap_to_pi(np.arctan2(difference[..., 1], difference[..., 0]) - state[..., None, 2])
-        return np.concatenate([ranges, bearings], axis=-1)
+        bearings = wrap_to_pi(xp.arctan2(difference[..., 1], difference[..., 0]) - state[..., None, 2])
+        return xp.concatenate([ranges, bearings], axis=-1)
 
     def _wrap_bearings(self, values):
+        """The measurement with its bearings wrapped to (-pi, pi] (a copy)."""
         if self.bearings:
             count = len(self.landmarks)
-            values = values.copy()
-            values[..., count:] = wrap_to_pi(values[..., count:])
+            values = with_values(values, (..., slice(count, None)), wrap_to_pi(values[..., count:]))
         return values
 
     def measure(self, state, noise):

@@ -41,6 +41,12 @@ model, which here is exactly the truth's), ``noise-free`` executes the commanded
 
 The EKF and UKF run on this model through finite differences, but a single range reading of a
 uniform prior is far from Gaussian: the model is here for particle filters.
+
+**Both backends.** ``propagate``, ``measurement_mean``, ``measure`` and ``log_likelihood`` take
+NumPy or JAX arrays (:mod:`pfx.numerics.arrays`), the ray casting included
+(:meth:`pfx.models.walls.WallMap.ray_distance`). A control given as a NumPy array (the NumPy
+backend) selects the action's formula in Python, as before; a traced control (the JAX backend's
+per-step input) computes both and keeps the commanded one (``xp.where``).
 """
 
 from __future__ import annotations
@@ -68,6 +74,8 @@ from pfx.models.base import MODELS, Model
 from pfx.models.kidnap import Kidnap
 from pfx.models.walls import WallMap, read_wall_file
 from pfx.numerics.angles import wrap_into_turn
+from pfx.numerics.arrays import namespace
+from pfx.numerics.key_streams import KeyStreams
 
 FULL_TURN = 360.0
 RADIANS_PER_DEGREE = np.pi / 180.0
@@ -101,8 +109,9 @@ Action = Annotated[dict[Literal["move", "turn"], StrictFloat], BeforeValidator(
 
 def _direction(heading: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(cos, sin) of a heading in degrees."""
+    xp = namespace(heading)
     radians = heading * RADIANS_PER_DEGREE
-    return np.cos(radians), np.sin(radians)
+    return xp.cos(radians), xp.sin(radians)
 
 
 class FreeSpaceLaw(BaseModel):
@@ -111,6 +120,12 @@ class FreeSpaceLaw(BaseModel):
     Drawn by rejection: candidates uniform in the box around the walls, kept if in free space,
     until every trial has its count. Each trial draws from its own stream until it alone is
     full, so the draws of a trial do not depend on the other trials of its batch.
+
+    On the JAX backend (``random`` a :class:`~pfx.numerics.key_streams.KeyStreams`) the rounds
+    are a ``lax.while_loop``: every trial draws in every round (a trial already full ignores its
+    draws), round j from the keys of this draw folded with j, so a trial's poses still depend on
+    its own keys alone. A slot still empty after the last round holds NaN: a lost particle,
+    which the JAX engine reports, as it cannot raise here.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -132,7 +147,8 @@ class FreeSpaceLaw(BaseModel):
     def sample(self, random, shape=()) -> np.ndarray:
         count = int(np.prod(shape, dtype=np.int64))
         trials = len(random)
-        low, high = self._map.bounds
+        if isinstance(random, KeyStreams):
+            return self._sample_by_keys(random, count).reshape((trials,) + tuple(shape) + (3,))
         out = np.empty((trials, count, 3))
         filled = np.zeros(trials, dtype=np.int64)
         pending = np.arange(trials)
@@ -141,7 +157,7 @@ class FreeSpaceLaw(BaseModel):
                 return out.reshape((trials,) + tuple(shape) + (3,))
             streams = random if pending.size == trials else random.subset(pending)
             draws = streams.uniform((count, 3))
-            candidates = np.concatenate([low + (high - low) * draws[..., :2], FULL_TURN * draws[..., 2:]], axis=-1)
+            candidates = self._candidates(draws)
             inside = self._map.contains(candidates[..., 0], candidates[..., 1])
             slot = filled[pending, None] + np.cumsum(inside, axis=1)       # 1-based slot of each accepted
             keep = inside & (slot <= count)
@@ -151,6 +167,41 @@ class FreeSpaceLaw(BaseModel):
             pending = pending[filled[pending] < count]
         raise ModelNumericalError(f"the map's free space is empty or tiny: {MAX_REJECTION_ROUNDS} rounds of "
                                   "uniform draws in the box around the walls did not fill the prior")
+
+    def _candidates(self, draws):
+        """Uniform draws (..., 3) on [0, 1) made into poses uniform in the walls' box, any heading."""
+        xp = namespace(draws)
+        low, high = self._map.bounds
+        return xp.concatenate([low + (high - low) * draws[..., :2], FULL_TURN * draws[..., 2:]], axis=-1)
+
+    def _sample_by_keys(self, random: KeyStreams, count: int):
+        """The rejection rounds on JAX arrays (class docstring): (trials, count, 3)."""
+        import jax
+        import jax.numpy as jnp
+
+        trials = len(random)
+        if count == 0:
+            return jnp.zeros((trials, 0, 3), random.dtype)
+        streams = random.at(random.counter)       # this draw's keys; the rounds are folded below them
+        random.counter += 1
+        rows = jnp.arange(trials)[:, None]
+
+        def another_round(carry):
+            round_index, out, filled = carry
+            candidates = self._candidates(streams.at(round_index).uniform((count, 3)))
+            inside = self._map.contains(candidates[..., 0], candidates[..., 1])
+            slot = filled[:, None] + jnp.cumsum(inside, axis=1)       # 1-based slot of each accepted
+            target = jnp.where(inside & (slot <= count), slot - 1, count)     # count: out of range, dropped
+            out = out.at[rows, target].set(candidates, mode="drop")
+            return round_index + 1, out, jnp.minimum(slot[:, -1], count).astype(filled.dtype)
+
+        def unfinished(carry):
+            round_index, _, filled = carry
+            return (round_index < MAX_REJECTION_ROUNDS) & jnp.any(filled < count)
+
+        empty = jnp.full((trials, count, 3), jnp.nan, random.dtype)
+        _, out, _ = jax.lax.while_loop(unfinished, another_round, (jnp.int32(0), empty, jnp.zeros(trials, jnp.int32)))
+        return out
 
     def _moment_points(self) -> np.ndarray:
         low, high = self._map.bounds
@@ -343,36 +394,51 @@ class SonarMCL(Model):
         return self._controls[step - 1]
 
     def propagate(self, state, control, noise):
-        distance, angle = control
+        """A move (``control = [d, 0]``) or a turn (``[0, alpha]``) with its noise (module docstring)."""
+        distance, angle = control[0], control[1]
+        if namespace(control) is np:          # a host control: only its action is computed
+            return self._move(state, distance, noise) if distance != 0.0 else self._turn(state, angle, noise)
+        # a traced control (the JAX backend): both actions computed, the commanded one kept
+        return namespace(control).where(distance != 0.0, self._move(state, distance, noise),
+                                        self._turn(state, angle, noise))
+
+    def _move(self, state, distance, noise):
+        """x' = x + delta cos(theta), y' = y + delta sin(theta) with delta = b_d d + w_d, stopped at walls."""
+        xp = namespace(state, distance, noise)
         x, y, heading = state[..., 0], state[..., 1], state[..., 2]
-        if distance != 0.0:
-            cos, sin = _direction(heading)
-            covered = self._stop_at_walls(x, y, cos, sin, self.move_bias * distance + noise[..., 0])
-            return np.stack([x + covered * cos, y + covered * sin, heading], axis=-1)
-        turned = wrap_into_turn(heading + self.turn_bias * angle + noise[..., 1], FULL_TURN)
-        return np.stack([x, y, turned], axis=-1)
+        cos, sin = _direction(heading)
+        covered = self._stop_at_walls(x, y, cos, sin, self.move_bias * distance + noise[..., 0])
+        return xp.stack([x + covered * cos, y + covered * sin, heading], axis=-1)
+
+    def _turn(self, state, angle, noise):
+        """theta' = theta + b_alpha alpha + w_alpha (mod 360); the position unchanged."""
+        xp = namespace(state, angle, noise)
+        turned = wrap_into_turn(state[..., 2] + self.turn_bias * angle + noise[..., 1], FULL_TURN)
+        return xp.stack([state[..., 0], state[..., 1], turned], axis=-1)
 
     def _stop_at_walls(self, x, y, cos, sin, distance):
         """The signed distance, shortened to stop ``clearance`` before the wall in its way."""
-        direction = np.where(distance >= 0.0, 1.0, -1.0)
+        xp = namespace(x, y, distance)
+        direction = xp.where(distance >= 0.0, 1.0, -1.0)
         free = self._map.ray_distance(x, y, direction * cos, direction * sin)
-        return direction * np.minimum(np.abs(distance), np.maximum(free - self.clearance, 0.0))
+        return direction * xp.minimum(xp.abs(distance), xp.maximum(free - self.clearance, 0.0))
 
     def wall_distance(self, state) -> np.ndarray:
         """r(x): distance from the pose straight ahead to the nearest wall (inf if none), shape (...)."""
         return self._map.ray_distance(state[..., 0], state[..., 1], *_direction(state[..., 2]))
 
     def measurement_mean(self, state):
-        return np.minimum(self.wall_distance(state), self.max_range)[..., None]
+        return namespace(state).minimum(self.wall_distance(state), self.max_range)[..., None]
 
     def measure(self, state, noise):
-        return np.minimum(self.wall_distance(state)[..., None] + noise, self.max_range)
+        return namespace(state, noise).minimum(self.wall_distance(state)[..., None] + noise, self.max_range)
 
     def log_likelihood(self, measurement, state):
+        xp = namespace(measurement, state)
         expected = self.wall_distance(state)[..., None]
         with np.errstate(invalid="ignore"):       # inf - inf cannot occur: readings are finite
             density = self.measurement_noise.log_density(measurement - expected)
         saturated = measurement[..., 0] >= self.max_range
-        if not np.any(saturated):
+        if xp is np and not np.any(saturated):    # NumPy: the tail only where a reading saturated
             return density
-        return np.where(saturated, self.measurement_noise.log_tail(self.max_range - expected), density)
+        return xp.where(saturated, self.measurement_noise.log_tail(self.max_range - expected), density)

@@ -16,8 +16,12 @@ the wall :math:`a + s\,e` (:math:`e = b - a`, :math:`s \in [0, 1]`) where
 The distance to the wall ahead is the smallest such :math:`t` over all walls (infinite where the
 ray meets none). A ray parallel to a wall (:math:`d \times e = 0`) does not meet it: in a closed
 polygon the ray that runs along a wall's line meets the next wall at the shared corner instead.
-A ray through a corner (:math:`s` = 0 or 1, up to a relative 1e-9) meets it. Every quantity is a
-NumPy array over the points' leading dimensions times the walls: no Python loop over points.
+A ray through a corner (:math:`s` = 0 or 1, up to a relative 1e-9) meets it. Every quantity is an
+array over the points' leading dimensions times the walls: no Python loop over points, nor over
+walls, so :meth:`WallMap.ray_distance` and :meth:`WallMap.contains` take NumPy or JAX arrays
+(:mod:`pfx.numerics.arrays`; the walls stay NumPy constants) and serve both backends. On NumPy
+the ray casting works in place (it is the sonar model's hot spot); on JAX, where arrays cannot be
+written, it computes the same t and s without writing (:meth:`WallMap._ray_distance_functional`).
 
 A map file holds the walls as YAML (a list of ``[x1, y1, x2, y2]``, or ``{walls: [...]}``) or
 as CSV with the header ``x1,y1,x2,y2`` and one wall per row.
@@ -33,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from pfx.errors import ConfigError
+from pfx.numerics.arrays import namespace
 from pfx.safe_yaml import MAX_FILE_BYTES, parse_yaml
 from pfx.user_files import UnreadableFile, read_user_file
 
@@ -68,6 +73,9 @@ class WallMap:
 
         The arguments broadcast together to a shape S; the result has shape S.
         """
+        xp = namespace(x, y, cos_heading, sin_heading)
+        if xp is not np:
+            return self._ray_distance_functional(xp, *xp.broadcast_arrays(x, y, cos_heading, sin_heading))
         x, y, dx, dy = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (x, y, cos_heading, sin_heading)))
         shape = x.shape
         point = np.stack([x.ravel(), y.ravel()], axis=-1)             # (P, 2)
@@ -93,14 +101,31 @@ class WallMap:
         t[miss] = np.inf
         return t.min(axis=-1).reshape(shape)
 
+    def _ray_distance_functional(self, xp, x, y, dx, dy):
+        """:meth:`ray_distance` without writing into arrays (JAX), points of any shape S.
+
+        The cross products are written out per (point, wall) pair, (S..., W), rather than as
+        matrix products: a float32 matrix product on a GPU may run at reduced (TF32) precision.
+        The same t and s, up to rounding, as the NumPy path.
+        """
+        offset_x = self.start_x - x[..., None]                         # a - p, (S..., W)
+        offset_y = self.start_y - y[..., None]
+        denominator = cross(dx[..., None], dy[..., None], self.edge_x, self.edge_y)   # d x e
+        t = cross(offset_x, offset_y, self.edge_x, self.edge_y) / denominator         # (a - p) x e / d x e
+        s = cross(offset_x, offset_y, dx[..., None], dy[..., None]) / denominator     # (a - p) x d / d x e
+        # parallel walls give t, s = +-inf or nan: neither comparison holds for them
+        meets = (xp.abs(s - 0.5) <= 0.5 + CORNER_TOLERANCE) & (t >= 0.0)
+        return xp.min(xp.where(meets, t, np.inf), axis=-1)
+
     def contains(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """True where (x, y) lies in free space (even-odd rule; see the module docstring)."""
-        px, py = np.asarray(x)[..., None], np.asarray(y)[..., None]
+        xp = namespace(x, y)
+        px, py = xp.asarray(x)[..., None], xp.asarray(y)[..., None]
         end_y = self.start_y + self.edge_y
         straddles = (self.start_y > py) != (end_y > py)      # the wall crosses the line y = p_y
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             crossing_x = self.start_x + (py - self.start_y) * self.edge_x / self.edge_y
-        crossings = np.count_nonzero(straddles & (crossing_x > px), axis=-1)
+        crossings = xp.count_nonzero(straddles & (crossing_x > px), axis=-1)
         return crossings % 2 == 1
 
     def open_ends(self) -> list[tuple[int, tuple[float, float]]]:

@@ -36,9 +36,16 @@ ros-planning/navigation).
 stand still) is a point mass: ``sample(0)`` is exactly 0, and ``prob(a, 0)`` is :math:`+\infty`
 at :math:`a = 0` and 0 elsewhere (the limit of the densities). A negative variance is an error.
 
-Every draw comes from an explicit :class:`numpy.random.Generator`, or from a
-:class:`pfx.numerics.seeding.TrialStreams` (then the leading axis of the draw is the trial axis, and
-each trial's slice comes from its own generator).
+Every draw comes from an explicit :class:`numpy.random.Generator`, or from per-trial streams
+(the :class:`~pfx.numerics.key_streams.Random` protocol: :class:`pfx.numerics.seeding.TrialStreams`
+on the NumPy backend, :class:`pfx.numerics.key_streams.KeyStreams` on the JAX backend); with
+streams the leading axis of the draw is the trial axis, and each trial's slice comes from its own
+stream.
+
+Every function takes NumPy or JAX arrays (:mod:`pfx.numerics.arrays`) and computes in their
+namespace: the same operations, so NumPy's numbers are what they always were. A negative
+variance is refused on NumPy only: inside a compiled JAX step there is no value to test (the
+motion models' variances are sums of squares times alphas >= 0, never negative).
 """
 
 from __future__ import annotations
@@ -48,16 +55,26 @@ from typing import Literal, Union
 import numpy as np
 
 from pfx.laws.noise import NOISE_FAMILIES
-from pfx.numerics.seeding import TrialStreams
+from pfx.numerics.arrays import namespace
+from pfx.numerics.key_streams import Random as TrialRandom
 
 MotionNoise = Literal["normal", "triangular"]
-Random = Union[np.random.Generator, TrialStreams]
+Random = Union[np.random.Generator, TrialRandom]
 
 # The book's family names, and pfx's noise family holding each one's unit-variance density.
 _FAMILY = {"normal": "gaussian", "triangular": "triangular"}
 
 
+def as_float_array(value):
+    """``value`` as a float64 NumPy array if it is NumPy (or numbers, or lists of them); a JAX
+    array as it is (in the precision its backend runs, which a cast to float would override)."""
+    return np.asarray(value, dtype=float) if namespace(value) is np else value
+
+
 def _checked_variance(variance) -> np.ndarray:
+    """The variance as a float array, refused if negative (NumPy; a JAX array as it is)."""
+    if namespace(variance) is not np:
+        return variance
     variance = np.asarray(variance, dtype=float)
     if np.any(variance < 0):
         raise ValueError("a variance must be >= 0")
@@ -69,14 +86,15 @@ def log_prob(a, variance, noise: MotionNoise = "normal") -> np.ndarray:
 
     Broadcasts ``a`` against ``variance``; a zero variance gives +inf at a = 0, -inf elsewhere.
     """
-    a = np.asarray(a, dtype=float)
+    xp = namespace(a, variance)
+    a = as_float_array(a)
     variance = _checked_variance(variance)
-    a, variance = np.broadcast_arrays(a, variance)
+    a, variance = xp.broadcast_arrays(a, variance)
     standard_log_density = NOISE_FAMILIES[_FAMILY[noise]].log_density_standard
     with np.errstate(divide="ignore", invalid="ignore"):
-        std = np.sqrt(variance)
-        log_density = standard_log_density(a / std) - np.log(std)
-    return np.where(variance > 0, log_density, np.where(a == 0, np.inf, -np.inf))
+        std = xp.sqrt(variance)
+        log_density = standard_log_density(a / std) - xp.log(std)
+    return xp.where(variance > 0, log_density, xp.where(a == 0, np.inf, -np.inf))
 
 
 def log_product(*log_factors) -> np.ndarray:
@@ -84,15 +102,17 @@ def log_product(*log_factors) -> np.ndarray:
 
     A zero factor wins over a point mass's infinite one (0 * inf is 0 here, not NaN).
     """
-    stacked = np.stack(np.broadcast_arrays(*log_factors))
+    xp = namespace(*log_factors)
+    stacked = xp.stack(xp.broadcast_arrays(*log_factors))
     with np.errstate(invalid="ignore"):
         total = stacked.sum(axis=0)
-    return np.where(np.isneginf(stacked).any(axis=0), -np.inf, total)
+    return xp.where(xp.isneginf(stacked).any(axis=0), -np.inf, total)
 
 
 def prob(a, variance, noise: MotionNoise = "normal") -> np.ndarray:
     """prob(a, b) of Table 5.2 for the named family (``normal`` or ``triangular``)."""
-    return np.exp(log_prob(a, variance, noise))
+    log_density = log_prob(a, variance, noise)
+    return namespace(log_density).exp(log_density)
 
 
 def prob_normal(a, variance) -> np.ndarray:
@@ -106,14 +126,15 @@ def prob_triangular(a, variance) -> np.ndarray:
 
 
 def uniform_draws(random: Random, shape) -> np.ndarray:
-    """Uniform draws on [0, 1) of the given shape; with TrialStreams shape[0] is the trial axis."""
+    """Uniform draws on [0, 1) of the given shape; with per-trial streams (TrialStreams or
+    KeyStreams) shape[0] is the trial axis."""
     shape = tuple(shape)
-    if isinstance(random, TrialStreams):
-        if not shape or shape[0] != len(random):
-            raise ValueError(f"draws from {len(random)} trial streams need the trial axis first, "
-                             f"got shape {shape}")
-        return random.uniform(shape[1:])
-    return random.random(shape)
+    if isinstance(random, np.random.Generator):
+        return random.random(shape)
+    if not shape or shape[0] != len(random):
+        raise ValueError(f"draws from {len(random)} trial streams need the trial axis first, "
+                         f"got shape {shape}")
+    return random.uniform(shape[1:])
 
 
 def sample_normal(std, random: Random) -> np.ndarray:
@@ -122,8 +143,8 @@ def sample_normal(std, random: Random) -> np.ndarray:
     With :math:`\mathrm{rand}(-s, s) = s (2U - 1)` this is :math:`s (\sum_i U_i - 6)`: mean 0,
     variance :math:`s^2`.
     """
-    std = np.asarray(std, dtype=float)
-    uniforms = uniform_draws(random, std.shape + (12,))
+    std = as_float_array(std)
+    uniforms = uniform_draws(random, tuple(std.shape) + (12,))
     return std * (uniforms.sum(axis=-1) - 6.0)
 
 
@@ -133,8 +154,8 @@ def sample_triangular(std, random: Random) -> np.ndarray:
     Equal to :math:`\sqrt 6\, s\, (U_1 + U_2 - 1)`: triangular on :math:`[-\sqrt6 s, \sqrt6 s]`,
     variance :math:`s^2`.
     """
-    std = np.asarray(std, dtype=float)
-    uniforms = uniform_draws(random, std.shape + (2,))
+    std = as_float_array(std)
+    uniforms = uniform_draws(random, tuple(std.shape) + (2,))
     return np.sqrt(6.0) * std * (uniforms.sum(axis=-1) - 1.0)
 
 
@@ -143,4 +164,5 @@ _SAMPLERS = {"normal": sample_normal, "triangular": sample_triangular}
 
 def sample(variance, random: Random, noise: MotionNoise = "normal") -> np.ndarray:
     """sample(b) = sample_x(sqrt(b)): a zero-mean draw of VARIANCE b per entry of ``variance``."""
-    return _SAMPLERS[noise](np.sqrt(_checked_variance(variance)), random)
+    variance = _checked_variance(variance)
+    return _SAMPLERS[noise](namespace(variance).sqrt(variance), random)

@@ -63,7 +63,9 @@ definition), not divided by the Jacobian of the map to poses. The density of the
 
 (polar coordinates: the area element is :math:`|\hat\delta_{trans}|\, d\hat\delta_{trans}\,
 d\hat\delta_{rot1}`, and :math:`\hat\delta_{rot2}` moves the heading alone). Poses are ``(..., 3)`` arrays
-(x, y, theta in radians); leading dimensions broadcast.
+(x, y, theta in radians); leading dimensions broadcast. NumPy or JAX arrays
+(:mod:`pfx.numerics.arrays`): every function computes in its arguments' namespace, the same
+operations on both.
 """
 
 from __future__ import annotations
@@ -73,8 +75,9 @@ from typing import Sequence, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
-from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
+from pfx.motion.distributions import MotionNoise, Random, as_float_array, log_prob, log_product, sample
 from pfx.numerics.angles import wrap_to_pi
+from pfx.numerics.arrays import namespace
 from pfx.registry import list_form
 
 
@@ -110,7 +113,8 @@ class OdometryAlphas(BaseModel):
 
     def variances(self, rotation1, translation, rotation2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Variances of the first rotation, the translation and the second rotation (Table 5.6)."""
-        r1, t, r2 = np.square(rotation1), np.square(translation), np.square(rotation2)
+        xp = namespace(rotation1, translation, rotation2)
+        r1, t, r2 = xp.square(rotation1), xp.square(translation), xp.square(rotation2)
         return (self.alpha1 * r1 + self.alpha2 * t, self.alpha3 * t + self.alpha4 * (r1 + r2),
                 self.alpha1 * r2 + self.alpha2 * t)
 
@@ -124,12 +128,13 @@ def relative_motion(pose_before, pose_after) -> tuple[np.ndarray, np.ndarray, np
 
     with :math:`\delta_{rot1} = 0` when there is no translation at all.
     """
-    pose_before = np.asarray(pose_before, dtype=float)
-    pose_after = np.asarray(pose_after, dtype=float)
+    xp = namespace(pose_before, pose_after)
+    pose_before = as_float_array(pose_before)
+    pose_after = as_float_array(pose_after)
     dx = pose_after[..., 0] - pose_before[..., 0]
     dy = pose_after[..., 1] - pose_before[..., 1]
-    translation = np.hypot(dx, dy)
-    rotation1 = np.where(translation > 0, wrap_to_pi(np.arctan2(dy, dx) - pose_before[..., 2]), 0.0)
+    translation = xp.hypot(dx, dy)
+    rotation1 = xp.where(translation > 0, wrap_to_pi(xp.arctan2(dy, dx) - pose_before[..., 2]), 0.0)
     rotation2 = wrap_to_pi(pose_after[..., 2] - pose_before[..., 2] - rotation1)
     return rotation1, translation, rotation2
 
@@ -141,10 +146,11 @@ def move_by_odometry(pose, rotation1, translation, rotation2) -> np.ndarray:
               y' = y + \delta_{trans}\sin(\theta + \delta_{rot1}), \quad
               \theta' = \mathrm{wrap}(\theta + \delta_{rot1} + \delta_{rot2}).
     """
-    pose = np.asarray(pose, dtype=float)
+    xp = namespace(pose, rotation1, translation, rotation2)
+    pose = as_float_array(pose)
     heading = pose[..., 2] + rotation1
-    return np.stack(np.broadcast_arrays(pose[..., 0] + translation * np.cos(heading),
-                                        pose[..., 1] + translation * np.sin(heading),
+    return xp.stack(xp.broadcast_arrays(pose[..., 0] + translation * xp.cos(heading),
+                                        pose[..., 1] + translation * xp.sin(heading),
                                         wrap_to_pi(heading + rotation2)), axis=-1)
 
 
@@ -164,20 +170,22 @@ def sample_motion_model_odometry(odometry_before, odometry_after, pose, alphas, 
     ``normal`` or ``triangular``; ``random`` a Generator or TrialStreams (trial axis first).
     Three draws per pose, in the order rot1, trans, rot2.
     """
+    xp = namespace(odometry_before, odometry_after, pose)
     rotation1, translation, rotation2 = relative_motion(odometry_before, odometry_after)
-    pose = np.asarray(pose, dtype=float)
+    pose = as_float_array(pose)
     shape = np.broadcast_shapes(rotation1.shape, pose.shape[:-1])
-    rotation1, translation, rotation2 = (np.broadcast_to(part, shape) for part in (rotation1, translation, rotation2))
+    rotation1, translation, rotation2 = (xp.broadcast_to(part, shape) for part in (rotation1, translation, rotation2))
     variance1, variance_trans, variance2 = OdometryAlphas.of(alphas).variances(rotation1, translation, rotation2)
     rotation1_hat = rotation1 - sample(variance1, random, noise)
     translation_hat = translation - sample(variance_trans, random, noise)
     rotation2_hat = rotation2 - sample(variance2, random, noise)
-    return move_by_odometry(np.broadcast_to(pose, shape + (3,)), rotation1_hat, translation_hat, rotation2_hat)
+    return move_by_odometry(xp.broadcast_to(pose, shape + (3,)), rotation1_hat, translation_hat, rotation2_hat)
 
 
 def log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
                               noise: MotionNoise) -> np.ndarray:
     """log of :func:`motion_model_odometry` (computed in the log domain; -inf where it is 0)."""
+    xp = namespace(pose_now, odometry_before, odometry_after, pose_before)
     rotation1, translation, rotation2 = relative_motion(odometry_before, odometry_after)
     variance1, variance_trans, variance2 = OdometryAlphas.of(alphas).variances(rotation1, translation, rotation2)
     rotation1_hat, translation_hat, rotation2_hat = relative_motion(pose_before, pose_now)
@@ -188,7 +196,7 @@ def log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_be
             log_prob(wrap_to_pi(rotation1 - rotation1_hat - turn), variance1, noise),
             log_prob(translation - sign * translation_hat, variance_trans, noise),
             log_prob(wrap_to_pi(rotation2 - rotation2_hat + turn), variance2, noise)))
-    return np.logaddexp(*terms)
+    return xp.logaddexp(*terms)
 
 
 def log_densities_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
@@ -200,7 +208,7 @@ def log_densities_odometry(pose_now, odometry_before, odometry_after, pose_befor
     log_book = log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas, noise)
     _, translation_hat, _ = relative_motion(pose_before, pose_now)
     with np.errstate(divide="ignore"):
-        return log_book, log_product(log_book, -np.log(translation_hat))
+        return log_book, log_product(log_book, -namespace(translation_hat).log(translation_hat))
 
 
 def log_pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
@@ -216,8 +224,8 @@ def pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before
     The density that :func:`sample_motion_model_odometry`'s poses follow (change of variables,
     see the module docstring); infinite at zero displacement (a set of measure zero).
     """
-    return np.exp(log_pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before,
-                                            alphas, noise))
+    log_density = log_pose_density_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas, noise)
+    return namespace(log_density).exp(log_density)
 
 
 def motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas,
@@ -235,5 +243,5 @@ def motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before
     with :math:`\delta` from the readings and :math:`\hat\delta` from the poses
     (:func:`relative_motion`); see the module docstring for the choices made.
     """
-    return np.exp(log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before,
-                                            alphas, noise))
+    log_density = log_motion_model_odometry(pose_now, odometry_before, odometry_after, pose_before, alphas, noise)
+    return namespace(log_density).exp(log_density)

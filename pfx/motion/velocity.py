@@ -90,7 +90,9 @@ follow (it integrates to 1 over :math:`(x, y, \theta)`); Table 5.1's value is it
 when the translational noise is a few per cent of :math:`v`.
 
 Arrays: poses are ``(..., 3)`` (x, y, theta in radians), controls ``(..., 2)`` (v, omega);
-leading dimensions broadcast.
+leading dimensions broadcast. NumPy or JAX arrays (:mod:`pfx.numerics.arrays`): every function
+computes in its arguments' namespace, the same operations on both (a sampler draws from the
+``random`` it is given: a NumPy Generator, TrialStreams or KeyStreams).
 """
 
 from __future__ import annotations
@@ -100,8 +102,9 @@ from typing import Sequence, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
-from pfx.motion.distributions import MotionNoise, Random, log_prob, log_product, sample
+from pfx.motion.distributions import MotionNoise, Random, as_float_array, log_prob, log_product, sample
 from pfx.numerics.angles import wrap_to_pi
+from pfx.numerics.arrays import namespace
 from pfx.registry import list_form
 
 
@@ -140,14 +143,16 @@ class VelocityAlphas(BaseModel):
 
     def variances(self, v, w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         r"""Variances of :math:`\hat v`, :math:`\hat\omega`, :math:`\hat\gamma` for the command (v, w)."""
-        v2, w2 = np.square(v), np.square(w)
+        xp = namespace(v, w)
+        v2, w2 = xp.square(v), xp.square(w)
         return (self.alpha1 * v2 + self.alpha2 * w2, self.alpha3 * v2 + self.alpha4 * w2,
                 self.alpha5 * v2 + self.alpha6 * w2)
 
 
 def _sinc(angle):
     """sin(a) / a, equal to 1 at a = 0."""
-    return np.sinc(np.asarray(angle) / np.pi)
+    xp = namespace(angle)
+    return xp.sinc(as_float_array(angle) / np.pi)
 
 
 def move_on_arc(pose, v, w, gamma, dt: float) -> np.ndarray:
@@ -157,13 +162,14 @@ def move_on_arc(pose, v, w, gamma, dt: float) -> np.ndarray:
               (\cos, \sin)(\theta + \omega\Delta t/2), \quad
               \theta' = \mathrm{wrap}(\theta + \omega\Delta t + \gamma\Delta t).
     """
-    pose = np.asarray(pose, dtype=float)
+    xp = namespace(pose, v, w, gamma)
+    pose = as_float_array(pose)
     theta = pose[..., 2]
     half_turn = 0.5 * w * dt
     chord = v * dt * _sinc(half_turn)
     heading = theta + half_turn
-    return np.stack(np.broadcast_arrays(pose[..., 0] + chord * np.cos(heading),
-                                        pose[..., 1] + chord * np.sin(heading),
+    return xp.stack(xp.broadcast_arrays(pose[..., 0] + chord * xp.cos(heading),
+                                        pose[..., 1] + chord * xp.sin(heading),
                                         wrap_to_pi(theta + w * dt + gamma * dt)), axis=-1)
 
 
@@ -176,19 +182,20 @@ def executed_velocities(pose_before, pose_now, dt: float, direction: int = 1):
     ``direction`` +1 (forward, :math:`\hat v \ge 0`) or -1 (backward, chord angle turned by pi).
     Returns three arrays of the broadcast leading shape.
     """
-    pose_before = np.asarray(pose_before, dtype=float)
-    pose_now = np.asarray(pose_now, dtype=float)
+    xp = namespace(pose_before, pose_now)
+    pose_before = as_float_array(pose_before)
+    pose_now = as_float_array(pose_now)
     dx = pose_now[..., 0] - pose_before[..., 0]
     dy = pose_now[..., 1] - pose_before[..., 1]
     theta = pose_before[..., 2]
-    ahead = dx * np.cos(theta) + dy * np.sin(theta)
-    left = -dx * np.sin(theta) + dy * np.cos(theta)
-    chord = np.hypot(ahead, left)
-    chord_angle = np.arctan2(left, ahead)
+    ahead = dx * xp.cos(theta) + dy * xp.sin(theta)
+    left = -dx * xp.sin(theta) + dy * xp.cos(theta)
+    chord = xp.hypot(ahead, left)
+    chord_angle = xp.arctan2(left, ahead)
     if direction < 0:
         chord_angle = wrap_to_pi(chord_angle + np.pi)
     with np.errstate(divide="ignore", invalid="ignore"):
-        distance = np.where(chord > 0, np.sign(direction) * chord / _sinc(chord_angle), 0.0)
+        distance = xp.where(chord > 0, np.sign(direction) * chord / _sinc(chord_angle), 0.0)
     turn = 2.0 * chord_angle
     final_turn = wrap_to_pi(pose_now[..., 2] - theta - turn)
     return distance / dt, turn / dt, final_turn / dt
@@ -208,14 +215,15 @@ def sample_motion_model_velocity(control, pose, dt: float, alphas, noise: Motion
     ``noise`` is ``normal`` or ``triangular`` (Table 5.4); ``random`` a Generator or TrialStreams
     (then the leading axis is the trial axis). Three draws per pose, in the order v, w, gamma.
     """
-    control, pose = np.asarray(control, dtype=float), np.asarray(pose, dtype=float)
+    xp = namespace(control, pose)
+    control, pose = as_float_array(control), as_float_array(pose)
     shape = np.broadcast_shapes(control.shape[:-1], pose.shape[:-1])
-    v, w = (np.broadcast_to(control[..., i], shape) for i in range(2))
+    v, w = (xp.broadcast_to(control[..., i], shape) for i in range(2))
     variance_v, variance_w, variance_gamma = VelocityAlphas.of(alphas).variances(v, w)
     v_hat = v + sample(variance_v, random, noise)
     w_hat = w + sample(variance_w, random, noise)
     gamma_hat = sample(variance_gamma, random, noise)
-    return move_on_arc(np.broadcast_to(pose, shape + (3,)), v_hat, w_hat, gamma_hat, dt)
+    return move_on_arc(xp.broadcast_to(pose, shape + (3,)), v_hat, w_hat, gamma_hat, dt)
 
 
 def arc_jacobian(v_hat, w_hat, dt: float) -> np.ndarray:
@@ -229,7 +237,8 @@ def arc_jacobian(v_hat, w_hat, dt: float) -> np.ndarray:
     :math:`(\Delta t\,\mathrm{sinc}\,\varphi, \Delta t / 2)`; :math:`\theta'` gains
     :math:`\Delta t` per unit of :math:`\hat\gamma`, on which x' and y' do not depend.
     """
-    return 0.5 * np.abs(v_hat) * dt ** 4 * _sinc(0.5 * np.asarray(w_hat) * dt) ** 2
+    xp = namespace(v_hat, w_hat)
+    return 0.5 * xp.abs(v_hat) * dt ** 4 * _sinc(0.5 * as_float_array(w_hat) * dt) ** 2
 
 
 def log_densities_velocity(pose_now, control, pose_before, dt: float, alphas,
@@ -239,7 +248,8 @@ def log_densities_velocity(pose_now, control, pose_before, dt: float, alphas,
     Each preimage's term is the noise density (Table 5.1's product); the pose density divides
     each term by its :func:`arc_jacobian` before the two preimages are added.
     """
-    control = np.asarray(control, dtype=float)
+    xp = namespace(pose_now, control, pose_before)
+    control = as_float_array(control)
     v, w = control[..., 0], control[..., 1]
     variance_v, variance_w, variance_gamma = VelocityAlphas.of(alphas).variances(v, w)
     noise_terms, pose_terms = [], []
@@ -250,8 +260,8 @@ def log_densities_velocity(pose_now, control, pose_before, dt: float, alphas,
                            log_prob(gamma_hat, variance_gamma, noise))
         noise_terms.append(term)
         with np.errstate(divide="ignore"):
-            pose_terms.append(log_product(term, -np.log(arc_jacobian(v_hat, w_hat, dt))))
-    return np.logaddexp(*noise_terms), np.logaddexp(*pose_terms)
+            pose_terms.append(log_product(term, -xp.log(arc_jacobian(v_hat, w_hat, dt))))
+    return xp.logaddexp(*noise_terms), xp.logaddexp(*pose_terms)
 
 
 def log_motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,
@@ -281,7 +291,8 @@ def pose_density_velocity(pose_now, control, pose_before, dt: float, alphas,
     The density that :func:`sample_motion_model_velocity`'s poses follow (change of variables);
     infinite where the Jacobian vanishes (no displacement, a set of measure zero).
     """
-    return np.exp(log_pose_density_velocity(pose_now, control, pose_before, dt, alphas, noise))
+    log_density = log_pose_density_velocity(pose_now, control, pose_before, dt, alphas, noise)
+    return namespace(log_density).exp(log_density)
 
 
 def motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,
@@ -298,4 +309,5 @@ def motion_model_velocity(pose_now, control, pose_before, dt: float, alphas,
     with :math:`(\hat v, \hat\omega, \hat\gamma)` from :func:`executed_velocities` (see the module
     docstring for the two preimages and the straight-line limit).
     """
-    return np.exp(log_motion_model_velocity(pose_now, control, pose_before, dt, alphas, noise))
+    log_density = log_motion_model_velocity(pose_now, control, pose_before, dt, alphas, noise)
+    return namespace(log_density).exp(log_density)

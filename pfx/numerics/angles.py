@@ -49,7 +49,9 @@ def wrap_difference(difference: np.ndarray, full_turn: float) -> np.ndarray:
 
 def wrap_to_pi(angle):
     """An angle in radians (any shape) mapped into (-pi, pi]: both -pi and pi become pi."""
-    return wrap_difference(np.asarray(angle, dtype=float), 2.0 * np.pi)
+    if namespace(angle) is np:       # a number or a list of them is read as float64, as before
+        angle = np.asarray(angle, dtype=float)
+    return wrap_difference(angle, 2.0 * np.pi)
 
 
 def circular_mean(weights: np.ndarray, angles: np.ndarray, full_turn: float) -> np.ndarray:
