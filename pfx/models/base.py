@@ -363,17 +363,26 @@ class Model(TimeAxis, BaseModel):
     # -- composed operations used by the engine and the truth simulator ------------------------
 
     def transition(self, state: np.ndarray, step: int, random: TrialStreams) -> np.ndarray:
-        r"""Sample x_k ~ p(x_k | x_{k-1}, u_k) for every leading index; trial axis first.
+        r"""Sample x_k ~ p(x_k | x_{k-1}, u_k) for every leading index; trial axis first: the
+        step's control and substep times read on the host, then :meth:`sample_transition`."""
+        times = [self.substep_time(step, substep) for substep in range(self.propagations_per_step)]
+        return self.sample_transition(state, self.control(step), times, random)
+
+    def sample_transition(self, state, control, times, random):
+        r"""Sample x_k ~ p(x_k | x_{k-1}, u_k) given the control u_k and the start times of the
+        step's substeps (one per ``propagate`` call).
 
         The composition of the step's substeps (module docstring): the accumulating components
         reset, then :math:`x \leftarrow f(x, u_k, w^{(j)})` for j = 1..s, each with a fresh
-        draw :math:`w^{(j)}` of the process noise from the trials' streams, in order.
+        draw :math:`w^{(j)}` of the process noise from the trials' streams, in order. A model
+        whose transition is not "propagate with fresh noise" (Probabilistic Robotics' sampling
+        algorithms) overrides this method, not :meth:`transition`: it then runs on both
+        backends (on jax, ``control`` and ``times`` are arrays of the compiled step).
         """
-        control = self.control(step)
         state = self.reset_accumulators(state)
-        for substep in range(self.propagations_per_step):
+        for time in times:
             noise = self.process_noise.sample(random, state.shape[1:-1])
-            state = self.propagate_at(state, control, noise, self.substep_time(step, substep))
+            state = self.propagate_at(state, control, noise, time)
         return state
 
     def mean_transition(self, previous: np.ndarray, step: int) -> np.ndarray:

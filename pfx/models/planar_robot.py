@@ -240,9 +240,8 @@ class PlanarRobot(Model):
             return self._commands[step - 1]
         return self._nominal_path[step - 1: step + 1]
 
-    def transition(self, state, step, random):
+    def sample_transition(self, state, control, times, random):
         """Sample the book's algorithm (Table 5.3 or 5.6) for every pose; trial axis first."""
-        control = self.control(step)
         if self.motion.kind == "velocity":
             return sample_motion_model_velocity(control, state, self.dt, self.motion.alphas, self.motion.noise,
                                                 random)

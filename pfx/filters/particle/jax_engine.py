@@ -123,6 +123,15 @@ class JaxParticleFilter:
             ("log_likelihood", lambda random, state: model.log_likelihood(
                 jnp.zeros((trials, 1, model.measurement_dimension), self.dtype), state)),
         )
+        if _overrides(model, "transition"):
+            raise ValueError(f"@backend: model {model.kind} overrides transition(state, step, random), which reads its "
+                             "control on the host at each step; override sample_transition(state, control, times, "
+                             "random) instead to run on the jax backend (docs/plugins.md), or set backend: numpy")
+        if _overrides(model, "sample_transition"):
+            probes = (probes[0], ("sample_transition", lambda random, state: model.sample_transition(
+                state, None if control is None else jnp.asarray(control),
+                jnp.asarray([model.substep_time(1, j) for j in range(model.propagations_per_step)]), random)),
+                probes[3])
         with jax.enable_x64(True):
             keys = jnp.zeros((trials, 2), jnp.uint32)
             state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
@@ -249,12 +258,16 @@ class JaxParticleFilter:
         that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
         model, state = self.model, cloud.particles
         control = None if inputs.control is None else inputs.control.astype(self.dtype)
-        state = model.reset_accumulators(state)
         substeps = inputs.times.shape[0]
-        if substeps == 1:
+        if _overrides(model, "sample_transition"):          # the model's own sampling algorithm
+            state = model.sample_transition(state, control, inputs.times, random)
+        elif substeps == 1:
+            state = model.reset_accumulators(state)
             noise = model.process_noise.sample(random, state.shape[1:-1])
             state = model.propagate_at(state, control, noise, inputs.times[0])
         else:
+            state = model.reset_accumulators(state)
+
             def substep(current, place):
                 index, time = place
                 noise = model.process_noise.sample(random.at(index), current.shape[1:-1])
@@ -358,6 +371,16 @@ class _Flags(NamedTuple):
         return cls(spread=traced or criterion is not None,
                    radius=None if criterion is None else (float(criterion.radius), bool(criterion.weighted)),
                    deviations=traced, genealogy=recording.genealogy, history=recording.history)
+
+
+def _overrides(model, method: str) -> bool:
+    """Whether the model's class (or a class between it and the contract's) defines ``method``."""
+    for cls in type(model).__mro__:
+        if cls.__module__ == "pfx.models.base":
+            return False
+        if method in vars(cls):
+            return True
+    return False
 
 
 def _check_shape(model, source: str, value, expected: tuple) -> None:
