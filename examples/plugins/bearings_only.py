@@ -24,6 +24,9 @@ is the default one, the gaussian log-density of that wrapped innovation. The sta
 angular component (``angular_components`` stays empty). No Jacobians are given: the EKF uses
 central finite differences (of the wrapped bearing).
 
+``propagate`` and ``measurement_mean`` take NumPy or JAX arrays (``xp = namespace(state)``,
+:mod:`pfx.numerics.arrays`): the model runs on both of pfx's backends.
+
 Run it: ``pfx run examples/plugins/bearings-only.yaml``.
 """
 
@@ -32,6 +35,7 @@ from typing import Literal
 import numpy as np
 
 import pfx
+from pfx.numerics.arrays import namespace
 
 TRANSITION = np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
 NOISE_GAIN = np.array([[0.5, 0.0], [1.0, 0.0], [0.0, 0.5], [0.0, 1.0]])
@@ -75,7 +79,10 @@ class BearingsOnly(pfx.Model):
         return (0,)                     # the bearing, in radians
 
     def propagate(self, state, control, noise):
-        return state @ TRANSITION.T + noise @ NOISE_GAIN.T
+        xp = namespace(state, noise)
+        # the matrices in the state's dtype: a float64 constant would make a float32 state float64
+        transition, gain = (xp.asarray(matrix, dtype=state.dtype) for matrix in (TRANSITION, NOISE_GAIN))
+        return state @ transition.T + noise @ gain.T
 
     def measurement_mean(self, state):
-        return np.arctan2(state[..., 2:3], state[..., 0:1])
+        return namespace(state).arctan2(state[..., 2:3], state[..., 0:1])

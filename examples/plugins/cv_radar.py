@@ -17,7 +17,8 @@ rad); the noises are derived from them in :meth:`presets`, so an estimated ``ran
 the measurement noise with it (each chain's model is derived again at its parameters).
 
 The bearing is declared an angle, so the likelihood wraps its innovation into
-:math:`(-\pi, \pi]`. Run it: ``pfx run examples/plugins/radar-range-noise.yaml``, PMMH on the
+:math:`(-\pi, \pi]`. ``propagate`` and ``measurement_mean`` take NumPy or JAX arrays
+(``xp = namespace(state)``, :mod:`pfx.numerics.arrays`): the model runs on both of pfx's backends. Run it: ``pfx run examples/plugins/radar-range-noise.yaml``, PMMH on the
 range noise with ``particles: auto``.
 """
 
@@ -27,6 +28,7 @@ import numpy as np
 from pydantic import Field
 
 import pfx
+from pfx.numerics.arrays import namespace
 
 
 @pfx.register_model
@@ -70,11 +72,14 @@ class ConstantVelocityRadar(pfx.Model):
         return (1,)                     # the bearing, in radians
 
     def propagate(self, state, control, noise):
-        dt = self.dt
-        transition = np.array([[1.0, dt, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, dt], [0.0, 0.0, 0.0, 1.0]])
-        gain = np.array([[dt**2 / 2, 0.0], [dt, 0.0], [0.0, dt**2 / 2], [0.0, dt]])
+        xp, dt = namespace(state, noise), self.dt
+        # built on the host (dt is a number), then in the state's dtype (float64 or float32)
+        transition = xp.asarray(np.array([[1.0, dt, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, dt],
+                                          [0.0, 0.0, 0.0, 1.0]]), dtype=state.dtype)
+        gain = xp.asarray(np.array([[dt**2 / 2, 0.0], [dt, 0.0], [0.0, dt**2 / 2], [0.0, dt]]), dtype=state.dtype)
         return state @ transition.T + noise @ gain.T
 
     def measurement_mean(self, state):
+        xp = namespace(state)
         x, y = state[..., 0:1], state[..., 2:3]
-        return np.concatenate([np.hypot(x, y), np.arctan2(y, x)], axis=-1)
+        return xp.concatenate([xp.hypot(x, y), xp.arctan2(y, x)], axis=-1)

@@ -48,7 +48,9 @@ tangent-linear RK4: each stage's Jacobian by the chain rule,
 :math:`F = I + \tfrac16 (K_1 + 2 K_2 + 2 K_3 + K_4)`, with :math:`J = \partial g / \partial x`),
 and the process noise enters additively (:math:`L = I`).
 
-Every function is vectorised over leading axes ``(..., d)`` (trials, particles) in float64.
+Every function is vectorised over leading axes ``(..., d)`` (trials, particles), and the
+particle filter's (``propagate``, ``measurement_mean``) take NumPy or JAX arrays alike
+(``xp = namespace(state)``, :mod:`pfx.numerics.arrays`): one code for both of pfx's backends.
 Run it: ``pfx run configs/benchmarks/dapper-lorenz/lorenz63.yaml``.
 """
 
@@ -58,6 +60,7 @@ import numpy as np
 from pydantic import Field
 
 import pfx
+from pfx.numerics.arrays import namespace
 
 Tendency = Callable[[np.ndarray], np.ndarray]
 TendencyJacobian = Callable[[np.ndarray], np.ndarray]
@@ -117,17 +120,19 @@ class _LorenzSystem(pfx.Model):
         return rk4_step(self.tendency, state, self.substep_duration) + noise
 
     def measurement_mean(self, state):
-        return state[..., list(self.observed_components)]
+        return state[..., np.asarray(self.observed_components)]
 
     def transition_jacobian(self, state, control):
         return rk4_step_jacobian(self.tendency, self.tendency_jacobian, state, self.substep_duration)
 
     def process_noise_jacobian(self, state, control):
-        return np.broadcast_to(np.eye(self.state_dimension), state.shape + (self.state_dimension,))
+        xp = namespace(state)
+        return xp.broadcast_to(xp.eye(self.state_dimension, dtype=state.dtype), state.shape + (self.state_dimension,))
 
     def measurement_jacobian(self, state):
-        selection = np.eye(self.state_dimension)[list(self.observed_components)]
-        return np.broadcast_to(selection, state.shape[:-1] + selection.shape)
+        xp = namespace(state)
+        selection = xp.eye(self.state_dimension, dtype=state.dtype)[np.asarray(self.observed_components)]
+        return xp.broadcast_to(selection, state.shape[:-1] + selection.shape)
 
 
 @pfx.register_model
@@ -152,16 +157,18 @@ class Lorenz63(_LorenzSystem):
         return ("x", "y", "z")
 
     def tendency(self, state):
+        xp = namespace(state)
         x, y, z = state[..., 0], state[..., 1], state[..., 2]
-        return np.stack([self.sigma * (y - x), self.rho * x - y - x * z, x * y - self.beta * z], axis=-1)
+        return xp.stack([self.sigma * (y - x), self.rho * x - y - x * z, x * y - self.beta * z], axis=-1)
 
     def tendency_jacobian(self, state):
+        xp = namespace(state)
         x, y, z = state[..., 0], state[..., 1], state[..., 2]
-        zero, one = np.zeros_like(x), np.ones_like(x)
+        zero, one = xp.zeros_like(x), xp.ones_like(x)
         rows = [[-self.sigma * one, self.sigma * one, zero],
                 [self.rho - z, -one, -x],
                 [y, x, -self.beta * one]]
-        return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+        return xp.stack([xp.stack(row, axis=-1) for row in rows], axis=-2)
 
 
 @pfx.register_model
@@ -200,8 +207,9 @@ class Lorenz96(_LorenzSystem):
         return tuple(self.observed)
 
     def tendency(self, state):
-        # np.roll(x, -1)[i] = x_{i+1}, np.roll(x, 2)[i] = x_{i-2}, np.roll(x, 1)[i] = x_{i-1}
-        following, second_before, before = (np.roll(state, shift, axis=-1) for shift in (-1, 2, 1))
+        # roll(x, -1)[i] = x_{i+1}, roll(x, 2)[i] = x_{i-2}, roll(x, 1)[i] = x_{i-1}
+        xp = namespace(state)
+        following, second_before, before = (xp.roll(state, shift, axis=-1) for shift in (-1, 2, 1))
         return (following - second_before) * before - state + self.forcing
 
     def tendency_jacobian(self, state):

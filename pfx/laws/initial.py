@@ -7,6 +7,9 @@ A config names one of three forms::
     initial: {kind: uniform, low: [-20, -15], high: [20, 25]}
 
 ``covariance`` takes the same forms as a noise variance (number, list or matrix).
+
+Each law draws from a trial's streams, NumPy's or JAX's (:class:`~pfx.numerics.key_streams.Random`),
+and returns arrays of that library, in the streams' dtype (:mod:`pfx.laws.noise`, "Both backends").
 """
 
 from __future__ import annotations
@@ -17,8 +20,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, ValidationError, model_validator
 
 from pfx.errors import split_location
-from pfx.laws.noise import Noise, Variance
-from pfx.numerics.seeding import TrialStreams
+from pfx.laws.noise import Noise, Variance, constant_like, draws_namespace
+from pfx.numerics.key_streams import Random
 
 
 class _InitialLaw(BaseModel):
@@ -27,8 +30,8 @@ class _InitialLaw(BaseModel):
     def bind(self, dimension: int) -> "_InitialLaw":
         raise NotImplementedError
 
-    def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
-        """Draws of shape (trials, *shape, d)."""
+    def sample(self, random: Random, shape=()) -> np.ndarray:
+        """Draws of shape (trials, *shape, d), NumPy or JAX as ``random``'s draws."""
         raise NotImplementedError
 
     def mean_vector(self) -> np.ndarray:
@@ -54,8 +57,9 @@ class PointLaw(_InitialLaw):
         return self
 
     def sample(self, random, shape=()):
-        value = np.asarray(self.state, dtype=float)
-        return np.broadcast_to(value, (len(random),) + tuple(shape) + value.shape).copy()
+        xp, dtype = draws_namespace(random)
+        value = xp.asarray(self.state, dtype=dtype)
+        return xp.broadcast_to(value, (len(random),) + tuple(shape) + value.shape).copy()
 
     def mean_vector(self):
         return np.asarray(self.state, dtype=float)
@@ -91,7 +95,8 @@ class GaussianLaw(_InitialLaw):
         return self
 
     def sample(self, random, shape=()):
-        return np.asarray(self.mean) + self._noise.sample(random, shape)
+        draws = self._noise.sample(random, shape)
+        return constant_like(np.asarray(self.mean), draws) + draws
 
     def mean_vector(self):
         return np.asarray(self.mean, dtype=float)
@@ -119,8 +124,9 @@ class UniformLaw(_InitialLaw):
         return self
 
     def sample(self, random, shape=()):
-        low, high = np.asarray(self.low), np.asarray(self.high)
-        return low + (high - low) * random.uniform(tuple(shape) + low.shape)
+        uniform = random.uniform(tuple(shape) + (len(self.low),))
+        low, high = constant_like(np.asarray(self.low), uniform), constant_like(np.asarray(self.high), uniform)
+        return low + (high - low) * uniform
 
     def mean_vector(self):
         return (np.asarray(self.low) + np.asarray(self.high)) / 2.0

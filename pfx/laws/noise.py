@@ -28,19 +28,28 @@ that tail mass rather than a density.
 component) or a full covariance matrix. Zero variances are allowed for noise that is only
 sampled (process noise); a noise whose density is evaluated (measurement noise) must be
 positive definite.
+
+**Both backends.** :meth:`Noise.sample` draws from a trial's streams, NumPy's
+(:class:`~pfx.numerics.seeding.TrialStreams`) or JAX's (:class:`~pfx.numerics.key_streams.KeyStreams`),
+and returns arrays of that library in the streams' dtype; :meth:`Noise.log_density` and
+:meth:`Noise.log_tail` take NumPy or JAX arrays (:mod:`pfx.numerics.arrays`). On NumPy arrays
+every function computes exactly what it did before JAX was supported. The noise's own constants
+(its scale, its factor L) are NumPy float64 arrays; on JAX they are cast to the dtype of the
+draws or of the value, so that a float32 computation stays float32.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Literal, Optional, Union
+from typing import Any, Callable, Literal, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, model_validator
-from scipy.special import gammaln, log_ndtr, stdtr
+from scipy.special import gammaln
 
-from pfx.numerics.seeding import TrialStreams
+from pfx.numerics.arrays import is_jax_array, namespace, special_functions
+from pfx.numerics.key_streams import KeyStreams, Random
 from pfx.registry import Registry
 
 
@@ -48,7 +57,7 @@ from pfx.registry import Registry
 class NoiseFamily:
     """A zero-mean, unit-variance distribution: how to draw it and its log-density."""
 
-    sample_standard: Callable[[TrialStreams, tuple, Optional[StrictFloat]], np.ndarray]   # a new array
+    sample_standard: Callable[[Random, tuple, Optional[StrictFloat]], np.ndarray]   # a new array
     log_density_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]
     description: str
     log_tail_standard: Callable[[np.ndarray, Optional[StrictFloat]], np.ndarray]   # log P(z > c)
@@ -66,7 +75,7 @@ def _gaussian_log_density(z, df=None):
 
 
 def _gaussian_log_tail(c, df=None):
-    return log_ndtr(-c)
+    return special_functions(namespace(c)).log_ndtr(-c)
 
 
 def _uniform_sample(random, shape, df=None):
@@ -74,13 +83,14 @@ def _uniform_sample(random, shape, df=None):
 
 
 def _uniform_log_density(z, df=None):
-    with np.errstate(divide="ignore"):
-        return np.where(np.abs(z) <= _SQRT3, -math.log(2.0 * _SQRT3), -np.inf)
+    xp = namespace(z)
+    return xp.where(xp.abs(z) <= _SQRT3, -math.log(2.0 * _SQRT3), -math.inf)
 
 
 def _uniform_log_tail(c, df=None):
+    xp = namespace(c)
     with np.errstate(divide="ignore"):
-        return np.log(np.clip((_SQRT3 - c) / (2.0 * _SQRT3), 0.0, 1.0))
+        return xp.log(xp.clip((_SQRT3 - c) / (2.0 * _SQRT3), 0.0, 1.0))
 
 
 def _triangular_sample(random, shape, df=None):
@@ -88,16 +98,18 @@ def _triangular_sample(random, shape, df=None):
 
 
 def _triangular_log_density(z, df=None):
+    xp = namespace(z)
     with np.errstate(divide="ignore"):
-        return np.log(np.maximum(_SQRT6 - np.abs(z), 0.0)) - math.log(6.0)
+        return xp.log(xp.maximum(_SQRT6 - xp.abs(z), 0.0)) - math.log(6.0)
 
 
 def _triangular_log_tail(c, df=None):
     # P(z > c) = (sqrt6 - c)^2 / 12 for c >= 0, by symmetry 1 - (sqrt6 + c)^2 / 12 for c < 0
-    c = np.clip(c, -_SQRT6, _SQRT6)
-    upper = (_SQRT6 - np.abs(c)) ** 2 / 12.0
+    xp = namespace(c)
+    c = xp.clip(c, -_SQRT6, _SQRT6)
+    upper = (_SQRT6 - xp.abs(c)) ** 2 / 12.0
     with np.errstate(divide="ignore"):
-        return np.log(np.where(c >= 0, upper, 1.0 - upper))
+        return xp.log(xp.where(c >= 0, upper, 1.0 - upper))
 
 
 def _laplace_sample(random, shape, df=None):
@@ -105,13 +117,14 @@ def _laplace_sample(random, shape, df=None):
 
 
 def _laplace_log_density(z, df=None):
-    return -np.abs(z) / _LAPLACE_SCALE - math.log(2.0 * _LAPLACE_SCALE)
+    return -namespace(z).abs(z) / _LAPLACE_SCALE - math.log(2.0 * _LAPLACE_SCALE)
 
 
 def _laplace_log_tail(c, df=None):
     # P(z > c) = exp(-c/b) / 2 for c >= 0, 1 - exp(c/b) / 2 for c < 0
-    half_tail = np.exp(-np.abs(c) / _LAPLACE_SCALE) / 2.0
-    return np.where(c >= 0, -np.abs(c) / _LAPLACE_SCALE - math.log(2.0), np.log1p(-half_tail))
+    xp = namespace(c)
+    half_tail = xp.exp(-xp.abs(c) / _LAPLACE_SCALE) / 2.0
+    return xp.where(c >= 0, -xp.abs(c) / _LAPLACE_SCALE - math.log(2.0), xp.log1p(-half_tail))
 
 
 def _student_t_sample(random, shape, df):
@@ -121,13 +134,21 @@ def _student_t_sample(random, shape, df):
 def _student_t_log_density(z, df):
     scale = math.sqrt((df - 2.0) / df)
     t = z / scale
-    return (gammaln((df + 1.0) / 2.0) - gammaln(df / 2.0) - 0.5 * math.log(df * math.pi)
-            - (df + 1.0) / 2.0 * np.log1p(t * t / df) - math.log(scale))
+    # The constant is computed on the host (df is a number), a Python float on either backend.
+    constant = float(gammaln((df + 1.0) / 2.0) - gammaln(df / 2.0) - 0.5 * math.log(df * math.pi))
+    return constant - (df + 1.0) / 2.0 * namespace(z).log1p(t * t / df) - math.log(scale)
 
 
 def _student_t_log_tail(c, df):
-    with np.errstate(divide="ignore"):
-        return np.log(stdtr(df, -c / math.sqrt((df - 2.0) / df)))
+    t = c / math.sqrt((df - 2.0) / df)
+    xp = namespace(t)
+    if xp is np:
+        with np.errstate(divide="ignore"):
+            return np.log(special_functions(np).stdtr(df, -t))
+    # jax.scipy.special has no stdtr; the t law's tail is a regularised incomplete beta:
+    # P(T > t) = I_x(df/2, 1/2) / 2 with x = df / (df + t^2) for t >= 0, 1 - that for t < 0.
+    half_beta = special_functions(xp).betainc(df / 2.0, 0.5, df / (df + t * t)) / 2.0
+    return xp.log(xp.where(t >= 0, half_beta, 1.0 - half_beta))
 
 
 for _name, _family in {
@@ -264,8 +285,11 @@ class Noise(BaseModel):
 
     # -- the two operations -------------------------------------------------------------------
 
-    def sample(self, random: TrialStreams, shape=()) -> np.ndarray:
-        """Draws of shape ``(trials, *shape, k)``; no random numbers are used for zero noise."""
+    def sample(self, random: Random, shape=()) -> np.ndarray:
+        """Draws of shape ``(trials, *shape, k)``; no random numbers are used for zero noise.
+
+        NumPy arrays from :class:`~pfx.numerics.seeding.TrialStreams`, JAX arrays of the streams'
+        dtype from :class:`~pfx.numerics.key_streams.KeyStreams`."""
         # One read of pydantic's private-attribute dict: each `self._x` costs microseconds
         # (it goes through BaseModel.__getattr__), and this runs at every step of a filter.
         private = self.__pydantic_private__
@@ -274,21 +298,24 @@ class Noise(BaseModel):
         full_shape = tuple(shape) + (private["_dimension"],)
         scale, factor = private["_scale"], private["_factor"]
         if private["_zero"]:
-            return np.zeros((len(random),) + full_shape)
+            return zero_draws(random, (len(random),) + full_shape)
         # Drawn component-major, (trials, k, *shape), and returned as a (trials, *shape, k) view:
         # each component is then contiguous, which NumPy's element-wise operations on one state
         # component (what a model's propagate does) run several times faster over.
         standard = NOISE_FAMILIES[self.family].sample_standard(random, full_shape[-1:] + full_shape[:-1], self.df)
         component_last = (0, *range(2, standard.ndim), 1)      # (trials, k, *shape) -> (trials, *shape, k)
         if private["_row_scale"]:
-            return standard.transpose(component_last) * scale
+            return standard.transpose(component_last) * constant_like(scale, standard)
         if scale is not None:
+            scale = constant_like(scale, standard).reshape((-1,) + (1,) * (standard.ndim - 2))
+            if is_jax_array(standard):                           # JAX arrays are never written in place
+                return (standard * scale).transpose(component_last)
             # x_j = s_j z_j in place, while the component axis is still the second one: NumPy's
             # inner loop then runs along a component's contiguous draws (over the short last axis
             # it would run over k = 1..3 elements, several times slower), and one call does it all.
-            standard *= scale.reshape((-1,) + (1,) * (standard.ndim - 2))
+            standard *= scale
             return standard.transpose(component_last)
-        return standard.transpose(component_last) @ factor.T
+        return standard.transpose(component_last) @ constant_like(factor, standard).T
 
     def independent_gaussian(self) -> Optional[tuple[np.ndarray, float]]:
         """(standard deviation of each component, sum of their logs) when the noise is Gaussian
@@ -301,16 +328,16 @@ class Noise(BaseModel):
         return private["_scale"].copy(), private["_log_det_factor"]
 
     def log_density(self, value: np.ndarray) -> np.ndarray:
-        """log p(value) for ``value`` of shape (..., k); returns shape (...)."""
+        """log p(value) for ``value`` of shape (..., k), NumPy or JAX; returns shape (...)."""
         private = self.__pydantic_private__            # see sample()
         if not private["_definite"]:
             raise RuntimeError("log_density of a degenerate noise")
         if private["_scale"] is not None:
-            standard = value / private["_scale"]
+            standard = value / constant_like(private["_scale"], value)
         else:
-            standard = value @ private["_inverse_factor"].T
+            standard = value @ constant_like(private["_inverse_factor"], value).T
         log_f = NOISE_FAMILIES[self.family].log_density_standard(standard, self.df)
-        return np.sum(log_f, axis=-1) - private["_log_det_factor"]
+        return namespace(log_f).sum(log_f, axis=-1) - constant_like(private["_log_det_factor"], log_f)
 
     def log_tail(self, threshold: np.ndarray) -> np.ndarray:
         """log P(v_j > c_j for every component j), for ``threshold`` c of shape (..., k).
@@ -320,5 +347,31 @@ class Noise(BaseModel):
         """
         if self._scale is None or not self._definite:
             raise RuntimeError("log_tail needs independent components with positive variances")
-        log_tail = NOISE_FAMILIES[self.family].log_tail_standard(threshold / self._scale, self.df)
-        return np.sum(log_tail, axis=-1)
+        log_tail = NOISE_FAMILIES[self.family].log_tail_standard(threshold / constant_like(self._scale, threshold),
+                                                                 self.df)
+        return namespace(log_tail).sum(log_tail, axis=-1)
+
+
+def draws_namespace(random: Random) -> tuple[Any, Any]:
+    """(array module, dtype) of ``random``'s draws: ``jax.numpy`` and the streams' dtype for
+    :class:`~pfx.numerics.key_streams.KeyStreams`, ``numpy`` and float64 else."""
+    if isinstance(random, KeyStreams):
+        import jax.numpy as jnp
+
+        return jnp, random.dtype
+    return np, np.float64
+
+
+def zero_draws(random: Random, shape: tuple) -> Any:
+    """Zeros of ``shape`` in the library and dtype of ``random``'s draws (:func:`draws_namespace`)."""
+    xp, dtype = draws_namespace(random)
+    return xp.zeros(shape, dtype)
+
+
+def constant_like(constant: Any, array: Any) -> Any:
+    """A law's NumPy constant (a scale, a factor, a mean) to combine with ``array``: the constant
+    itself for a NumPy array (the same numbers as ever), a JAX array of ``array``'s dtype for a
+    JAX one (a float64 NumPy constant would otherwise make a float32 computation float64)."""
+    if not is_jax_array(array):
+        return constant
+    return namespace(array).asarray(constant, dtype=array.dtype)

@@ -51,6 +51,7 @@ from pydantic import Field, StrictFloat, StrictInt
 from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
+from pfx.numerics.arrays import namespace
 from pfx.numerics.compiled import compiled
 
 FOOT = 0.3048
@@ -129,19 +130,16 @@ class FallingBody(Model):
 
     def _derivative(self, altitude, velocity, coefficient):
         """(x1', x2') = s (x2, rho0/2 exp(-x1/k) x2^2 x3 - g), s = +1 (simon) or -1 (jud)."""
-        # The product is built in place: one temporary instead of six (this runs for every
-        # particle at every sub-step).
-        acceleration = np.exp(altitude * (-1.0 / self.scale_height))
-        acceleration *= velocity
-        acceleration *= velocity
-        acceleration *= coefficient
-        acceleration *= 0.5 * self.air_density
-        acceleration -= self.gravity
+        xp = namespace(altitude)
+        acceleration = (xp.exp(altitude * (-1.0 / self.scale_height)) * velocity * velocity * coefficient
+                        * (0.5 * self.air_density) - self.gravity)
         if self.variant == "jud":                 # s = -1: x2 is the downward speed
-            return -velocity, np.negative(acceleration, out=acceleration)
+            return -velocity, -acceleration
         return velocity, acceleration
 
     def propagate(self, state, control, noise):
+        """x_k = f(x_{k-1}) + w_k: the interval integrated by ``substeps`` RK4 (or Euler) steps,
+        then the process noise added; NumPy or JAX arrays."""
         altitude, velocity, coefficient = state[..., 0], state[..., 1], state[..., 2]
         h = self.dt / self.substeps
         derivative = self._derivative
@@ -156,26 +154,33 @@ class FallingBody(Model):
             a4, v4 = derivative(altitude + h * a3, velocity + h * v3, coefficient)
             altitude = altitude + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             velocity = velocity + h / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
-        # x_k = f(x_{k-1}) + w_k, written component by component into one new array (stacking
-        # first and adding after would make two).
+        # x_k = f(x_{k-1}) + w_k, component by component.
+        xp = namespace(state, noise)
+        if xp is not np:
+            return xp.stack([value + noise[..., component]
+                             for component, value in enumerate((altitude, velocity, coefficient))], axis=-1)
+        # NumPy: written into one new array laid out like the noise (its layout decides which
+        # kernels the filters' later matrix products take, hence their last bits: kept as ever).
         shape = np.broadcast_shapes(state.shape, noise.shape)
-        moved = np.empty_like(noise) if noise.shape == shape else np.empty(shape)   # keeps the noise's layout
+        moved = np.empty_like(noise) if noise.shape == shape else np.empty(shape)
         for component, value in enumerate((altitude, velocity, coefficient)):
             np.add(value, noise[..., component], out=moved[..., component])
         return moved
 
     def measurement_mean(self, state):
         offset = state[..., 0:1] - self.radar_altitude
-        return np.sqrt(self.radar_distance ** 2 + offset * offset)
+        return namespace(state).sqrt(self.radar_distance ** 2 + offset * offset)
 
     def process_noise_jacobian(self, state, control):
-        return np.broadcast_to(np.eye(3), state.shape[:-1] + (3, 3))
+        xp = namespace(state)
+        return xp.broadcast_to(xp.eye(3, dtype=state.dtype), state.shape[:-1] + (3, 3))
 
     def measurement_jacobian(self, state):
+        xp = namespace(state)
         offset = state[..., 0] - self.radar_altitude
-        jacobian = np.zeros(state.shape[:-1] + (1, 3))
-        jacobian[..., 0, 0] = offset / np.sqrt(self.radar_distance ** 2 + offset * offset)
-        return jacobian
+        slope = offset / xp.sqrt(self.radar_distance ** 2 + offset * offset)
+        zero = xp.zeros_like(slope)
+        return xp.stack([slope, zero, zero], axis=-1)[..., None, :]
 
     def compiled_step(self):
         """The drag equations, the noise and the range likelihood in one compiled pass

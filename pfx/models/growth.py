@@ -40,6 +40,9 @@ and the noise only, like every other model's.
   :math:`Q = 1`, :math:`R = 10` and :math:`s = 1/10`. Set ``initial`` (truth),
   ``filter.initial`` (prior) and the noises for those.
 
+Every method is plain arithmetic on NumPy or JAX arrays (:mod:`pfx.numerics.arrays`): the same
+code runs on both backends; the control is computed on the host (NumPy) and given to either.
+
 The model is scalar: state ``x`` (``position_components = (0,)``), one measurement; steps are
 counted in time steps (``dt = 1``).
 
@@ -58,6 +61,7 @@ from pydantic import Field, StrictFloat
 from pfx.laws.initial import GaussianLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
+from pfx.numerics.arrays import namespace
 
 
 @MODELS.register_kind
@@ -110,7 +114,7 @@ class GrowthModel(Model):
         return (self.a + self.b * (1.0 - square) / (1.0 + square) ** 2)[..., None]
 
     def process_noise_jacobian(self, state, control):
-        return np.ones(state.shape[:-1] + (1, 1))
+        return namespace(state).ones(state.shape[:-1] + (1, 1), dtype=state.dtype)
 
     def measurement_jacobian(self, state):
         return (2.0 * self.measurement_scale * state)[..., None]

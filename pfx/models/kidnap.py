@@ -9,8 +9,9 @@ is not told: its model may carry the setting (it is merged from the truth's), bu
 
 from __future__ import annotations
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+
+from pfx.numerics.arrays import namespace
 
 
 class Kidnap(BaseModel):
@@ -24,10 +25,9 @@ class Kidnap(BaseModel):
         if self.step > steps:
             raise ValueError(f"@kidnap.step: {self.step} is past the last step ({steps})")
 
-    def apply(self, state: np.ndarray, step: int) -> np.ndarray:
-        """x_k = to at the kidnapping step, unchanged otherwise."""
+    def apply(self, state, step: int):
+        """x_k = to at the kidnapping step, unchanged otherwise (a copy; NumPy or JAX arrays)."""
         if step != self.step:
             return state
-        carried = state.copy()
-        carried[..., :] = np.asarray(self.to, dtype=float)
-        return carried
+        xp = namespace(state)
+        return xp.broadcast_to(xp.asarray(self.to, dtype=state.dtype), state.shape).copy()

@@ -9,6 +9,9 @@ when the Kalman filter is the exact posterior). Matrices are given in the config
 rows; ``controls`` is one input vector for every step or a list of T vectors.
 
 EKF Jacobians: analytic (F = A, L = I, H = H), so the EKF on this model is the Kalman filter.
+
+The matrices are NumPy float64 arrays; ``propagate`` and ``measurement_mean`` take NumPy or JAX
+arrays (:mod:`pfx.numerics.arrays`) and cast them to the state's dtype (float64 or float32).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from pydantic import Field, PrivateAttr, StrictFloat
 from pfx.laws.initial import GaussianLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
+from pfx.numerics.arrays import namespace
 
 Matrix = list[list[StrictFloat]]
 
@@ -118,19 +122,23 @@ class LinearGaussian(Model):
         return self._B @ self._U[step - 1]
 
     def propagate(self, state, control, noise):
-        moved = state @ self._A.T
+        moved = state @ namespace(state).asarray(self._A, dtype=state.dtype).T
         if control is not None:
             moved = moved + control
         return moved + noise
 
     def measurement_mean(self, state):
-        return state @ self._H.T
+        return state @ namespace(state).asarray(self._H, dtype=state.dtype).T
 
     def transition_jacobian(self, state, control):
-        return np.broadcast_to(self._A, state.shape[:-1] + self._A.shape)
+        xp = namespace(state)
+        return xp.broadcast_to(xp.asarray(self._A, dtype=state.dtype), state.shape[:-1] + self._A.shape)
 
     def process_noise_jacobian(self, state, control):
-        return np.broadcast_to(np.eye(self.state_dimension), state.shape[:-1] + (self.state_dimension,) * 2)
+        xp = namespace(state)
+        return xp.broadcast_to(xp.eye(self.state_dimension, dtype=state.dtype),
+                               state.shape[:-1] + (self.state_dimension,) * 2)
 
     def measurement_jacobian(self, state):
-        return np.broadcast_to(self._H, state.shape[:-1] + self._H.shape)
+        xp = namespace(state)
+        return xp.broadcast_to(xp.asarray(self._H, dtype=state.dtype), state.shape[:-1] + self._H.shape)
