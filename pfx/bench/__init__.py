@@ -17,6 +17,11 @@ marginal Metropolis-Hastings (1 chain, and 16 chains as one batch) against ``par
 While it runs, one progress line per case and implementation (and per repeat) goes to
 stderr, unless the caller's ``progress`` drops them (``pfx bench --quiet``, or CI).
 
+``pfx bench --backend jax`` (:func:`run_jax_bench`) is the GPU's benchmark instead: pfx's numpy
+and jax backends beside a plain JAX filter (:mod:`pfx.bench.jax_reference`), timed by
+:mod:`pfx.bench.jax_bench`, measured against the device's memory-bandwidth limit
+(:mod:`pfx.bench.jax_device`) and printed by :mod:`pfx.bench.jax_report`.
+
 Speed is measured here and only here: no test asserts a timing.
 """
 

@@ -1,9 +1,9 @@
 r"""The device JAX runs the benchmark on: its name, its memory, and its memory-bandwidth limit.
 
-A bootstrap particle-step reads and writes each particle's state a few times: the state
-(d scalars) read and the propagated one written, the process noise (d) drawn, the moved state
-read back for the weight (d), the weight, its exponential, the cumulative sum, the offset and the
-resampled state (d) written, and a 4-byte ancestor index. The issue's count is
+A bootstrap particle-step must at least move each particle's state through memory a few times
+(read it, write the propagated state, read that back to weigh it, write the resampled copy: 4d
+scalars), and a handful of per-particle scalars (the weight, its exponential, the cumulative sum,
+the resampling offset, the noise's share), and a 4-byte ancestor index. The issue's count is
 
 .. math::
 

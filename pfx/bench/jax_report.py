@@ -78,7 +78,7 @@ def format_jax_goals(rows: list[Row], device: Device) -> str:
         row = _find(rows, 10_000, 1_000, f"pfx jax {precision}")
         lines.append(_goal_line(row.rate / 1e9 if row and device.is_gpu else None, goal, False,
                                 f"1000 x N=1e4, GPU: pfx jax {precision}, 1e9 particle-steps/s",
-                                gpu_only or "case not run"))
+                                gpu_only or "pfx jax not available or case not run"))
         fraction = _fraction(row, device) if row else None
         lines.append(_goal_line(fraction if device.is_gpu else None, 0.25, False,
                                 f"1000 x N=1e4, GPU: pfx jax {precision}, fraction of the bandwidth limit (an aim)",
@@ -90,9 +90,9 @@ def format_jax_goals(rows: list[Row], device: Device) -> str:
                   and (reference := _reference(rows, row)) is not None]
         lines.append(_goal_line(max(ratios) if ratios and device.is_gpu else None, 1.0, True,
                                 f"from 1e5 particles a step, GPU: pfx jax {precision} time / plain JAX time, worst case",
-                                gpu_only or "cases not run"))
+                                gpu_only or "pfx jax not available or cases not run"))
     jax_row, numpy_row = _find(rows, 100, 1_000, "pfx jax float64"), _find(rows, 100, 1_000, "pfx numpy")
     ratio = numpy_row.rate / jax_row.rate if jax_row and numpy_row and not device.is_gpu else None
     lines.append(_goal_line(ratio, 1.5, True, "1000 x N=100, CPU: pfx jax float64 time / pfx numpy time",
-                            "JAX ran on a GPU" if device.is_gpu else "case not run"))
+                            "JAX ran on a GPU" if device.is_gpu else "pfx jax not available or case not run"))
     return "\n".join(lines)
