@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install test reproduce-papers reproduce-benchmarks bench clean
+.PHONY: install test reproduce-papers reproduce-benchmarks bench gpu-check clean
 
 $(INSTALLED): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -47,6 +47,13 @@ $(BENCH_INSTALLED): pyproject.toml
 
 bench: $(BENCH_INSTALLED)
 	NUMBA_CACHE_DIR=$(BENCH_VENV)/numba-cache $(BENCH_VENV)/bin/pfx bench $(BENCH_ARGS)
+
+# Issue 35's GPU check: `pfx bench --backend jax` and the JAX backend's tests in under 5 minutes,
+# made for a lent GPU machine (../shared/GPU.md: it installs carried wheels from .whl/); on a
+# machine without a GPU it says so and runs on JAX's CPU build. Output in $OUT or gpu-check-output/.
+# It uses .venv/bin/python where there is one (else python3) and creates no environment.
+gpu-check:
+	bash examples/gpu_check.sh
 
 clean:
 	rm -rf $(VENV) $(BENCH_VENV) runs .pytest_cache

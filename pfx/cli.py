@@ -395,10 +395,25 @@ def bench(
     pmmh: bool = typer.Option(True, "--pmmh/--no-pmmh",
                               help="time a PMMH iteration (1 and 16 chains) against particles' PMMH"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress lines on stderr"),
+    backend: str = typer.Option("numpy", "--backend",
+                                help="numpy: the benchmark above; jax: pfx's numpy and jax backends beside a plain JAX "
+                                     "filter, particle-steps/s and the fraction of the memory-bandwidth limit (of the "
+                                     "other options only --quick, --repeats, --budget, --bandwidth, --quiet apply)"),
+    bandwidth: Optional[float] = typer.Option(None, "--bandwidth", min=0.0,
+                                              help="--backend jax: the device's memory bandwidth in bytes/s (default: "
+                                                   "the maker's figure for a known GPU, else the column is blank)"),
 ):
     """Benchmark: ns per particle-step of pfx, a plain NumPy filter, the Python peers, and pfx's algorithms;
-    a PMMH iteration against particles'."""
-    from pfx.bench import run_bench
+    a PMMH iteration against particles'. With --backend jax: pfx's jax backend beside a plain JAX filter."""
+    from pfx.bench import run_bench, run_jax_bench
+
+    if backend not in ("numpy", "jax"):
+        _fail(f"--backend: numpy or jax, not {backend!r}")
+    if backend == "jax":
+        from pfx.bench.jax_bench import jax_missing
+
+        if jax_missing():
+            _fail(jax_missing())
 
     # A full benchmark takes minutes: say what is being timed, one plain line per case and
     # implementation, on a terminal and in a redirected log alike; not in CI, where logs are
@@ -410,6 +425,10 @@ def bench(
         pass
 
     progress = hide if quiet or os.environ.get("CI") else show
+    if backend == "jax":
+        run_jax_bench(quick=quick, repeats=repeats, budget=budget, bandwidth=bandwidth, echo=typer.echo,
+                      progress=progress)
+        return
     run_bench(quick=quick, repeats=repeats, budget=budget, peers=peers, workers=workers, memory=memory,
               algorithms=algorithms, pmmh=pmmh, echo=typer.echo, progress=progress)
 

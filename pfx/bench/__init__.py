@@ -17,6 +17,11 @@ marginal Metropolis-Hastings (1 chain, and 16 chains as one batch) against ``par
 While it runs, one progress line per case and implementation (and per repeat) goes to
 stderr, unless the caller's ``progress`` drops them (``pfx bench --quiet``, or CI).
 
+``pfx bench --backend jax`` (:func:`run_jax_bench`) is the GPU's benchmark instead: pfx's numpy
+and jax backends beside a plain JAX filter (:mod:`pfx.bench.jax_reference`), timed by
+:mod:`pfx.bench.jax_bench`, measured against the device's memory-bandwidth limit
+(:mod:`pfx.bench.jax_device`) and printed by :mod:`pfx.bench.jax_report`.
+
 Speed is measured here and only here: no test asserts a timing.
 """
 
@@ -24,7 +29,7 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Callable
+from typing import Callable, Optional
 
 from pfx.bench.peers import PEERS, peer_version
 
@@ -123,3 +128,36 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
     echo(report.format_goals(timings, workers_result, memory_result, small, overhead))
     echo("Wall times; on a machine shared with other work they vary from run to run (best of "
          f"up to {repeats} runs, interleaved).")
+
+
+def run_jax_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, bandwidth: Optional[float] = None,
+                  cases: Optional[list[tuple[int, int]]] = None,
+                  implementations: Optional[list] = None, echo: Callable[[str], None] = print,
+                  progress: Callable[[str], None] = lambda message: None) -> list:
+    """``pfx bench --backend jax`` (:mod:`pfx.bench.jax_bench`): the cases (``cases``, (N, trials)
+    pairs, else its CASES or QUICK_CASES) and the implementations (default: all five rows), the
+    machine line, the table and the goals printed; returns the rows."""
+    from pfx.bench.jax_bench import CASES, IMPLEMENTATIONS, QUICK_CASES, time_jax_case
+    from pfx.bench.jax_device import jax_device, machine_line
+    from pfx.bench.jax_report import format_jax_goals, format_jax_table
+    from pfx.bench.problem import STEPS, make_case
+    from pfx.bench.timing import run_pfx
+
+    device = jax_device(bandwidth)
+    cases = cases or (QUICK_CASES if quick else CASES)
+    implementations = implementations or IMPLEMENTATIONS
+    echo(f"pfx bench --backend jax: falling body, bootstrap filter, systematic resampling every step, T = {STEPS}"
+         f"{' (--quick sizes)' if quick else ''}")
+    echo(machine_line(device) + ("" if device.is_gpu else "; no GPU: JAX runs on the CPU"))
+    run_pfx(None, make_case(20, 2))       # numba compiles (or loads) the numpy backend's loops before any timing
+    rows, seconds_per_step = [], {}
+    for particles, trials in cases:
+        rows += time_jax_case(make_case(particles, trials), implementations, device, repeats, budget,
+                              seconds_per_step, progress)
+    echo("")
+    echo(format_jax_table(rows, device))
+    echo("")
+    echo(format_jax_goals(rows, device))
+    echo(f"Wall times, best of up to {repeats} runs after an untimed first call (JAX rows), interleaved; on a "
+         "machine shared with other work they vary from run to run.")
+    return rows

@@ -145,6 +145,12 @@ class FallingBodyProblem:
         innovation = (z - self.range(x)) / self.measurement_std
         return -0.5 * innovation * innovation
 
+    @property
+    def log_likelihood_constant(self) -> float:
+        """The constant :meth:`log_likelihood` leaves out: log p(z | x) = log_likelihood(z, x) + c,
+        c = -log(sigma) - log(2 pi) / 2."""
+        return float(-np.log(self.measurement_std) - 0.5 * np.log(2.0 * np.pi))
+
 
 def plan_cell(particles: int):
     """The benchmark's filter as a config's planned cell, one trial: what ``pfx run`` runs for a

@@ -1,0 +1,116 @@
+#!/usr/bin/env bash
+# The GPU check of issue 35: `pfx bench --backend jax` and the JAX backend's validity tests, in one
+# prepared run of under 5 minutes, on a lent GPU machine (../shared/GPU.md) or on any machine.
+#
+#   make gpu-check                    # or: bash examples/gpu_check.sh
+#   bash examples/gpu_check.sh --download-wheels   # here, with a network: fetch the wheels the lent
+#                                                  # machine lacks into .whl/ (then carry .whl)
+#
+# Run from the repository root. What it does:
+# 1. Says on its first line whether it sees an NVIDIA GPU (nvidia-smi); without one it still runs,
+#    on JAX's CPU build, with the bench's --quick sizes (a CPU would take far longer on the full ones).
+# 2. Where a folder of wheels is present (.whl/ by default: PFX_WHEELS), installs them with no
+#    network and no dependencies into a private folder put first on PYTHONPATH, and puts the
+#    repository itself on PYTHONPATH, so that `python -m pfx` runs this tree (GPU.md's recipe:
+#    the lent machine lacks pydantic, pydantic-core, annotated-types, typing-inspection,
+#    typing-extensions and arviz-stats).
+# 3. Runs `pfx bench --backend jax` (PFX_BENCH_ARGS, default "--repeats 2 --budget 10" on a GPU,
+#    "--quick --repeats 2" without one) with XLA_PYTHON_CLIENT_PREALLOCATE=false (JAX takes device
+#    memory as it needs it); its progress lines go to bench.txt too (the table comes at the end).
+# 4. Runs the JAX backend's tests (PFX_GPU_TESTS: pytest arguments, default the files below; a
+#    named file that this tree lacks is left out, and said so).
+# Everything goes to $OUT (the lent machine's folder that comes back), else ./gpu-check-output:
+# gpu-check.txt (this script's own lines), bench.txt, tests.txt. Exit status: 0 when the bench and
+# the tests passed, else the first failure's.
+#
+# Variables: PFX_PYTHON (default .venv/bin/python where it exists, else python3), PFX_WHEELS,
+# PFX_BENCH_ARGS, PFX_GPU_TESTS, PFX_BENCH_TIMEOUT and PFX_TESTS_TIMEOUT (seconds, default 170 and
+# 110: the whole check stays under 5 minutes).
+
+set -u
+cd "$(dirname "$0")/.." || exit 2
+# The packages GPU.md found missing on the lent machine (Python 3.12, x86-64).
+MISSING="pydantic pydantic-core annotated-types typing-inspection typing-extensions arviz-stats"
+if [ "${1:-}" = --download-wheels ]; then
+    # shellcheck disable=SC2086
+    python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+        --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 -d "${PFX_WHEELS:-.whl}" $MISSING || exit 2
+    [ "${PFX_WHEELS:-.whl}" = .whl ] && ! grep -qx '/.whl/' "$(git rev-parse --git-common-dir 2>/dev/null)/info/exclude" \
+        2>/dev/null && echo "gpu-check: add /.whl/ to .git/info/exclude, so that the wheels stay out of git"
+    exit 0
+fi
+out=${OUT:-./gpu-check-output}
+mkdir -p "$out"
+log="$out/gpu-check.txt"
+: > "$log"
+say() { echo "gpu-check: $*" | tee -a "$log"; }
+
+if command -v nvidia-smi >/dev/null 2>&1 && gpus=$(nvidia-smi --query-gpu=name,memory.total,driver_version \
+        --format=csv,noheader 2>/dev/null) && [ -n "$gpus" ]; then
+    gpu=yes
+    say "GPU found: ${gpus//$'\n'/; }"
+else
+    gpu=no
+    say "no GPU found (nvidia-smi absent or it lists none): running on the CPU, bench at --quick sizes"
+fi
+
+python=${PFX_PYTHON:-}
+if [ -z "$python" ]; then
+    if [ -x .venv/bin/python ]; then python=.venv/bin/python; else python=python3; fi
+fi
+wheels=${PFX_WHEELS:-.whl}
+if compgen -G "$wheels/*.whl" >/dev/null; then
+    site=$(mktemp -d "${TMPDIR:-/tmp}/pfx-gpu-check-site.XXXXXX")
+    if ! "$python" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$site" \
+            "$wheels"/*.whl >>"$log" 2>&1; then
+        say "the wheels in $wheels/ did not install (see $log)"
+        exit 2
+    fi
+    export PYTHONPATH="$site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
+    say "installed $(ls "$wheels"/*.whl | wc -l) wheels from $wheels/ into $site"
+else
+    export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+fi
+export XLA_PYTHON_CLIENT_PREALLOCATE=false PYTHONUNBUFFERED=1
+say "python: $("$python" -c 'import sys; print(sys.executable, sys.version.split()[0])' 2>&1)"
+if ! devices=$("$python" -c 'import jax; print(jax.__version__, jax.default_backend(), jax.devices())' 2>&1); then
+    say "JAX does not import: ${devices##*$'\n'}"
+    exit 2
+fi
+say "jax: $devices"
+case "$devices" in
+    *" gpu "*|*" cuda "*) ;;
+    *) [ "$gpu" = yes ] && say "an NVIDIA GPU is there but JAX does not use it (JAX's CPU build?)" ;;
+esac
+
+if [ "$gpu" = yes ]; then default_args="--repeats 2 --budget 10"; else default_args="--quick --repeats 2"; fi
+bench_args=${PFX_BENCH_ARGS-$default_args}
+limit=${PFX_BENCH_TIMEOUT:-170}
+say "pfx bench --backend jax $bench_args (at most $limit s) > $out/bench.txt"
+started=$SECONDS
+# shellcheck disable=SC2086  # the arguments are words
+timeout "$limit" "$python" -m pfx bench --backend jax $bench_args >"$out/bench.txt" 2>&1
+bench_status=$?
+if [ "$bench_status" -eq 124 ]; then
+    say "bench: stopped at $limit s, before its table (printed at the end): rerun with PFX_BENCH_ARGS=--quick"
+else
+    say "bench: exit $bench_status after $((SECONDS - started)) s"
+fi
+
+tests=()
+for word in ${PFX_GPU_TESTS:-tests/test_jax_backend.py tests/test_bench_jax.py}; do
+    if [[ $word == -* || -e ${word%%::*} ]]; then tests+=("$word"); else say "not in this tree, left out: $word"; fi
+done
+test_status=0
+limit=${PFX_TESTS_TIMEOUT:-110}
+if [ ${#tests[@]} -gt 0 ]; then
+    say "pytest ${tests[*]} (at most $limit s) > $out/tests.txt"
+    started=$SECONDS
+    timeout "$limit" "$python" -m pytest -q -p no:cacheprovider -o addopts=-ra "${tests[@]}" >"$out/tests.txt" 2>&1
+    test_status=$?
+    say "tests: exit $test_status after $((SECONDS - started)) s: $(tail -n 1 "$out/tests.txt")"
+else
+    say "no test to run"
+fi
+[ "$bench_status" -ne 0 ] && exit "$bench_status"
+exit "$test_status"
