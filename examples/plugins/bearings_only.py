@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 
 import pfx
-from pfx.numerics.arrays import namespace
+from pfx import namespace
 
 TRANSITION = np.array([[1.0, 1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 0.0, 1.0]])
 NOISE_GAIN = np.array([[0.5, 0.0], [1.0, 0.0], [0.0, 0.5], [0.0, 1.0]])

@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import Field
 
 import pfx
-from pfx.numerics.arrays import namespace
+from pfx import namespace
 
 
 @pfx.register_model

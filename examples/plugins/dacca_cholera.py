@@ -87,7 +87,7 @@ import numpy as np
 from pydantic import Field, StrictInt
 
 import pfx
-from pfx.numerics.arrays import is_jax_array, namespace
+from pfx import namespace
 
 IMMUNITY_STAGES = 3
 SEASONAL_BASIS = 6
@@ -263,7 +263,7 @@ def mark_violations(components: list) -> list:
     rules += [(last, (last, SUSCEPTIBLE), "R")]
     for component, cleared, mark in rules:
         negative = components[component] < 0.0
-        if is_jax_array(negative) or negative.any():
+        if xp is not np or negative.any():      # on JAX a select, whatever the values
             for other in cleared:
                 components[other] = xp.where(negative, 0.0, components[other])
             components[COUNT] = components[COUNT] + xp.where(negative, VIOLATION_MARKS[mark], 0.0)

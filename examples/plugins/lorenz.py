@@ -60,7 +60,7 @@ import numpy as np
 from pydantic import Field
 
 import pfx
-from pfx.numerics.arrays import namespace
+from pfx import namespace
 
 Tendency = Callable[[np.ndarray], np.ndarray]
 TendencyJacobian = Callable[[np.ndarray], np.ndarray]

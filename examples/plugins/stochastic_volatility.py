@@ -86,7 +86,7 @@ import numpy as np
 from pydantic import Field
 
 import pfx
-from pfx.numerics.arrays import namespace
+from pfx import namespace
 
 LOG_TWO_PI = float(np.log(2.0 * np.pi))     # a Python float: it keeps a float32 computation float32
 
