@@ -150,6 +150,9 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
     check_plugin_model(model, loaded_plugins())
     schema = config_schema(python_origins())          # the loaded plugins' components too
     filter_settings = arguments.validate_settings(schema, kind, settings)
+    if filter_settings.backend == "jax" and not filter_settings.uses_particles:
+        raise ConfigError(f"the jax backend runs the particle filters (kind particle or sis); the {kind} filter runs "
+                          "on numpy: drop backend (backend: numpy)", file=CALLER, key="filter.backend")
     given = arguments.prior_argument(
         prior, settings.get("initial"),
         lambda initial: arguments.validate_settings(schema, kind, {"initial": initial}).initial)

@@ -161,7 +161,6 @@ def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
     model = random_walk(steps=5)
     cases = {"resampler": {"resampler": "han_lee_iv"}, "move": {"move": {"kind": "mcmc"}},
              "proposal": {"proposal": "locally_optimal"}, "auxiliary": {"auxiliary": True},
-             "diffusion": {"diffusion": {"kind": "gaussian", "std": 0.1}},
              "backend": {"kind": "kf"}}
     for key, settings in cases.items():
         kind = settings.pop("kind", "particle")
@@ -170,6 +169,22 @@ def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
         assert f"filter.{key}" in str(caught.value) and "backend: numpy" in str(caught.value), str(caught.value)
     with pytest.raises(ConfigError, match="filter.precision"):
         pfx.particle_filter(model, precision="float32")
+
+
+def test_a_config_runs_its_particle_arms_on_jax_and_refuses_jax_asked_of_a_kalman_arm(tmp_path, tiny_config_dict):
+    config = tiny_config_dict()
+    config["filter"]["backend"] = "jax"
+    config["arms"] = {"pf": {}, "kf": {"kind": "kf"}}
+    result = pfx.run(config, out=tmp_path / "mixed")
+    labels = result.trials.drop_duplicates("arm").set_index("arm")
+    assert labels.loc["pf", "backend"] == "jax" and pd.isna(labels.loc["kf", "backend"])
+    config["arms"]["kf"]["backend"] = "jax"
+    with pytest.raises(ConfigError, match="arms.kf.backend"):
+        pfx.run(config, out=tmp_path / "refused")
+    config["arms"] = {"kf": {"kind": "kf"}}
+    with pytest.raises(ConfigError, match="filter.backend"):
+        pfx.run(config, out=tmp_path / "refused")
+    assert not (tmp_path / "refused").exists()
 
 
 def test_a_missing_jax_is_named_with_its_extra(monkeypatch):

@@ -381,7 +381,7 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                               "remove the repeated sweep value", file=file, key="sweep")
         seen[cell.key] = index
 
-    _label_backends(cells, experiment, file)
+    _label_backends(cells, experiment, arms, file)
 
     if "figures" not in experiment.outputs.model_fields_set and experiment.estimation is not None:
         experiment.outputs.figures = list(ESTIMATION_FIGURES[experiment.estimation.method])
@@ -416,12 +416,25 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
 
 
-def _label_backends(cells: list[Cell], experiment, file: str) -> None:
-    """A config that runs any cell on the jax backend gets ``backend`` and ``precision`` columns
-    in its tables, for every cell (a config on numpy alone keeps the tables it always had);
-    what the jax backend cannot record yet is refused by its key."""
-    on_jax = [cell for cell in cells if getattr(cell.filter, "backend", "numpy") == "jax"]
+def _label_backends(cells: list[Cell], experiment, arms: dict, file: str) -> None:
+    """A config that runs any particle filter on the jax backend gets ``backend`` and
+    ``precision`` columns in its tables, for every cell (empty for the kinds without particles,
+    which run on numpy; a config on numpy alone keeps the tables it always had). ``backend`` is
+    a particle-filter setting, as ``resampler`` is: an arm of another kind ignores the shared
+    section's, but one that asks for jax itself is refused, as is a config whose jax reaches no
+    particle filter. What the jax backend cannot record yet is refused by its key."""
+    for cell in cells:
+        arm = cell.labels["arm"]
+        if not cell.filter.uses_particles and ((arms.get(arm) or {}).get("backend") == "jax"):
+            raise ConfigError(f"the jax backend runs the particle filters (kind particle or sis); the "
+                              f"{cell.filter.kind} filter runs on numpy: drop backend: jax from this arm",
+                              file=file, key=f"arms.{arm}.backend")
+    on_jax = [cell for cell in cells if cell.filter.uses_particles and cell.filter.backend == "jax"]
     if not on_jax:
+        if any(cell.filter.backend == "jax" for cell in cells):
+            kinds = sorted({cell.filter.kind for cell in cells})
+            raise ConfigError(f"the jax backend runs the particle filters (kind particle or sis); this config runs "
+                              f"{', '.join(kinds)} only, on numpy: drop backend: jax", file=file, key="filter.backend")
         return
     if experiment.estimation is not None:
         raise ConfigError("parameter estimation (PMMH, IF2) runs on backend: numpy for now (docs/backends.md); "

@@ -195,9 +195,6 @@ def _build(plugins: frozenset) -> ConfigSchema:
                                      f"(use kind particle)")
             if self.backend == "numpy" and self.precision != "float64":
                 raise ValueError("@precision: the numpy backend computes in float64; float32 is for backend: jax")
-            if self.backend == "jax" and self.kind not in self.KIND_SPECIFIC.get("backend", ()):
-                raise ValueError(f"@backend: the jax backend runs the particle filters (kind particle or sis); the "
-                                 f"{self.kind} filter runs on numpy: set backend: numpy for it")
             # smoothers run only after the kinds that run them: never silently left out
             if self.smoothers and self.kind not in self.KIND_SPECIFIC.get("smoothers", ()):
                 raise ValueError(f"@smoothers: no smoother runs after the {self.kind} filter (particle and sis "

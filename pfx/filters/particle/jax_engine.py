@@ -314,7 +314,8 @@ class JaxParticleFilter:
 
     def resample(self, state, log_weights, weights, ess, random: KeyStreams):
         """The trials whose ESS is below the threshold (every trial at 1, none at 0) take their
-        resampled particles and uniform weights; the others keep theirs (a select: every trial drew)."""
+        resampled particles, moved apart by the diffusion (``filter.diffusion``), and uniform
+        weights; the others keep theirs (a select: every trial drew)."""
         trials, count = weights.shape
         identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
         if self.threshold <= 0.0:        # sis: never
@@ -322,7 +323,10 @@ class JaxParticleFilter:
         resampled = jnp.ones(trials, bool) if self.threshold >= 1.0 else ess < self.threshold * count
         indices = self.resampler(weights, random)
         chosen = jnp.where(resampled[:, None], indices, identity)
-        state = jnp.take_along_axis(state, chosen[..., None], axis=1)
+        offspring = jnp.take_along_axis(state, chosen[..., None], axis=1)
+        if self.bound.diffusion.kind != "none":          # moves the resampled trials' particles apart
+            offspring = jnp.asarray(self.bound.diffusion.apply(offspring, random), self.dtype)
+        state = jnp.where(resampled[:, None, None], offspring, state)
         log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_weights.dtype), log_weights)
         weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
         return state, log_weights, weights, chosen, resampled

@@ -37,7 +37,6 @@ def check_jax_settings(settings) -> None:
         "proposal": settings.proposal.guided and f"guided proposals ({settings.proposal.kind})",
         "auxiliary": settings.auxiliary and "the auxiliary particle filter",
         "move": settings.move.kind != "none" and f"moves after resampling ({settings.move.kind})",
-        "diffusion": settings.diffusion.kind != "none" and f"post-resampling diffusion ({settings.diffusion.kind})",
         "adaptive": getattr(settings, "adaptive", None) is not None and "adaptive particle counts (KLD)",
         "injection": getattr(settings, "injection", None) is not None and "particle injection",
         "smoothers": bool(getattr(settings, "smoothers", None)) and "smoothers",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import multiprocessing
+import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Callable, Optional, Sequence
 
@@ -24,7 +26,11 @@ class ProcessPool(Executor):
 
     def run(self, function: Callable, tasks: Sequence[Task]) -> Results:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.slots, initializer=ignore_interrupts)
+            # JAX runs threads of its own, which a forked child would inherit locked: once the
+            # jax backend has been loaded (a config's cells on jax), workers start from a fresh
+            # server process instead (plain numpy runs fork, as they always did)
+            context = multiprocessing.get_context("forkserver") if "jax" in sys.modules else None
+            self._pool = ProcessPoolExecutor(max_workers=self.slots, initializer=ignore_interrupts, mp_context=context)
         index_of = {self._pool.submit(function, *arguments): index for index, arguments in enumerate(tasks)}
         try:
             for future in as_completed(index_of):
