@@ -268,3 +268,55 @@ def test_a_config_asking_jax_for_estimation_is_refused_by_its_key(tmp_path, tiny
     with pytest.raises(ConfigError, match="metrics.consistency"):
         pfx.run(config, out=tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def _plugin_model(name: str, kind: str):
+    pfx.load_plugin(str(pfx_examples() / f"{name}.py"))
+    return pfx.model(kind)
+
+
+def pfx_examples():
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / "examples" / "plugins"
+
+
+def bench_falling_body():
+    """pfx bench's falling body (Simon's, Euler steps of 0.1 s) and its prior, 30 steps."""
+    from pfx.bench.problem import MODEL, PRIOR
+
+    return pfx.model(**{**MODEL, "steps": 30}), PRIOR
+
+
+AGREEMENT_CASES = {     # the model and the filter's prior (None: the model's), N
+    "falling_body": (bench_falling_body, 500),
+    "growth": (lambda: (pfx.model("growth", steps=30), None), 200),
+    "stochastic_volatility": (lambda: (_plugin_model("stochastic_volatility", "stochastic_volatility"), None), 100),
+}
+
+
+@pytest.mark.parametrize("case", sorted(AGREEMENT_CASES))
+def test_log_likelihood_mean_and_variance_agree_with_the_numpy_backend(case):
+    """Over 300 runs of each backend on one data set, the log-likelihood estimates' means agree
+    within 3 standard errors of their difference, and so do their variances (the standard error
+    of a sample variance from the sample's fourth central moment, (m4 - s^4) / n)."""
+    build, particles = AGREEMENT_CASES[case]
+    model, prior = build()
+    _, measurements = simulated(model, 1, seed=21)
+    runs = 300
+    estimates = {backend: pfx.filter(model, measurements[0], trials=runs, particles=particles, backend=backend,
+                                     prior=prior, seed=8 if backend == "jax" else 9).log_likelihood
+                 for backend in ("numpy", "jax")}
+    numpy_runs, jax_runs = estimates["numpy"], estimates["jax"]
+    assert np.isfinite(numpy_runs).all() and np.isfinite(jax_runs).all()
+    mean_error = np.sqrt(numpy_runs.var(ddof=1) / runs + jax_runs.var(ddof=1) / runs)
+    assert abs(numpy_runs.mean() - jax_runs.mean()) < 3 * mean_error, (numpy_runs.mean(), jax_runs.mean(), mean_error)
+
+    def variance_and_error(values):
+        centred = values - values.mean()
+        variance = centred.var(ddof=1)
+        return variance, np.sqrt(max(np.mean(centred**4) - variance**2, 0.0) / len(values))
+
+    (numpy_variance, numpy_error), (jax_variance, jax_error) = map(variance_and_error, (numpy_runs, jax_runs))
+    assert abs(numpy_variance - jax_variance) < 3 * np.hypot(numpy_error, jax_error), \
+        (numpy_variance, jax_variance, numpy_error, jax_error)
