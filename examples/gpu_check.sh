@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The GPU check of issue 35: `pfx bench --backend jax` and the JAX backend's validity tests, in one
-# prepared run of under 5 minutes, on a lent GPU machine (../shared/GPU.md) or on any machine.
+# The GPU check: `pfx bench --backend jax` and the JAX backend's validity tests, in one prepared
+# run of under 5 minutes, on a borrowed GPU machine without network access, or on any machine.
 #
 #   make gpu-check                    # or: bash examples/gpu_check.sh
 #   bash examples/gpu_check.sh --download-wheels   # here, with a network: fetch the wheels the lent
@@ -11,15 +11,15 @@
 #    on JAX's CPU build, with the bench's --quick sizes (a CPU would take far longer on the full ones).
 # 2. Where a folder of wheels is present (.whl/ by default: PFX_WHEELS), installs them with no
 #    network and no dependencies into a private folder put first on PYTHONPATH, and puts the
-#    repository itself on PYTHONPATH, so that `python -m pfx` runs this tree (GPU.md's recipe:
-#    the lent machine lacks pydantic, pydantic-core, annotated-types, typing-inspection,
-#    typing-extensions and arviz-stats).
+#    repository itself on PYTHONPATH, so that `python -m pfx` runs this tree (a GPU machine seen
+#    with JAX, NumPy, numba, SciPy, pandas and matplotlib installed lacked pydantic, pydantic-core,
+#    annotated-types, typing-inspection, typing-extensions and arviz-stats: docs/backends.md).
 # 3. Runs `pfx bench --backend jax` (PFX_BENCH_ARGS, default "--repeats 2 --budget 10" on a GPU,
 #    "--quick --repeats 2" without one) with XLA_PYTHON_CLIENT_PREALLOCATE=false (JAX takes device
 #    memory as it needs it); its progress lines go to bench.txt too (the table comes at the end).
 # 4. Runs the JAX backend's tests (PFX_GPU_TESTS: pytest arguments, default the files below; a
 #    named file that this tree lacks is left out, and said so).
-# Everything goes to $OUT (the lent machine's folder that comes back), else ./gpu-check-output:
+# Everything goes to $OUT (the GPU machine's folder that comes back), else ./gpu-check-output:
 # gpu-check.txt (this script's own lines), bench.txt, tests.txt. Exit status: 0 when the bench and
 # the tests passed, else the first failure's.
 #
@@ -29,7 +29,7 @@
 
 set -u
 cd "$(dirname "$0")/.." || exit 2
-# The packages GPU.md found missing on the lent machine (Python 3.12, x86-64).
+# The packages such a machine was seen to lack (Python 3.12, x86-64; docs/backends.md).
 MISSING="pydantic pydantic-core annotated-types typing-inspection typing-extensions arviz-stats"
 if [ "${1:-}" = --download-wheels ]; then
     # shellcheck disable=SC2086

@@ -119,7 +119,7 @@ def test_harness_prints_every_row_on_a_tiny_case(numpy_for_jax):
         assert (ratio != "-") == name.startswith("pfx jax")
         assert (first_call != "-") == on_device
     assert any(line.startswith("(the limit: bandwidth / bytes per particle-step") for line in table)
-    goals = table[table.index("goals (issue 35; rates of the best runs on this machine):") + 1:]
+    goals = table[table.index("goals of the jax backend (rates of the best runs on this machine):") + 1:]
     assert sum(line.startswith("  ") for line in goals) == 7
 
 

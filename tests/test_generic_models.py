@@ -1,4 +1,4 @@
-"""Models, noise laws and initial laws written once for both backends (issue 35).
+"""Models, noise laws and initial laws written once for both backends (docs/backends.md).
 
 Group **backend-invariant**: the same ``propagate``, ``measurement_mean``, ``log_likelihood``
 and ``measure`` of every built-in model owned here (falling body, growth, linear-Gaussian, the

@@ -1,5 +1,5 @@
 """The model's time axis and composed operations on both array backends (pfx/models/time_axis.py,
-pfx/models/base.py; issue 35, "models written once").
+pfx/models/base.py; "models written once", docs/backends.md).
 
 Backend-invariant group: the same model, given JAX arrays (and, inside ``jax.jit``, a traced
 time), computes what it computes on NumPy arrays, to rounding (1e-12; the formulas are the same,

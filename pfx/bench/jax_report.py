@@ -71,9 +71,9 @@ def _find(rows: list[Row], particles: int, trials: int, name: str) -> Optional[R
 
 
 def format_jax_goals(rows: list[Row], device: Device) -> str:
-    """The issue's goals for the jax backend, measured (never asserted by a test)."""
+    """The goals set for the jax backend, measured (never asserted by a test)."""
     gpu_only = "" if device.is_gpu else "no GPU: JAX ran on the CPU"
-    lines = ["goals (issue 35; rates of the best runs on this machine):"]
+    lines = ["goals of the jax backend (rates of the best runs on this machine):"]
     for precision, goal in (("float32", 5.0), ("float64", 3.5)):
         row = _find(rows, 10_000, 1_000, f"pfx jax {precision}")
         lines.append(_goal_line(row.rate / 1e9 if row and device.is_gpu else None, goal, False,
