@@ -320,3 +320,21 @@ def test_log_likelihood_mean_and_variance_agree_with_the_numpy_backend(case):
     (numpy_variance, numpy_error), (jax_variance, jax_error) = map(variance_and_error, (numpy_runs, jax_runs))
     assert abs(numpy_variance - jax_variance) < 3 * np.hypot(numpy_error, jax_error), \
         (numpy_variance, jax_variance, numpy_error, jax_error)
+
+
+def test_an_extended_jax_run_equals_a_fresh_one(tmp_path, tiny_config_dict, pfx_in_process):
+    """More trials extend a finished run (only the new ones run, in a batch of their own): its
+    trials.csv equals a fresh run's with all of them, as on numpy."""
+    config = tiny_config_dict()
+    config["filter"]["backend"] = "jax"
+    config["trials"] = 3
+    pfx.run(config, out=tmp_path / "extended")
+    config["trials"] = 7
+    pfx.run(config, out=tmp_path / "extended")
+    pfx.run(config, out=tmp_path / "fresh")
+    tables = [pd.read_csv(tmp_path / name / "trials.csv").drop(columns=["run_time_s"]) for name in ("extended", "fresh")]
+    pd.testing.assert_frame_equal(*tables, check_exact=True)
+    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set", "filter.resampler=han_lee_iv",
+                             "--out", str(tmp_path / "refused"))
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
+    assert "filter.resampler" in refused.stderr and "backend: numpy" in refused.stderr
