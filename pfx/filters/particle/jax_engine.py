@@ -227,26 +227,25 @@ class JaxParticleFilter:
     def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "_Flags"):
         """Step k: predict, weight and normalise, estimate, resample (module docstring)."""
         random = random.at(inputs.step)
-        state, lost, log_weights = self.predict(cloud, inputs, random)
-        all_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
-        log_weights, weights, increment, degenerate, bad = self.update_weights(log_weights, state, inputs)
+        predicted, lost, log_weights = self.predict(cloud, inputs, random)
+        every_particle_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
+        log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(log_weights, predicted, inputs)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
-        estimate = self.estimate(weights, state)
-        failures = (jnp.where(all_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad, BAD_LIKELIHOOD, 0)
+        estimate = self.estimate(weights, predicted)
+        resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled = self.resample(
+            predicted, log_weights, weights, ess, random)
+        failures = (jnp.where(every_particle_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad_likelihood, BAD_LIKELIHOOD, 0)
                     | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
-        weighted = (state, log_weights)
-        resampling = self.resample(state, log_weights, weights, ess, random)
-        state, log_weights, weights, ancestors, resampled = resampling
         outputs = StepOutputs(
             estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
             failures=failures.astype(jnp.int8),
-            spread=self.spread(weights, state) if flags.spread else None,
-            within_radius=self.within_radius(weights, state, flags) if flags.radius is not None else None,
-            standard_deviations=self.standard_deviations(jnp.exp(weighted[1]), weighted[0], estimate)
-            if flags.deviations else None,
-            ancestors=cloud.ancestors if flags.genealogy else None,
-            particles=weighted[0] if flags.history else None, log_weights=weighted[1] if flags.history else None)
-        carried = Cloud(particles=state, log_weights=log_weights,
+            spread=self.spread(resampled_weights, resampled_state) if flags.spread else None,
+            within_radius=self.within_radius(resampled_weights, resampled_state, flags)
+            if flags.radius is not None else None,
+            standard_deviations=self.standard_deviations(weights, predicted, estimate) if flags.deviations else None,
+            ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
+            particles=predicted if flags.history else None, log_weights=log_weights if flags.history else None)
+        carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
                         lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
                         ancestors=ancestors)
