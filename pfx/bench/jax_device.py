@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from pfx.bench.report import cpu_model
+from pfx.run.memory import available_memory
 
 STATE_DIMENSION = 3          # the falling body's (altitude, velocity, ballistic coefficient)
 INDEX_BYTES = 4
@@ -81,7 +82,7 @@ def jax_device(bandwidth: Optional[float] = None) -> Device:
 
     device = jax.devices()[0]
     stats = device.memory_stats() if hasattr(device, "memory_stats") else None
-    memory = (stats or {}).get("bytes_limit") or available_ram()
+    memory = (stats or {}).get("bytes_limit") or available_memory()
     known = known_bandwidth(device.device_kind)
     if bandwidth:
         source = "--bandwidth"
@@ -90,17 +91,6 @@ def jax_device(bandwidth: Optional[float] = None) -> Device:
     else:
         source = "unknown"
     return Device(device.platform, device.device_kind, memory, bandwidth, source)
-
-
-def available_ram() -> Optional[int]:
-    try:
-        with open("/proc/meminfo") as handle:
-            for line in handle:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
 
 
 def machine_line(device: Device) -> str:
