@@ -51,6 +51,11 @@ _LAZY_NAMES = {
     # a model's methods written once for the numpy and jax backends (docs/plugins.md)
     "namespace": "pfx.numerics.arrays",
     "with_values": "pfx.numerics.arrays",
+    "special_functions": "pfx.numerics.arrays",
+    # count-valued transitions, drawn from the trial's streams on either backend (docs/plugins.md)
+    "multinomial": "pfx.laws.count_transitions",
+    "euler_multinomial": "pfx.laws.count_transitions",
+    "gamma_white_noise": "pfx.laws.count_transitions",
     # one filter from Python, on arrays (pfx/filtering.py; docs/python-api.md)
     "model": "pfx.filtering",
     "particle_filter": "pfx.filtering",

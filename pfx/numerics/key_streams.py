@@ -140,10 +140,64 @@ class KeyStreams:
         draws = self.standard_exponential(scale.shape[1:] if shape is None and scale.ndim else (shape or ()))
         return _trial_leading(scale, draws.ndim) * draws
 
+    # -- the count-valued laws: the parameters laid out as TrialStreams reads them -------------
+
+    def binomial(self, count: Any, probability: Any, *, shape: Optional[Sequence[int]] = None) -> Any:
+        """Binomial draws, P(k) = C(n, k) p^k (1 - p)^(n - k), as floats of the streams' dtype
+        (NumPy's are float64 too); ``count`` n and ``probability`` p laid out as in
+        :meth:`pfx.numerics.seeding.TrialStreams.binomial` (the trial axis first)."""
+        import jax
+
+        return self._with_parameters(
+            lambda key, n, p, size: jax.random.binomial(key, n, p, size, self.dtype), [count, probability], shape)
+
+    def poisson(self, rate: Any, *, shape: Optional[Sequence[int]] = None) -> Any:
+        """Poisson draws, P(k) = rate^k e^(-rate) / k!, as floats of the streams' dtype."""
+        import jax
+
+        return self._with_parameters(
+            lambda key, rate, size: jax.random.poisson(key, rate, size).astype(self.dtype), [rate], shape)
+
+    def gamma(self, shape_parameter: Any, scale: Any = 1.0, *, shape: Optional[Sequence[int]] = None) -> Any:
+        """Gamma draws of shape k and scale theta (mean k theta, variance k theta^2)."""
+        import jax
+
+        return self._with_parameters(
+            lambda key, k, theta, size: theta * jax.random.gamma(key, k, size, self.dtype),
+            [shape_parameter, scale], shape)
+
+    def _with_parameters(self, sample, parameters: list, shape: Optional[Sequence[int]]) -> Any:
+        """Trial r's draws from trial r's key and trial r's slice of each parameter: a scalar is
+        shared, an array's leading axis is the trial axis (length R, or 1: shared) and its other
+        axes broadcast against the others' after trailing axes of length 1 are added (the layout
+        of :class:`~pfx.numerics.seeding.TrialStreams`). Draws (R, *shape); ``shape`` defaults to
+        the parameters' broadcast shape without the trial axis."""
+        import jax
+        import jax.numpy as jnp
+
+        trials = len(self)
+        parameters = [jnp.asarray(parameter, self.dtype) for parameter in parameters]
+        arrays = [parameter for parameter in parameters if parameter.ndim > 0]
+        axes = 1 + (len(shape) if shape is not None else max((array.ndim - 1 for array in arrays), default=0))
+        padded = [parameter if parameter.ndim == 0 else
+                  parameter.reshape(parameter.shape + (1,) * (axes - parameter.ndim)) for parameter in parameters]
+        if shape is not None:
+            trial_shape = tuple(int(size) for size in shape)
+        else:
+            trial_shape = tuple(jnp.broadcast_shapes(*(p.shape[1:] for p in padded if p.ndim > 0))) if arrays else ()
+        per_trial = [parameter if parameter.ndim == 0 else jnp.broadcast_to(parameter, (trials,) + parameter.shape[1:])
+                     for parameter in padded]
+        axes_in = tuple(None if parameter.ndim == 0 else 0 for parameter in per_trial)
+
+        def one_trial(key, *own):
+            return sample(key, *(jnp.broadcast_to(value, trial_shape) for value in own), trial_shape)
+
+        return jax.vmap(one_trial, in_axes=(0, *axes_in))(self._next_keys(), *per_trial)
+
     def __getattr__(self, name: str):
-        if name in ("binomial", "poisson", "gamma", "subset"):
-            raise NotImplementedError(f"random.{name} is not available on the jax backend yet; run this model "
-                                      "with filter.backend: numpy")
+        if name == "subset":
+            raise NotImplementedError("random.subset is not available on the jax backend: every trial draws, and "
+                                      "a mask selects")
         raise AttributeError(name)
 
 
