@@ -33,7 +33,7 @@ class SIR(pfx.Model):
     reporting: float = Field(0.6, gt=0, lt=1, description="rho, the probability that an infection is reported")
     initially_infected: float = Field(20.0, ge=0, description="I at time 0")
 
-    integrates_substeps = True          # propagate and sample_transition advance one substep
+    integrates_substeps = True          # propagate and sample_substep advance one substep
 
     def presets(self):
         infected = self.initially_infected
@@ -63,28 +63,25 @@ class SIR(pfx.Model):
                                    xp.full_like(infection, self.death_rate)], axis=-1)
         return susceptible_exits, infected_exits
 
-    def sample_transition(self, state, control, times, random):
-        """One Euler-multinomial draw per substep: whole individuals move."""
+    def sample_substep(self, state, control, time, random):
+        """One substep of h = dt / substeps: whole individuals move (Euler-multinomial draws)."""
         xp = pfx.namespace(state)
-        state = self.reset_accumulators(state)
         step = self.substep_duration
-        for _ in times:
-            susceptible, infected, recovered, new = (state[..., j] for j in range(4))
-            susceptible_exits, infected_exits = self.rates(state)
-            births = random.poisson(xp.full_like(susceptible, self.death_rate * self.population * step))
-            leaving_s = pfx.euler_multinomial(random, susceptible, susceptible_exits, step)   # (..., 2)
-            leaving_i = pfx.euler_multinomial(random, infected, infected_exits, step)
-            deaths_r = random.binomial(recovered, float(-np.expm1(-self.death_rate * step)))
-            infections, recoveries = leaving_s[..., 0], leaving_i[..., 0]
-            state = xp.stack([susceptible + births - leaving_s.sum(axis=-1),
-                              infected + infections - leaving_i.sum(axis=-1),
-                              recovered + recoveries - deaths_r,
-                              new + infections], axis=-1)
-        return state
+        susceptible, infected, recovered, new = (state[..., j] for j in range(4))
+        susceptible_exits, infected_exits = self.rates(state)
+        births = random.poisson(xp.full_like(susceptible, self.death_rate * self.population * step))
+        leaving_s = pfx.euler_multinomial(random, susceptible, susceptible_exits, step)   # (..., 2)
+        leaving_i = pfx.euler_multinomial(random, infected, infected_exits, step)
+        deaths_r = random.binomial(recovered, float(-np.expm1(-self.death_rate * step)))
+        infections, recoveries = leaving_s[..., 0], leaving_i[..., 0]
+        return xp.stack([susceptible + births - leaving_s.sum(axis=-1),
+                         infected + infections - leaving_i.sum(axis=-1),
+                         recovered + recoveries - deaths_r,
+                         new + infections], axis=-1)
 
     def propagate(self, state, control, noise):
         """The mean of one substep (the rates' Euler step): what pfx's look-ahead and Gaussian
-        filters use; the filter draws with sample_transition."""
+        filters use; the filter draws with sample_substep."""
         xp = pfx.namespace(state)
         step = self.substep_duration
         susceptible_exits, infected_exits = self.rates(state)

@@ -35,7 +35,6 @@ from __future__ import annotations
 
 from typing import Any
 
-
 from pfx.numerics.arrays import namespace
 
 

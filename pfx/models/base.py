@@ -370,20 +370,27 @@ class Model(TimeAxis, BaseModel):
 
     def sample_transition(self, state, control, times, random):
         r"""Sample x_k ~ p(x_k | x_{k-1}, u_k) given the control u_k and the start times of the
-        step's substeps (one per ``propagate`` call).
+        step's substeps (one per :meth:`sample_substep`).
 
         The composition of the step's substeps (module docstring): the accumulating components
-        reset, then :math:`x \leftarrow f(x, u_k, w^{(j)})` for j = 1..s, each with a fresh
-        draw :math:`w^{(j)}` of the process noise from the trials' streams, in order. A model
-        whose transition is not "propagate with fresh noise" (Probabilistic Robotics' sampling
-        algorithms) overrides this method, not :meth:`transition`: it then runs on both
-        backends (on jax, ``control`` and ``times`` are arrays of the compiled step).
+        reset, then :math:`x \leftarrow` :meth:`sample_substep` for j = 1..s, in order. A model
+        overrides :meth:`sample_substep` to draw its own way at each substep; it overrides this
+        method only for a transition that is not a sequence of substeps. Either runs on both
+        backends (on jax, ``control`` and ``times`` are arrays of the compiled step, and the
+        jax backend scans :meth:`sample_substep` over the substeps itself).
         """
         state = self.reset_accumulators(state)
         for time in times:
-            noise = self.process_noise.sample(random, state.shape[1:-1])
-            state = self.propagate_at(state, control, noise, time)
+            state = self.sample_substep(state, control, time, random)
         return state
+
+    def sample_substep(self, state, control, time, random):
+        r"""One substep of the transition from ``state``, starting at ``time``:
+        :math:`f(x, u_k, w)` with a fresh draw w of the process noise (``propagate``). A model
+        whose substep draws in another way (counts moving between compartments:
+        :func:`pfx.euler_multinomial`) overrides it, drawing from ``random``."""
+        noise = self.process_noise.sample(random, state.shape[1:-1])
+        return self.propagate_at(state, control, noise, time)
 
     def mean_transition(self, previous: np.ndarray, step: int) -> np.ndarray:
         r"""The noise-free transition over step k, :math:`\bar f_k(x_{k-1})`: (..., d) from

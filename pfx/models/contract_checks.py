@@ -243,7 +243,7 @@ def _probe_reproducibility(model) -> Optional[str]:
          lambda: prior.sample(fresh(), (particles,)), "a prior must draw from the trial's streams it is given"),
         ("propagate", True, lambda: model.propagate_at(states.copy(), control, noise.copy(), time),
          "its randomness must come from its noise argument (drawn from the trial's stream)"),
-        ("transition", defined_by_user_code(model, "transition", "sample_transition"),
+        ("transition", defined_by_user_code(model, "transition", "sample_transition", "sample_substep"),
          lambda: model.transition(states.copy(), 1, fresh()),
          draw_hint),
         ("measurement_mean", True, lambda: model.measurement_mean(states.copy()), "h(x) must not be random"),

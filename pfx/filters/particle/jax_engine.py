@@ -125,13 +125,18 @@ class JaxParticleFilter:
         )
         if _overrides(model, "transition"):
             raise ValueError(f"@backend: model {model.kind} overrides transition(state, step, random), which reads its "
-                             "control on the host at each step; override sample_transition(state, control, times, "
-                             "random) instead to run on the jax backend (docs/plugins.md), or set backend: numpy")
+                             "control on the host at each step; override sample_substep(state, control, time, random) "
+                             "(or sample_transition) instead to run on the jax backend (docs/plugins.md), or set "
+                             "backend: numpy")
         if _overrides(model, "sample_transition"):
             probes = (probes[0], ("sample_transition", lambda random, state: model.sample_transition(
                 state, None if control is None else jnp.asarray(control),
                 jnp.asarray([model.substep_time(1, j) for j in range(model.propagations_per_step)]), random)),
                 probes[3])
+        elif _overrides(model, "sample_substep"):
+            probes = (*probes, ("sample_substep", lambda random, state: model.sample_substep(
+                state, None if control is None else jnp.asarray(control), jnp.asarray(model.substep_time(1, 0)),
+                random)))
         with jax.enable_x64(True):
             keys = jnp.zeros((trials, 2), jnp.uint32)
             state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
@@ -252,26 +257,23 @@ class JaxParticleFilter:
         return carried, outputs
 
     def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams):
-        r"""x_k ~ p(x_k | x_{k-1}, u_k): the accumulators reset, then the substeps' propagate calls,
-        each with its own process noise (:meth:`pfx.models.base.Model.transition`). A particle
-        that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
+        r"""x_k ~ p(x_k | x_{k-1}, u_k): the accumulators reset, then the model's substeps
+        (:meth:`pfx.models.base.Model.sample_substep`, by default propagate with fresh process
+        noise), scanned when there are several, each substep's draws from keys of its own. A
+        particle that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
         model, state = self.model, cloud.particles
         control = None if inputs.control is None else inputs.control.astype(self.dtype)
         substeps = inputs.times.shape[0]
-        if _overrides(model, "sample_transition"):          # the model's own sampling algorithm
+        if _overrides(model, "sample_transition"):          # a transition that is not a sequence of substeps
             state = model.sample_transition(state, control, inputs.times, random)
         elif substeps == 1:
-            state = model.reset_accumulators(state)
-            noise = model.process_noise.sample(random, state.shape[1:-1])
-            state = model.propagate_at(state, control, noise, inputs.times[0])
+            state = model.sample_substep(model.reset_accumulators(state), control, inputs.times[0], random)
         else:
-            state = model.reset_accumulators(state)
-
             def substep(current, place):
                 index, time = place
-                noise = model.process_noise.sample(random.at(index), current.shape[1:-1])
-                return jnp.asarray(model.propagate_at(current, control, noise, time), current.dtype), None
-            state, _ = jax.lax.scan(substep, state, (jnp.arange(substeps), inputs.times))
+                return jnp.asarray(model.sample_substep(current, control, time, random.at(index)), current.dtype), None
+
+            state, _ = jax.lax.scan(substep, model.reset_accumulators(state), (jnp.arange(substeps), inputs.times))
         state = jnp.asarray(state)
         _check_shape(model, "the transition (propagate)", state, cloud.particles.shape)
         state = state.astype(self.dtype)
