@@ -60,6 +60,8 @@ _LAZY_NAMES = {
     "model": "pfx.filtering",
     "particle_filter": "pfx.filtering",
     "filter": "pfx.filtering",
+    "simulate": "pfx.filtering",
+    "Simulation": "pfx.filtering",
     "FilterResult": "pfx.filtering",
     "choose_particles": "pfx.filtering",
     # a plugin loaded from Python, as a config's plugins: entry loads it (docs/python-api.md)

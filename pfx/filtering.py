@@ -25,6 +25,9 @@ uses::
   path, to the last bit); ``seed`` derives one per trial from a root seed. It returns a
   :class:`FilterResult`: arrays with the trial axis first, always.
 * :func:`filter` binds and calls in one go.
+* :func:`simulate` draws a model's truth and measurements as a config's run draws them (trial t
+  of ``seed: S`` is trial t of ``simulate(model, trials=..., seed=S)``), so that a notebook
+  filters pfx's own simulated data and gets the config's numbers.
 * :func:`choose_particles` chooses N for PMMH as a config's ``particles: auto`` does: the sd of
   the log-likelihood estimate near a target, at the model's own parameters.
 
@@ -59,7 +62,8 @@ from pfx.filters import FILTERS
 from pfx.filters.trace import FilterTrace
 from pfx.models import MODELS
 from pfx.models.base import Model
-from pfx.numerics.seeding import TrialStreams, filter_seed, spread_seed
+from pfx.models.simulation import simulate_truth
+from pfx.numerics.seeding import TrialStreams, filter_seed, spread_seed, truth_seed
 from pfx.python_arguments import CALLER
 
 
@@ -177,6 +181,44 @@ def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None,
     return particle_filter(model, kind=kind, prior=prior, **settings)(
         measurements, seeds=seeds, seed=seed, trials=trials, genealogy=genealogy, consistency=consistency,
         traced=traced)
+
+
+@dataclass
+class Simulation:
+    """:func:`simulate`'s answer, trial axis first: ``states`` x_0..x_T (trials, T + 1, d),
+    ``measurements`` z_1..z_T (trials, T, m), and ``seeds``, each trial's truth seed (trials.csv's
+    ``truth_seed``)."""
+
+    states: np.ndarray
+    measurements: np.ndarray
+    seeds: list[int]
+
+
+def simulate(model: Model, *, trials: Optional[int] = None, seed: Optional[int] = None,
+             seeds: Optional[Sequence[int]] = None, datasets: Optional[int] = None) -> Simulation:
+    """The model's true states and measurements, drawn as a config's run draws them: trial t of a
+    config with ``seed: S`` (and ``datasets``) has the truth ``simulate(model, trials=..., seed=S)``
+    gives as its trial t (the seeds ``truth_seed(S, t, datasets)``), so a notebook can filter pfx's
+    own simulated data and get the config's numbers. ``seeds`` gives each trial's truth seed
+    instead. Default: one trial of seed 0."""
+    model = arguments.model_argument(model)
+    check_plugin_model(model, loaded_plugins())
+    count = arguments.trial_count(trials)
+    if seeds is not None:
+        if seed is not None or datasets is not None:
+            raise ConfigError("give seeds (one truth seed per trial) or seed and datasets, not both", file=CALLER,
+                              key="seeds")
+        truth_seeds = arguments.seed_list(seeds)
+        if count is not None and count != len(truth_seeds):
+            raise ConfigError(f"{count}, and seeds gives {len(truth_seeds)}: give one of them", file=CALLER,
+                              key="trials")
+    else:
+        root = 0 if seed is None else arguments.seed_value(seed, "seed")
+        if datasets is not None:
+            datasets = arguments.trial_count(datasets)
+        truth_seeds = [truth_seed(root, trial, datasets) for trial in range(count or 1)]
+    states, measurements = simulate_truth(model, TrialStreams.from_seeds(truth_seeds))
+    return Simulation(states=states, measurements=measurements, seeds=truth_seeds)
 
 
 @dataclass

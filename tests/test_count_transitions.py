@@ -150,3 +150,4 @@ def test_the_sir_of_the_docs_is_the_example_plugin():
     assert len(shown) > 15
     missing = [line for line in shown if line not in plugin]
     assert not missing, missing
+

@@ -418,3 +418,22 @@ def test_numba_cache_in_a_plugin_survives_the_same_file_imported_by_hand(tmp_pat
     loaded = [line for line in last.splitlines() if "data loaded" in line and "cached_walk.damped" in line]
     assert loaded and all("pfx_plugin_cached_walk_" in line for line in loaded), last[-2000:]
     assert "cached_walk.damped" not in " ".join(line for line in last.splitlines() if "data saved" in line)
+
+
+def test_simulate_draws_the_truth_a_config_run_draws(tmp_path, tiny_config_dict):
+    """pfx.simulate(model, trials, seed) is the truth of a config's trials with that seed: the
+    config's trials.csv numbers come back from filtering it with the trials' filter seeds."""
+    config = tiny_config_dict()
+    config["seed"] = 17
+    result = pfx.run(config, out=tmp_path / "run")
+    trials = result.trials.sort_values("trial")
+    model = pfx.model(**config["model"])
+    simulation = pfx.simulate(model, trials=len(trials), seed=17)
+    assert simulation.seeds == [int(seed) for seed in trials["truth_seed"]]
+    filtered = pfx.filter(model, simulation.measurements, seeds=[int(s) for s in trials["filter_seed"]],
+                          **config["filter"])
+    np.testing.assert_array_equal(filtered.log_likelihood, trials["log_likelihood"].to_numpy())
+    again = pfx.simulate(model, seeds=simulation.seeds[1:3])
+    np.testing.assert_array_equal(again.states, simulation.states[1:3])
+    with pytest.raises(pfx.ConfigError, match="seeds"):
+        pfx.simulate(model, seeds=[1, 2], seed=3)
