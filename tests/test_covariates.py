@@ -124,7 +124,7 @@ def test_the_table_is_part_of_the_cell_key(tmp_path):
     ("time,drift\n0,0\n6,\n", "drift.csv:3: column drift", "blank cell"),
     ("time,drift\n0,0\n0,1\n", "drift.csv:3: column time", "appears twice"),
     ("time,drift\n1,0\n6,6\n", "data.covariates", "from 0 (the start of step 1)"),
-    ("time,drift\n0,0\n5,5\n", "data.covariates", "to 6 (step 6)"),
+    ("time,drift\n0,0\n4,4\n", "data.covariates", "to 5 (the start of the last substep of step 6)"),
 ])
 def test_bad_covariate_tables_are_one_line_errors(pfx_in_process, tmp_path, table, where, reason):
     (tmp_path / "drift.csv").write_text(table)
@@ -188,3 +188,12 @@ def test_a_result_folder_records_the_file_and_reruns(pfx_in_process, tmp_path, w
     first_trials, again_trials = (pd.read_csv(tmp_path / name / "trials.csv").drop(columns="run_time_s")
                                   for name in ("first", "again"))
     pd.testing.assert_frame_equal(first_trials, again_trials)
+
+
+def test_a_table_that_ends_at_the_last_substep_read_is_enough(pfx_in_process, tmp_path):
+    """The transition of step 6 starts at t = 5 and reads the covariates there: a table to 5 covers
+    every time read (the measurement at t = 6 reads none), so the run goes ahead."""
+    (tmp_path / "drift.csv").write_text("time,drift\n0,0\n5,5\n")
+    config = write_config_file(tmp_path, drift_config(tmp_path))
+    result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
+    assert result.returncode == 0, result.output

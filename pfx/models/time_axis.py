@@ -170,18 +170,21 @@ class TimeAxis:
 
     def check_covariate_span(self) -> None:
         """ValueError('@covariates: ...') unless the covariate table covers the times the
-        transition reads: from the start of step 1 (its time minus the step's duration) to the
-        last step's time."""
+        transition reads: the start of every substep, from the start of step 1 (its time minus
+        the step's duration) to the start of the last step's last substep (its time minus one
+        substep). Nothing else reads covariates by time (the measurement's methods take no time),
+        so the table need not reach the last step's own time."""
         if self._covariate_table is None:
             return
         times = self.times()
-        start, end = float(times[0] - self.step_duration(1)), float(times[-1])
+        start = float(times[0] - self.step_duration(1))
+        end = float(self.substep_time(self.steps, self.propagations_per_step - 1))
         table = self._covariate_table[0]
         slack = time_slack(table)
         if start < table[0] - slack or end > table[-1] + slack:
             raise ValueError(f"@covariates: the table's times run from {table[0]:.12g} to {table[-1]:.12g}; the "
                              f"model reads covariates from {start:.12g} (the start of step 1) to {end:.12g} "
-                             f"(step {self.steps}): give rows that cover them")
+                             f"(the start of the last substep of step {self.steps}): give rows that cover them")
 
 
 def _interpolate_traced(table: tuple[np.ndarray, np.ndarray], time: Any, xp: ModuleType) -> Any:
