@@ -233,6 +233,15 @@ def test_versus_compares_columns_of_the_same_trials_within_each_arm():
         paired_comparison(frame, "rmse", "trial", None, ["arm"], versus=["rmse_smoothed"])
 
 
+def test_versus_leaves_out_the_cells_without_the_compared_column():
+    """An arm without the compared estimate (a smoother only the other arm ran) gets no row,
+    not a row of 0 pairs and every pair excluded."""
+    frame = two_arms()
+    frame["rmse_smoothed"] = np.where(frame["arm"] == "A", frame["rmse"] - 1.0, np.nan)
+    result = paired_comparison(frame, "rmse", "arm", None, ["arm"], versus=["rmse_smoothed"])
+    assert result[["arm", "estimate", "n_pairs", "excluded_pairs"]].values.tolist() == [["A", "rmse_smoothed", 6, 0]]
+
+
 # -- the command line, on real runs ------------------------------------------------------------
 
 AA_TRIALS = 30
