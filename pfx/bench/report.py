@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import platform
 from typing import TYPE_CHECKING, Optional
@@ -52,7 +53,27 @@ def format_table(timings: list[Timing]) -> str:
         ratio = timing.seconds / pfx_time[timing.case.label] if timing.case.label in pfx_time else float("nan")
         lines.append(f"{label:<16} {name:<15} {timing.ns_per_particle_step:>16.1f} {ratio:>7.2f} "
                      f"{timing.rmse:>19.1f} {timing.runs:>5}")
+    lines += [_rmse_note(case) for case in _cases_whose_rmse_disagree(timings)]
     return "\n".join(lines)
+
+
+# Two implementations' altitude RMSEs further apart than this factor get a note under the table.
+RMSE_DISAGREEMENT = 2.0
+
+
+def _cases_whose_rmse_disagree(timings: list[Timing]) -> list[str]:
+    cases: dict[str, list[float]] = {}
+    for timing in timings:
+        if not timing.error and timing.runs and math.isfinite(timing.rmse) and timing.rmse > 0:
+            cases.setdefault(timing.case.label, []).append(timing.rmse)
+    return [case for case, values in cases.items() if max(values) > RMSE_DISAGREEMENT * min(values)]
+
+
+def _rmse_note(case: str) -> str:
+    return (f"({case}: the altitude RMSEs differ because each implementation draws its own random numbers, and "
+            "with few particles one trial's filter may lose the falling body (at N = 100 about a quarter of the "
+            "trials do, whatever the implementation). The column shows that every row ran the whole filter, not "
+            "which is more accurate: `pfx run` over many trials compares accuracy.)")
 
 
 ALGORITHM_WIDTH = 26
