@@ -22,8 +22,7 @@ from pfx.bench.algorithms import ALGORITHMS, BASELINE, QUICK_CASE, algorithm_fil
 from pfx.bench.peers import ADAPTERS, PEERS
 from pfx.bench.problem import FallingBodyProblem, make_case
 from pfx.bench.report import ALGORITHM_WIDTH, format_table
-from pfx.bench.timing import Timing
-from pfx.bench.timing import run_filter, run_numpy, run_pfx
+from pfx.bench.timing import Timing, run_filter, run_numpy, run_pfx
 
 Z = 4.5        # two-sided P(|Z| > 4.5) = 7e-6 per comparison
 

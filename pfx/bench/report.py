@@ -53,7 +53,9 @@ def format_table(timings: list[Timing]) -> str:
         ratio = timing.seconds / pfx_time[timing.case.label] if timing.case.label in pfx_time else float("nan")
         lines.append(f"{label:<16} {name:<15} {timing.ns_per_particle_step:>16.1f} {ratio:>7.2f} "
                      f"{timing.rmse:>19.1f} {timing.runs:>5}")
-    lines += [_rmse_note(case) for case in _cases_whose_rmse_disagree(timings)]
+    notes = [_rmse_note(case) for case in _cases_whose_rmse_disagree(timings)]
+    if notes:                         # under the table, after a blank line
+        lines += ["", *notes]
     return "\n".join(lines)
 
 
