@@ -75,6 +75,7 @@ from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 import numpy as np
 
+from pfx.analysis.compare_versus import VERSUS, metrics_as_rows
 from pfx.analysis.metrics import ANY_VALUE, ValueRange
 from pfx.analysis.summary import NON_METRIC_COLUMNS
 from pfx.errors import ConfigError
@@ -98,36 +99,6 @@ def metric_columns(trials: pd.DataFrame, label_columns: Iterable[str]) -> list[s
     labels = set(label_columns) | {"cell"}
     return [c for c in trials.columns if c not in NON_METRIC_COLUMNS and c not in labels
             and (pd.api.types.is_numeric_dtype(trials[c]) or pd.api.types.is_bool_dtype(trials[c]))]
-
-
-VERSUS = "estimate"            # the label column of metrics compared with --versus
-
-
-def metrics_as_rows(trials: pd.DataFrame, metric: str, versus: list[str],
-                    label_columns: Iterable[str] = ()) -> pd.DataFrame:
-    """trials.csv with ``metric`` and each ``versus`` column (another estimate of the same trial:
-    a smoother's ``rmse_ffbs_position`` beside the filter's ``rmse_position``) stacked into the
-    one column ``metric``, and a label column ``estimate`` naming which: so that
-    :func:`paired_comparison` ``by="estimate"`` compares them trial by trial, within each cell.
-
-    A cell (a combination of ``label_columns``) whose ``versus`` column is empty on every trial
-    has no such estimate (an arm without that smoother): its rows for that column are left out,
-    so the comparison has no row for it rather than a row of 0 pairs."""
-    import pandas as pd
-
-    cells = [column for column in label_columns if column in trials]
-    frames = []
-    for column in dict.fromkeys([metric, *versus]):
-        frame = trials.drop(columns=[c for c in (metric, *versus) if c in trials]).copy()
-        frame[VERSUS] = column
-        frame[metric] = trials[column].to_numpy()
-        if column != metric:
-            present = trials[column].notna()
-            has_estimate = present.groupby([trials[c] for c in cells], dropna=False).transform("any") if cells \
-                else pd.Series(present.any(), index=trials.index)
-            frame = frame[has_estimate.to_numpy()]
-        frames.append(frame)
-    return pd.concat(frames, ignore_index=True)
 
 
 def output_name(metric: str, by: str, versus: Iterable[str] = ()) -> str:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Iterable, Optional
 
 from pfx.analysis.metrics import MetricsConfig
+from pfx.config.backend_labels import label_backends
 from pfx.config.covariate_files import check_covariate_spans
 from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
@@ -381,7 +382,7 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                               "remove the repeated sweep value", file=file, key="sweep")
         seen[cell.key] = index
 
-    _label_backends(cells, experiment, arms, file)
+    label_backends(cells, experiment, arms, file)
 
     if "figures" not in experiment.outputs.model_fields_set and experiment.estimation is not None:
         experiment.outputs.figures = list(ESTIMATION_FIGURES[experiment.estimation.method])
@@ -414,41 +415,6 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         for cell in cells:
             check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
-
-
-def _label_backends(cells: list[Cell], experiment, arms: dict, file: str) -> None:
-    """A config that runs any particle filter on the jax backend gets ``backend`` and
-    ``precision`` columns in its tables, for every cell (empty for the kinds without particles,
-    which run on numpy; a config on numpy alone keeps the tables it always had). ``backend`` is
-    a particle-filter setting, as ``resampler`` is: an arm of another kind ignores the shared
-    section's, but one that asks for jax itself is refused, as is a config whose jax reaches no
-    particle filter. What the jax backend cannot record yet is refused by its key."""
-    for cell in cells:
-        arm = cell.labels["arm"]
-        if not cell.filter.uses_particles and ((arms.get(arm) or {}).get("backend") == "jax"):
-            raise ConfigError(f"the jax backend runs the particle filters (kind particle or sis); the "
-                              f"{cell.filter.kind} filter runs on numpy: drop backend: jax from this arm",
-                              file=file, key=f"arms.{arm}.backend")
-    on_jax = [cell for cell in cells if cell.filter.uses_particles and cell.filter.backend == "jax"]
-    if not on_jax:
-        if any(cell.filter.backend == "jax" for cell in cells):
-            kinds = sorted({cell.filter.kind for cell in cells})
-            raise ConfigError(f"the jax backend runs the particle filters (kind particle or sis); this config runs "
-                              f"{', '.join(kinds)} only, on numpy: drop backend: jax", file=file, key="filter.backend")
-        return
-    if experiment.estimation is not None:
-        raise ConfigError("parameter estimation (PMMH, IF2) runs on backend: numpy for now (docs/backends.md); "
-                          "set filter.backend: numpy", file=file, key="filter.backend")
-    if any(cell.metrics.consistency for cell in on_jax):
-        raise ConfigError("the jax backend does not record the posterior covariances and NIS yet; drop "
-                          "metrics.consistency or set filter.backend: numpy", file=file, key="metrics.consistency")
-    if experiment.outputs.particles is not None and experiment.outputs.particles.steps:
-        raise ConfigError("the jax backend does not keep particle clouds (particles.csv) yet; drop "
-                          "outputs.particles or set filter.backend: numpy", file=file, key="outputs.particles")
-    for cell in cells:
-        particles = cell.filter.uses_particles
-        cell.labels["backend"] = cell.filter.backend if particles else None
-        cell.labels["precision"] = cell.filter.precision if particles else None
 
 
 def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:

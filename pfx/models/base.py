@@ -39,24 +39,9 @@ the truth, ``(R, N)`` for particles):
 ``log_likelihood(measurement, state (R, N, d))``        ``(R, N)``; measurement ``(R, 1, m)``
 =====================================================  =========================================
 
-**Observation intervals.** ``dt`` is the time between two measurements (two filter steps).
-A model integrated with a smaller step declares ``integrates_substeps = True``, lets its
-``propagate`` advance one substep of :attr:`Model.substep_duration` = ``dt / substeps``, and the
-config sets ``substeps``: the transition from step k-1 to step k is then
-
-.. math::
-
-    x^{(0)} = R\,x_{k-1}, \qquad
-    x^{(j)} = f\big(x^{(j-1)}, u_k, w^{(j)}; t_{k-1} + (j-1) h\big) \quad (j = 1..s), \qquad
-    x_k = x^{(s)},
-
-with :math:`h` the substep duration, :math:`w^{(j)}` a fresh draw of the process noise for
-every substep (``process_noise`` is the law of one ``propagate`` call) and :math:`R` the reset
-of the accumulating components (:attr:`Model.accumulating_components`: counts over the
-interval, set to 0 before its first substep). A ``propagate`` with a parameter named ``time``
-is given the time at the start of its substep. :meth:`Model.mean_transition` is the same
-composition with every :math:`w^{(j)} = 0`. With ``substeps: 1`` (the default) this is one
-``propagate`` call, as it always was.
+**Observation intervals** (``substeps`` between two measurements, accumulators reset at each
+step): :mod:`pfx.models.time_axis` states the composition that :meth:`Model.sample_transition`
+computes.
 
 A measurement that is not "h(x) + noise" (multiplicative noise, say) overrides both
 ``simulate_measurement`` (how the truth's measurements are drawn; every draw from ``random``)
@@ -79,8 +64,6 @@ plugin's model runs; names and declarations; reproducibility) in :mod:`pfx.model
 from __future__ import annotations
 
 import copy
-import functools
-import inspect
 import math
 from typing import Any, Callable, ClassVar, Optional
 
@@ -421,34 +404,6 @@ class Model(TimeAxis, BaseModel):
             return state
         return with_values(state, (..., components), 0.0)     # functional: a JAX array cannot be written
 
-    @property
-    def propagate_reads_time(self) -> bool:
-        """Whether the model's ``propagate`` has a ``time`` parameter (its transition may change
-        with time, so nothing about it may be computed once for every step)."""
-        return _takes_time(type(self).propagate)
-
-    def propagate_at(self, state: np.ndarray, control: Optional[np.ndarray], noise: np.ndarray,
-                     time: float) -> np.ndarray:
-        """``propagate(state, control, noise)``, with ``time=time`` if the model's propagate has
-        a parameter named ``time`` (looked up once per class)."""
-        if self.propagate_reads_time:
-            return self.propagate(state, control, noise, time=time)
-        return self.propagate(state, control, noise)
-
-    def transition_jacobian_at(self, state: np.ndarray, control: Optional[np.ndarray],
-                               time: float) -> Optional[np.ndarray]:
-        """``transition_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
-        if _takes_time(type(self).transition_jacobian):
-            return self.transition_jacobian(state, control, time=time)
-        return self.transition_jacobian(state, control)
-
-    def process_noise_jacobian_at(self, state: np.ndarray, control: Optional[np.ndarray],
-                                  time: float) -> Optional[np.ndarray]:
-        """``process_noise_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
-        if _takes_time(type(self).process_noise_jacobian):
-            return self.process_noise_jacobian(state, control, time=time)
-        return self.process_noise_jacobian(state, control)
-
     def truth_event(self, state: np.ndarray, step: int) -> np.ndarray:
         """What happens to the true state at step k beyond the transition (a kidnapping): applied
         by the truth simulation only, after the transition; a filter never calls it. Default: nothing."""
@@ -530,15 +485,6 @@ def _bind(component, dimension: int, key: str, **options) -> None:
         if message.startswith("@"):
             raise ValueError(f"@{key}.{message[1:]}") from None
         raise ValueError(f"@{key}: {message}") from None
-
-
-@functools.lru_cache(maxsize=None)
-def _takes_time(method: Callable) -> bool:
-    """Whether a model method (the function on the class) has a parameter named ``time``."""
-    try:
-        return "time" in inspect.signature(method).parameters
-    except (TypeError, ValueError):      # a builtin or C function: called without time
-        return False
 
 
 def bind_law(law, dimension: int, key: str):

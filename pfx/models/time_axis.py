@@ -9,6 +9,25 @@ before the first step, and is cut into ``substeps`` pieces of :math:`h = \Delta 
 (:meth:`TimeAxis.substep_time`), the ``time`` a ``propagate`` with a parameter of that name
 is given.
 
+**Observation intervals.** ``dt`` is the time between two measurements (two filter steps).
+A model integrated with a smaller step declares ``integrates_substeps = True``, lets its
+``propagate`` advance one substep of :attr:`Model.substep_duration` = ``dt / substeps``, and the
+config sets ``substeps``: the transition from step k-1 to step k is then
+
+.. math::
+
+    x^{(0)} = R\,x_{k-1}, \qquad
+    x^{(j)} = f\big(x^{(j-1)}, u_k, w^{(j)}; t_{k-1} + (j-1) h\big) \quad (j = 1..s), \qquad
+    x_k = x^{(s)},
+
+with :math:`h` the substep duration, :math:`w^{(j)}` a fresh draw of the process noise for
+every substep (``process_noise`` is the law of one ``propagate`` call) and :math:`R` the reset
+of the accumulating components (:attr:`Model.accumulating_components`: counts over the
+interval, set to 0 before its first substep). A ``propagate`` with a parameter named ``time``
+is given the time at the start of its substep. :meth:`Model.mean_transition` is the same
+composition with every :math:`w^{(j)} = 0`. With ``substeps: 1`` (the default) this is one
+``propagate`` call, as it always was.
+
 **Covariates.** A model that reads quantities known over time (a census, seasonal splines)
 names them (``covariate_names``) and is given a table of them, ``covariates``: rows at times
 :math:`\tau_0 < \dots < \tau_{n-1}`, read by :meth:`TimeAxis.covariates_at` with linear
@@ -19,7 +38,8 @@ interpolation between the two rows around a time,
     c(t) = c_j + \frac{t - \tau_j}{\tau_{j+1} - \tau_j}\,(c_{j+1} - c_j)
     \qquad (\tau_j \le t \le \tau_{j+1}).
 
-The table must cover every time the transition reads, from :math:`t_0` to :math:`t_T`;
+The table must cover every time the transition reads, the start of every substep, from
+:math:`t_0` to :math:`t_T - h` (nothing else reads covariates by time);
 :meth:`TimeAxis.check_covariate_span` checks that once, before a run, so that a compiled
 filter (the ``jax`` backend, whose substep times are traced values that cannot be compared
 with Python's ``<``) can interpolate without checking again.
@@ -32,13 +52,17 @@ about its time (``time_unit``, ``integrates_substeps``, ``substeps_inside_propag
 ``variable_dt``) and reads the fields and private attributes that :class:`~pfx.models.base.Model`
 declares (pydantic keeps them there): ``dt``, ``steps``, ``substeps``, ``kind``,
 ``covariate_names``, ``_recorded_times`` and ``_covariate_table`` (what :func:`covariate_table`
-makes of the ``covariates`` field when the model is validated).
+makes of the ``covariates`` field when the model is validated). It also calls the methods that
+may take the time (``propagate``, the Jacobians) with it where their signature has a ``time``
+parameter (:meth:`TimeAxis.propagate_at`).
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 from types import ModuleType
-from typing import Any, ClassVar, Optional
+from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
 
@@ -185,6 +209,45 @@ class TimeAxis:
             raise ValueError(f"@covariates: the table's times run from {table[0]:.12g} to {table[-1]:.12g}; the "
                              f"model reads covariates from {start:.12g} (the start of step 1) to {end:.12g} "
                              f"(the start of the last substep of step {self.steps}): give rows that cover them")
+
+    # -- the methods called with the time, where they take one ------------------------------
+
+    @property
+    def propagate_reads_time(self) -> bool:
+        """Whether the model's ``propagate`` has a ``time`` parameter (its transition may change
+        with time, so nothing about it may be computed once for every step)."""
+        return _takes_time(type(self).propagate)
+
+    def propagate_at(self, state: Any, control: Optional[Any], noise: Any,
+                     time: float) -> Any:
+        """``propagate(state, control, noise)``, with ``time=time`` if the model's propagate has
+        a parameter named ``time`` (looked up once per class)."""
+        if self.propagate_reads_time:
+            return self.propagate(state, control, noise, time=time)
+        return self.propagate(state, control, noise)
+
+    def transition_jacobian_at(self, state: Any, control: Optional[Any],
+                               time: float) -> Optional[Any]:
+        """``transition_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
+        if _takes_time(type(self).transition_jacobian):
+            return self.transition_jacobian(state, control, time=time)
+        return self.transition_jacobian(state, control)
+
+    def process_noise_jacobian_at(self, state: Any, control: Optional[Any],
+                                  time: float) -> Optional[Any]:
+        """``process_noise_jacobian(state, control)``, with ``time=time`` if it takes a ``time``."""
+        if _takes_time(type(self).process_noise_jacobian):
+            return self.process_noise_jacobian(state, control, time=time)
+        return self.process_noise_jacobian(state, control)
+
+
+@functools.lru_cache(maxsize=None)
+def _takes_time(method: Callable) -> bool:
+    """Whether a model method (the function on the class) has a parameter named ``time``."""
+    try:
+        return "time" in inspect.signature(method).parameters
+    except (TypeError, ValueError):      # a builtin or C function: called without time
+        return False
 
 
 def _interpolate_traced(table: tuple[np.ndarray, np.ndarray], time: Any, xp: ModuleType) -> Any:
