@@ -1,5 +1,6 @@
 """The estimation-nile benchmark (docs/benchmarks/estimation-nile.md; its report
-pfx/papers/estimation_nile.py).
+pfx/papers/estimation_nile.py, its exact references
+pfx/papers/estimation_nile_exact.py).
 
 * its configs are valid and its paper.yaml's flows are examples/data/nile.csv's;
 * the report's exact references against independent computations: the grid's vectorised
@@ -27,6 +28,7 @@ from pfx.config.estimation import EstimationConfig
 from pfx.config.plan import build_plan
 from pfx.papers import REPORTS
 from pfx.papers import estimation_nile as nile
+from pfx.papers import estimation_nile_exact as exact
 from pfx.papers.base import VERDICTS, PaperResults, Table
 from pfx.papers.gallery import write_gallery
 from pfx.run.runner import run_plan
@@ -68,7 +70,7 @@ def test_the_grid_recursion_is_pfx_kalman_filter():
     settings, data = nile.local_level(model_settings()), flows()
     assert nile.initial_level(settings) == (0.0, 1.0e7)
     for r, q in ((15099.0, 1469.1), (500.0, 20.0), (2.0e5, 5.0e4), (3000.0, 9000.0)):
-        grid = float(nile.local_level_log_likelihood(data, r, q, *nile.initial_level(settings)))
+        grid = float(exact.local_level_log_likelihood(data, r, q, *nile.initial_level(settings)))
         assert grid == pytest.approx(nile.kalman_log_likelihood(settings, data, r, q), abs=1e-9)
 
 
@@ -86,7 +88,7 @@ def test_the_diffuse_maximum_is_the_published_one():
     digit, and their estimates are within a hair of the maximiser (the likelihood is flat: their
     printed q, 1469.1, is 1e-8 below the maximum in log L)."""
     settings, data = nile.local_level(model_settings()), flows()
-    r, q, value = nile.maximise(lambda r, q: nile.diffuse_log_likelihood(settings, data, r, q), nile.OPTIMISER_START)
+    r, q, value = exact.maximise(lambda r, q: nile.diffuse_log_likelihood(settings, data, r, q), exact.OPTIMISER_START)
     assert abs(value - (-633.4646)) <= 5e-5
     assert abs(math.log(r / 15099.0)) < 1e-3 and abs(math.log(q / 1469.1)) < 1e-3
     assert value - nile.diffuse_log_likelihood(settings, data, 15099.0, 1469.1) <= 5e-5
@@ -98,7 +100,7 @@ def test_the_grid_posterior_against_an_independent_quadrature():
     thousandth of a percent (the PMMH runs' Monte Carlo errors are about 100)."""
     script, data = independent_script(), flows()
     estimation = EstimationConfig.model_validate(load_config_file(CONFIGS / "pmmh.yaml")["estimation"])
-    grid = nile.grid_posterior(data, nile.local_level(model_settings()), estimation, nile.GRID_POINTS)
+    grid = exact.grid_posterior(data, nile.local_level(model_settings()), estimation, nile.GRID_POINTS)
     nodes, weights = np.polynomial.legendre.leggauss(160)
 
     def scaled(low, high):
