@@ -20,8 +20,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, ValidationError, model_validator
 
 from pfx.errors import split_location
-from pfx.laws.noise import Noise, Variance, constant_like, draws_namespace
-from pfx.numerics.key_streams import Random
+from pfx.laws.noise import Noise, Variance
+from pfx.numerics.arrays import constant_like
+from pfx.numerics.key_streams import Random, draws_namespace
 
 
 class _InitialLaw(BaseModel):

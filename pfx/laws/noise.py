@@ -42,14 +42,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Literal, Optional, Union
+from typing import Callable, Literal, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, model_validator
 from scipy.special import gammaln
 
-from pfx.numerics.arrays import is_jax_array, namespace, special_functions
-from pfx.numerics.key_streams import KeyStreams, Random
+from pfx.numerics.arrays import constant_like, is_jax_array, namespace, special_functions
+from pfx.numerics.key_streams import Random, zero_draws
 from pfx.registry import Registry
 
 
@@ -350,28 +350,3 @@ class Noise(BaseModel):
         log_tail = NOISE_FAMILIES[self.family].log_tail_standard(threshold / constant_like(self._scale, threshold),
                                                                  self.df)
         return namespace(log_tail).sum(log_tail, axis=-1)
-
-
-def draws_namespace(random: Random) -> tuple[Any, Any]:
-    """(array module, dtype) of ``random``'s draws: ``jax.numpy`` and the streams' dtype for
-    :class:`~pfx.numerics.key_streams.KeyStreams`, ``numpy`` and float64 else."""
-    if isinstance(random, KeyStreams):
-        import jax.numpy as jnp
-
-        return jnp, random.dtype
-    return np, np.float64
-
-
-def zero_draws(random: Random, shape: tuple) -> Any:
-    """Zeros of ``shape`` in the library and dtype of ``random``'s draws (:func:`draws_namespace`)."""
-    xp, dtype = draws_namespace(random)
-    return xp.zeros(shape, dtype)
-
-
-def constant_like(constant: Any, array: Any) -> Any:
-    """A law's NumPy constant (a scale, a factor, a mean) to combine with ``array``: the constant
-    itself for a NumPy array (the same numbers as ever), a JAX array of ``array``'s dtype for a
-    JAX one (a float64 NumPy constant would otherwise make a float32 computation float64)."""
-    if not is_jax_array(array):
-        return constant
-    return namespace(array).asarray(constant, dtype=array.dtype)

@@ -62,3 +62,12 @@ def with_values(array: Any, index: Any, values: Any) -> Any:
     out = np.array(array, dtype=float)       # the NumPy backend computes in float64
     out[index] = values
     return out
+
+
+def constant_like(constant: Any, array: Any) -> Any:
+    """A law's NumPy constant (a scale, a factor, a mean) to combine with ``array``: the constant
+    itself for a NumPy array (the same numbers as ever), a JAX array of ``array``'s dtype for a
+    JAX one (a float64 NumPy constant would otherwise make a float32 computation float64)."""
+    if not is_jax_array(array):
+        return constant
+    return namespace(array).asarray(constant, dtype=array.dtype)

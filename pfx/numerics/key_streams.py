@@ -207,3 +207,19 @@ def _trial_leading(parameter: Any, dimensions: int) -> Any:
     if parameter.ndim == 0:
         return parameter
     return parameter.reshape(parameter.shape + (1,) * (dimensions - parameter.ndim))
+
+
+def draws_namespace(random: Random) -> tuple[Any, Any]:
+    """(array module, dtype) of ``random``'s draws: ``jax.numpy`` and the streams' dtype for
+    :class:`~pfx.numerics.key_streams.KeyStreams`, ``numpy`` and float64 else."""
+    if isinstance(random, KeyStreams):
+        import jax.numpy as jnp
+
+        return jnp, random.dtype
+    return np, np.float64
+
+
+def zero_draws(random: Random, shape: tuple) -> Any:
+    """Zeros of ``shape`` in the library and dtype of ``random``'s draws (:func:`draws_namespace`)."""
+    xp, dtype = draws_namespace(random)
+    return xp.zeros(shape, dtype)
