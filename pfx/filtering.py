@@ -59,7 +59,7 @@ from pfx.errors import ConfigError, ModelNumericalError, located_value_error
 from pfx.estimation.likelihood_spread import Spread
 from pfx.estimation.particle_count import choose_particle_count
 from pfx.filters import FILTERS
-from pfx.filters.trace import FilterTrace
+from pfx.filters.trace import FilterTrace, Predictive
 from pfx.models import MODELS
 from pfx.models.base import Model
 from pfx.models.simulation import simulate_truth
@@ -86,6 +86,7 @@ class FilterResult:
     seeds: list[int]
     trace: FilterTrace
     smoothed: dict
+    predictive: Optional[Predictive] = None
 
 
 def model(kind: str, **parameters: Any) -> Model:
@@ -115,18 +116,21 @@ class Filter:
 
     def __call__(self, measurements, *, seeds: Optional[Sequence[int]] = None, seed: Optional[int] = None,
                  trials: Optional[int] = None, genealogy: bool = False, consistency: bool = False,
-                 traced: bool = False) -> FilterResult:
+                 traced: bool = False, scores: bool = False) -> FilterResult:
         """Run on ``measurements``, (T, m) for one trial (or ``trials`` of them on the same data)
         or (trials, T, m); a row of NaN is a missing measurement. ``seeds``: one filter seed per
         trial; else trial t's is derived from ``seed`` (default 0). ``genealogy``: record the
         ancestor indices (particle kinds). ``consistency``: the posterior covariances and NIS.
         ``traced``: the spread and posterior standard deviations of every trial (steps.csv's
-        traced-trial columns). Every argument is checked first (:mod:`pfx.python_arguments`)."""
+        traced-trial columns). ``scores``: the one-step-ahead predictive law of the measurement and
+        its proper scores (``metrics.scores``: docs/scores.md), in the result's ``predictive``.
+        Every argument is checked first (:mod:`pfx.python_arguments`)."""
         data = arguments.measurement_array(measurements, self.model.measurement_dimension)
         data, seeds, root = arguments.trial_plan(data, seeds, seed, trials)
         genealogy = arguments.flag(genealogy, "genealogy")
         consistency = arguments.flag(consistency, "consistency")
         traced = arguments.flag(traced, "traced")
+        scores = arguments.flag(scores, "scores")
         arguments.check_horizon(self.model, data.shape[1])
         count = len(data)
         seeds = seeds if seeds is not None else [filter_seed(root, 0, t) for t in range(count)]
@@ -138,10 +142,16 @@ class Filter:
                 raise ConfigError(f"the {self.kind} filter has no particles, so no genealogy", file=CALLER,
                                   key="genealogy")
             options["genealogy"] = True
+        if scores:
+            if not self.planned.computes_scores:
+                raise ConfigError(f"the {self.kind} filter does not compute the predictive scores (the particle "
+                                  "filters and kf, ekf, ukf do)", file=CALLER, key="scores")
+            options["scores"] = True
         trace = self.planned.run(self.model, data, TrialStreams.from_seeds(seeds), settings=self.settings,
                                  prior=self.prior, **options)
         return FilterResult(estimates=trace.estimates, ess=trace.ess, log_likelihood=trace.log_likelihood,
-                            ancestors=trace.ancestors, seeds=seeds, trace=trace, smoothed=trace.smoothed)
+                            ancestors=trace.ancestors, seeds=seeds, trace=trace, smoothed=trace.smoothed,
+                            predictive=trace.predictive)
 
 
 def particle_filter(model: Model, *, kind: str = "particle", prior=None, **settings: Any) -> Filter:
@@ -176,11 +186,12 @@ def particle_filter(model: Model, *, kind: str = "particle", prior=None, **setti
 
 def filter(model: Model, measurements, *, seeds: Optional[Sequence[int]] = None, seed: Optional[int] = None,
            trials: Optional[int] = None, genealogy: bool = False, consistency: bool = False,
-           traced: bool = False, kind: str = "particle", prior=None, **settings: Any) -> FilterResult:
+           traced: bool = False, scores: bool = False, kind: str = "particle", prior=None,
+           **settings: Any) -> FilterResult:
     """:func:`particle_filter` and its call in one go."""
     return particle_filter(model, kind=kind, prior=prior, **settings)(
         measurements, seeds=seeds, seed=seed, trials=trials, genealogy=genealogy, consistency=consistency,
-        traced=traced)
+        traced=traced, scores=scores)
 
 
 @dataclass

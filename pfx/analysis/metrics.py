@@ -45,6 +45,12 @@ posterior mean's error, averaged over the scored steps,
 ``rmse_position`` (the root of a mean over time of a Euclidean distance, :math:`\sqrt d` larger
 for errors spread evenly), it is a mean over time of an RMS over components.
 
+**Predictive scores** (``metrics.scores``; :mod:`pfx.numerics.proper_scores`, docs/scores.md):
+the mean over the scored steps that have a measurement of each component's CRPS
+(``crps_<measurement>``), of the energy score of the measurement vector (``energy_score``, for
+two components or more) and of the log score :math:`-L_k` (``log_score``, per step; empty where
+the weighting is not the likelihood). All are negatively oriented: smaller is better.
+
 **Burn-in** (``metrics.burn_in``, in the model's time unit): the steps whose time
 (``model.times()``, steps.csv's ``time``) is at most ``burn_in`` are not scored. Every metric
 that aggregates over the steps (RMSEs, mean error distance, RMS error, mean ESS, resample and
@@ -96,13 +102,20 @@ class MetricsConfig(BaseModel):
     burn_in: StrictFloat = Field(
         0.0, ge=0, description="steps at times <= burn_in (the model's time unit) are not scored by the "
                                "metrics that average or count over steps; 0: every step is scored")
+    scores: bool = Field(
+        False, description="the one-step-ahead predictive distribution of each measurement and its proper "
+                           "scores (CRPS, energy score, log score, PIT; docs/scores.md) in steps.csv, their "
+                           "means in trials.csv (a particle filter draws one measurement per particle and step "
+                           "for them, from streams apart from its own)")
 
     def identity(self) -> dict:
-        """The settings as they enter a cell's key: ``burn_in`` only when set, so that the keys
-        of configs without it are what they were before it existed."""
+        """The settings as they enter a cell's key: ``burn_in`` and ``scores`` only when set, so
+        that the keys of configs without them are what they were before they existed."""
         dump = self.model_dump(mode="json")
         if self.burn_in == 0:
             dump.pop("burn_in")
+        if not self.scores:
+            dump.pop("scores")
         return dump
 
 
@@ -467,6 +480,39 @@ def metric_range(column: str) -> ValueRange:
         if fnmatch.fnmatchcase(column, pattern):
             return value_range
     return ANY_VALUE
+
+
+@METRICS.register("scores")
+def score_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:
+    """With ``metrics.scores``: the mean over the scored steps with a measurement of each
+    component's CRPS (``crps_<name>``), of the energy score (``energy_score``, two components or
+    more) and of the log score (``log_score``); empty where the kind computes none."""
+    if not inputs.config.scores:
+        return {}
+    names = inputs.model.measurement_names
+    predictive = getattr(inputs.trace, "predictive", None)
+    columns = {f"crps_{name}": inputs.empty() for name in names}
+    if len(names) > 1:
+        columns["energy_score"] = inputs.empty()
+    columns["log_score"] = inputs.empty()
+    if predictive is None:
+        return columns
+    scored = inputs.scored
+    for j, name in enumerate(names):
+        columns[f"crps_{name}"] = _mean_of_present(predictive.crps[:, scored, j])
+    if len(names) > 1 and predictive.energy_score is not None:
+        columns["energy_score"] = _mean_of_present(predictive.energy_score[:, scored])
+    if predictive.log_score is not None:
+        columns["log_score"] = _mean_of_present(predictive.log_score[:, scored])
+    return columns
+
+
+def _mean_of_present(values: np.ndarray) -> np.ndarray:
+    """The mean over the steps of each trial's values that are not NaN (a step without a
+    measurement scores nothing); NaN for a trial with none."""
+    present = ~np.isnan(values)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(present, values, 0.0).sum(axis=1) / present.sum(axis=1)
 
 
 def compute_metrics(inputs: MetricInputs) -> dict[str, np.ndarray]:

@@ -19,6 +19,10 @@ declares, once:
   per-step traces steps.csv keeps, to record costly per-step diagnostics (the particle
   filter's posterior standard deviations) for those rows only. Kinds that carry a covariance
   need not: steps.csv's ``sd_<state>`` columns come from its diagonal.
+* ``computes_scores``: whether its ``run`` accepts ``scores=True`` and then fills the trace's
+  ``predictive`` (:class:`~pfx.filters.trace.Predictive`): the one-step-ahead predictive
+  distribution of the measurement and its proper scores (``metrics.scores``). The particle
+  kinds and the Gaussian filters do; for the others those columns stay empty.
 
 Measurements may hold NaN rows: a missing measurement (recorded data, :mod:`pfx.config.data`).
 Every kind treats such a step as predict-only for that trial (no update, log-likelihood
@@ -57,6 +61,7 @@ class FilterKind:
     model_needs: ClassVar[tuple[str, ...]] = ()
     carries_particles: ClassVar[bool] = False
     takes_trace_rows: ClassVar[bool] = False
+    computes_scores: ClassVar[bool] = False
 
     @classmethod
     def plan(cls, model, settings, prior) -> "FilterKind":
@@ -87,10 +92,11 @@ FILTERS: Registry[type[FilterKind]] = Registry("filter")
 
 def run_filter(kind: str, model, measurements, random=None, *, settings, prior,
                spread_criterion=None, consistency: bool = False, snapshot=None,
-               trace_rows=None) -> FilterTrace:
+               trace_rows=None, scores: bool = False) -> FilterTrace:
     """Plan the filter kind for ``model`` and run it on ``measurements`` (see :class:`FilterKind`);
     a plan-time refusal becomes a :class:`~pfx.errors.ConfigError` keyed under ``filter``.
-    ``trace_rows`` (kinds that take them) are the rows whose costly per-step diagnostics to keep."""
+    ``trace_rows`` (kinds that take them) are the rows whose costly per-step diagnostics to keep;
+    ``scores`` asks a kind that computes them for the predictive scores."""
     try:
         planned = FILTERS[kind].plan(model, settings, prior)
     except ValueError as error:
@@ -98,6 +104,8 @@ def run_filter(kind: str, model, measurements, random=None, *, settings, prior,
     options = {"snapshot": snapshot} if snapshot is not None else {}
     if trace_rows is not None and planned.takes_trace_rows:
         options["trace_rows"] = trace_rows
+    if scores and planned.computes_scores:
+        options["scores"] = True
     return planned.run(model, measurements, random, settings=settings, prior=prior,
                        spread_criterion=spread_criterion, consistency=consistency, **options)
 

@@ -20,6 +20,36 @@ import numpy as np
 
 
 @dataclass
+class Predictive:
+    r"""The one-step-ahead predictive distribution of the measurement, :math:`p(z_k \mid z_{1:k-1})`,
+    and its proper scores against the :math:`z_k` that came (:mod:`pfx.numerics.proper_scores`),
+    per trial and step; NaN at a step without a measurement.
+
+    ``mean``, ``sd``, ``crps``, ``pit``: (trials, T, m), per measurement component; ``energy_score``
+    (trials, T) of the whole vector (None for a scalar measurement, whose energy score is its
+    CRPS, or where the kind does not compute it); ``log_score`` (trials, T), minus the
+    log-likelihood increment (None where the weighting is not the likelihood: the increment is
+    then not a predictive density).
+    """
+
+    mean: np.ndarray
+    sd: np.ndarray
+    crps: np.ndarray
+    pit: np.ndarray
+    energy_score: Optional[np.ndarray] = None
+    log_score: Optional[np.ndarray] = None
+
+    @classmethod
+    def empty(cls, trials: int, steps: int, dimension: int, energy: bool) -> "Predictive":
+        def blank(*shape):
+            return np.full(shape, np.nan)
+
+        return cls(mean=blank(trials, steps, dimension), sd=blank(trials, steps, dimension),
+                   crps=blank(trials, steps, dimension), pit=blank(trials, steps, dimension),
+                   energy_score=blank(trials, steps) if energy else None, log_score=blank(trials, steps))
+
+
+@dataclass
 class FilterTrace:
     """A filter run over a batch of trials and steps 1..T (shapes: ``trials`` first).
 
@@ -61,6 +91,9 @@ class FilterTrace:
     # (trials, T) each step's log-likelihood increment L_k = log p^(z_k | z_1:k-1) (module
     # docstring): 0 at a step without a measurement; None from a kind that does not record it
     log_likelihood_increments: Optional[np.ndarray] = None
+    # the one-step-ahead predictive distribution of the measurement and its scores, when asked for
+    # (``metrics.scores``; :class:`Predictive`); None otherwise
+    predictive: Optional["Predictive"] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -85,6 +85,13 @@ class KeyStreams:
             keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, counter)
         return KeyStreams(keys, self.dtype)
 
+    def derived(self, purpose: int) -> "KeyStreams":
+        """Each trial's streams for a purpose beside the filter (``SCORE_STREAM``,
+        ``FORECAST_STREAM`` of :mod:`pfx.numerics.seeding`): the trial's key folded with
+        2^31 - purpose, a counter no step reaches, so its draws are apart from the filter's;
+        call :meth:`at` on it for a step. Made from the trials' keys, not from a step's."""
+        return self.at(2**31 - int(purpose))
+
     def _next_keys(self) -> Any:
         """The keys of the next draw (one per trial), and the counter advanced."""
         import jax

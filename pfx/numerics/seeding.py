@@ -40,6 +40,10 @@ STUDY_ROLE = 2
 ESTIMATION_ROLE = 3
 SPREAD_ROLE = 4
 RESTART_ROLE = 5
+# the streams derived from a trial's filter seed (TrialStreams.derived): apart from the filter's
+# own draws, so that asking for scores or forecasts changes no number of the filter
+SCORE_STREAM = 1
+FORECAST_STREAM = 2
 
 
 def stream_seed(root_seed: int, role: int, trial: int, cell_key: int = 0) -> int:
@@ -85,6 +89,12 @@ def restart_seed(root_seed: int, cell_key: int, chain: int) -> int:
     """Seed of the one filter run that estimates a PMMH chain's likelihood again at its current
     point when the chain changes particle count after its warm-up (``particles: auto``)."""
     sequence = np.random.SeedSequence(root_seed, spawn_key=(RESTART_ROLE, cell_key, chain))
+    return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def derived_seed(seed: int, purpose: int) -> int:
+    """The seed of a stream derived from a trial's seed for a purpose (TrialStreams.derived)."""
+    sequence = np.random.SeedSequence(int(seed), spawn_key=(purpose,))
     return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
@@ -138,6 +148,16 @@ class TrialStreams:
 
     def __len__(self) -> int:
         return len(self.generators)
+
+    def derived(self, purpose: int) -> "TrialStreams":
+        """Each trial's stream for a purpose beside the filter (:data:`SCORE_STREAM`,
+        :data:`FORECAST_STREAM`): seeded from the trial's own seed and the purpose, so it
+        depends on (seed, cell, trial) only and leaves the filter's draws as they were. Streams
+        made from generators without seeds spawn a child of each (NumPy's ``Generator.spawn``,
+        which does not advance the parent)."""
+        if self.seeds is None:
+            return TrialStreams([generator.spawn(1)[0] for generator in self.generators])
+        return TrialStreams.from_seeds([derived_seed(seed, purpose) for seed in self.seeds])
 
     def subset(self, trial_indices) -> "TrialStreams":
         """The streams of the given trials (positions in this batch): the same generators."""

@@ -63,6 +63,8 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
     written = [i for i, t in enumerate(trials) if t < genealogy_trials] if cell.filter.uses_particles else []
     if written:                                    # genealogy.csv: each particle's ancestor, state and weight
         options.update(genealogy=True, history=True)
+    if cell.metrics.scores and cell.planned_filter.computes_scores:     # the predictive distribution's scores
+        options["scores"] = True
     started = time.perf_counter()
     trace = cell.planned_filter.run(
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
@@ -76,10 +78,26 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
                          "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
                          **metrics, "run_time_s": elapsed / len(trials)})
     with np.errstate(over="ignore", invalid="ignore"):
-        steps = _steps_frame(cell, trials, traced, truth, trace, genealogy_trials)
+        steps = _steps_frame(cell, trials, traced, truth, trace, measurements, genealogy_trials)
     particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
     genealogy = _genealogy_frame(cell, trials, written, trace) if written else None
     return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model), genealogy)
+
+
+def _predictive_columns(model, predictive, row: int) -> dict:
+    """One trial's steps.csv columns of the predictive law and its scores (empty where the
+    filter kind computes none)."""
+    names = model.measurement_names
+    columns = {}
+    for j, name in enumerate(names):
+        for column, field in PREDICTIVE_COLUMNS.items():
+            columns[f"{column}_{name}"] = getattr(predictive, field)[row, :, j] if predictive is not None else np.nan
+    if len(names) > 1:
+        energy = None if predictive is None else predictive.energy_score
+        columns["energy_score"] = energy[row] if energy is not None else np.nan
+    log_score = None if predictive is None else predictive.log_score
+    columns["log_score"] = log_score[row] if log_score is not None else np.nan
+    return columns
 
 
 def _genealogy_frame(cell: Cell, trials: list[int], rows: list[int], trace) -> pd.DataFrame:
@@ -150,10 +168,21 @@ def steps_columns(cell: Cell, genealogy_trials: int = 0) -> list[str]:
     for label in smoother_labels(cell):            # each smoother's mean and sd beside the filter's
         columns += [f"smoothed_{label}_{name}" for name in states] + [f"smoothed_sd_{label}_{name}" for name in states]
     columns += ["distinct_ancestors"] if records_genealogy(cell, genealogy_trials) else []
-    return columns + ["log_likelihood_increment"]       # added after the others: appended
+    columns += ["log_likelihood_increment"]             # added after the others: appended
+    measurements = cell.truth_model.measurement_names
+    columns += [f"measurement_{name}" for name in measurements]
+    if cell.metrics.scores:                             # metrics.scores: the predictive law and its scores
+        columns += [f"{quantity}_{name}" for name in measurements for quantity in PREDICTIVE_COLUMNS]
+        columns += ["energy_score"] if len(measurements) > 1 else []
+        columns += ["log_score"]
+    return columns
 
 
-def _steps_frame(cell: Cell, trials, traced, truth, trace, genealogy_trials: int = 0) -> pd.DataFrame:
+# steps.csv's columns per measurement component with metrics.scores, and the Predictive field of each
+PREDICTIVE_COLUMNS = {"predictive_mean": "mean", "predictive_sd": "sd", "crps": "crps", "pit": "pit"}
+
+
+def _steps_frame(cell: Cell, trials, traced, truth, trace, measurements, genealogy_trials: int = 0) -> pd.DataFrame:
     if not traced:
         return pd.DataFrame(columns=steps_columns(cell, genealogy_trials))
     model = cell.truth_model
@@ -190,5 +219,9 @@ def _steps_frame(cell: Cell, trials, traced, truth, trace, genealogy_trials: int
             columns["distinct_ancestors"] = distinct_ancestor_counts(trace.ancestors[i])
         increments = trace.log_likelihood_increments
         columns["log_likelihood_increment"] = increments[i] if increments is not None else np.nan
+        for j, name in enumerate(model.measurement_names):
+            columns[f"measurement_{name}"] = measurements[i, :, j]
+        if cell.metrics.scores:
+            columns.update(_predictive_columns(model, trace.predictive, i))
         frames.append(pd.DataFrame(columns))
     return pd.concat(frames, ignore_index=True)[steps_columns(cell, genealogy_trials)]

@@ -25,6 +25,7 @@ class KalmanFilter(FilterKind):
     kind = "kf"
     model_needs = ("matrices",)
     reads = frozenset({"smoothers"})
+    computes_scores = True
 
     @classmethod
     def plan(cls, model, settings, prior) -> "KalmanFilter":
@@ -34,7 +35,7 @@ class KalmanFilter(FilterKind):
         return cls()
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
-            snapshot=None):
+            snapshot=None, scores=False):
         form = linear_form(model)
         H = form.measurement
         noise_r = model.measurement_noise.covariance()
@@ -47,7 +48,7 @@ class KalmanFilter(FilterKind):
             H_batch = np.broadcast_to(H, mean.shape[:-1] + H.shape)
             return linear_update("kf", model, k, mean, covariance, z, mean @ H.T, H_batch, noise_r)
 
-        return smooth_after(gaussian_recursion("kf", model, measurements, prior, predict, update), model, settings, "kf")
+        return smooth_after(gaussian_recursion("kf", model, measurements, prior, predict, update, scores=scores), model, settings, "kf")
 
 
 @FILTERS.register_kind
@@ -56,6 +57,7 @@ class ExtendedKalmanFilter(FilterKind):
 
     kind = "ekf"
     reads = frozenset({"smoothers"})
+    computes_scores = True
 
     @classmethod
     def plan(cls, model, settings, prior) -> "ExtendedKalmanFilter":
@@ -64,7 +66,7 @@ class ExtendedKalmanFilter(FilterKind):
         return super().plan(model, settings, prior)
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
-            snapshot=None):
+            snapshot=None, scores=False):
         noise_r = model.measurement_noise.covariance()
 
         def predict(mean, covariance, k):
@@ -75,7 +77,7 @@ class ExtendedKalmanFilter(FilterKind):
             H = measurement_jacobian(model, mean, covariance)
             return linear_update("ekf", model, k, mean, covariance, z, model.measurement_mean(mean), H, noise_r)
 
-        return smooth_after(gaussian_recursion("ekf", model, measurements, prior, predict, update), model, settings,
+        return smooth_after(gaussian_recursion("ekf", model, measurements, prior, predict, update, scores=scores), model, settings,
                             "ekf")
 
 
@@ -85,6 +87,7 @@ class UnscentedKalmanFilter(FilterKind):
 
     kind = "ukf"
     reads = frozenset({"smoothers"})
+    computes_scores = True
     settings = {"unscented": (UnscentedParameters, "kind ukf: sigma-point parameters alpha, beta, kappa")}
 
     def __init__(self, parameters: UnscentedParameters = UnscentedParameters()):
@@ -102,6 +105,6 @@ class UnscentedKalmanFilter(FilterKind):
         return cls(parameters)
 
     def run(self, model, measurements, random, *, settings, prior, spread_criterion=None, consistency=False,
-            snapshot=None):
-        return smooth_after(run_unscented(model, measurements, prior, self.parameters), model, settings, "ukf",
+            snapshot=None, scores=False):
+        return smooth_after(run_unscented(model, measurements, prior, self.parameters, scores=scores), model, settings, "ukf",
                             self.parameters)

@@ -14,16 +14,20 @@ import numpy as np
 
 from pfx.errors import ConfigError, ModelNumericalError, note_step
 from pfx.filters.kalman.measurement_form import measurement_innovation
-from pfx.filters.trace import FilterTrace
+from pfx.filters.trace import FilterTrace, Predictive
+from pfx.numerics.proper_scores import gaussian_crps, gaussian_pit
 
 
 def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predict, update,
-                       update_skipped=None) -> FilterTrace:
+                       update_skipped=None, scores: bool = False) -> FilterTrace:
     """Alternate predict(mean, cov, k) and update(mean, cov, z, k) over steps 1..T; build the trace.
 
-    At a step where some trials have no measurement, ``update`` gets the other trials' rows
-    only (or is not called), and then ``update_skipped()`` (if given) tells the kind, whose
-    update may keep state for the next prediction (the UKF's square root).
+    ``update`` returns the posterior mean and covariance, the NIS, the log-likelihood increment
+    and the innovation with its covariance :math:`(\nu_k, S_k)`. At a step where some trials have
+    no measurement, ``update`` gets the other trials' rows only (or is not called), and then
+    ``update_skipped()`` (if given) tells the kind, whose update may keep state for the next
+    prediction (the UKF's square root). With ``scores``, the trace's ``predictive`` holds the
+    exact scores of the predictive law :math:`N(z_k - \nu_k, S_k)` (:func:`gaussian_scores`).
     """
     trials, steps, _ = measurements.shape
     missing = np.isnan(measurements).any(axis=-1)        # (trials, T): predict-only steps
@@ -34,6 +38,7 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
     nis = np.empty((trials, steps))
     log_likelihood = np.zeros(trials)
     increments = np.zeros((trials, steps))          # log N(nu_k; 0, S_k) per step (0: no measurement)
+    predictive = Predictive.empty(trials, steps, model.measurement_dimension, energy=False) if scores else None
     k = 0
     try:
         for k in range(1, steps + 1):
@@ -42,12 +47,15 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
             check_finite(kind, model, k, "prediction", mean, covariance)
             if not missing[:, k - 1].any():
                 with np.errstate(over="ignore", invalid="ignore"):
-                    mean, covariance, nis[:, k - 1], increment = update(mean, covariance, measurements[:, k - 1], k)
+                    mean, covariance, nis[:, k - 1], increment, innovation = update(
+                        mean, covariance, measurements[:, k - 1], k)
             else:
-                mean, covariance, nis[:, k - 1], increment = _update_observed(
+                mean, covariance, nis[:, k - 1], increment, innovation = _update_observed(
                     update, mean, covariance, measurements[:, k - 1], k, ~missing[:, k - 1])
                 if update_skipped is not None:
                     update_skipped()
+            if predictive is not None:
+                gaussian_scores(predictive, k, measurements[:, k - 1], *innovation, increment, ~missing[:, k - 1])
             check_finite(kind, model, k, "update", mean, covariance)
             log_likelihood += increment
             increments[:, k - 1] = increment
@@ -56,22 +64,48 @@ def gaussian_recursion(kind: str, model, measurements: np.ndarray, prior, predic
     except Exception as error:        # where it happened, for the one-line report
         note_step(error, k, "filter")
         raise
-    return FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
-                                           position=list(model.position_components),
-                                           log_likelihood_increments=increments)
+    trace = FilterTrace.for_gaussian_filter(estimates, covariances, nis, log_likelihood,
+                                            position=list(model.position_components),
+                                            log_likelihood_increments=increments)
+    trace.predictive = predictive
+    return trace
+
+
+def gaussian_scores(predictive: Predictive, k: int, z: np.ndarray, innovation: np.ndarray,
+                    innovation_covariance: np.ndarray, increment: np.ndarray, observed: np.ndarray) -> None:
+    r"""Step k's exact predictive scores of a Gaussian filter, into ``predictive``: the predictive
+    law of :math:`z_k` is :math:`N(\hat z_k, S_k)` with :math:`\hat z_k = z_k - \nu_k` (an angle's
+    innovation wrapped, so :math:`\hat z_k` is the prediction on the cut through :math:`z_k`);
+    each component's CRPS and PIT are those of its marginal :math:`N(\hat z_{k,j}, S_{k,jj})`
+    (:mod:`pfx.numerics.proper_scores`), the log score is :math:`-\log N(\nu_k; 0, S_k)`. The
+    energy score of a vector has no closed form: it is left empty."""
+    t = k - 1
+    sd = np.sqrt(np.diagonal(innovation_covariance, axis1=-2, axis2=-1))
+    mean = z - innovation
+    rows = observed[:, None]
+    predictive.mean[:, t] = np.where(rows, mean, np.nan)
+    predictive.sd[:, t] = np.where(rows, sd, np.nan)
+    predictive.crps[:, t] = np.where(rows, gaussian_crps(mean, sd, z), np.nan)
+    predictive.pit[:, t] = np.where(rows, gaussian_pit(mean, sd, z), np.nan)
+    predictive.log_score[:, t] = np.where(observed, -increment, np.nan)
 
 
 def _update_observed(update, mean, covariance, z, k, observed):
     """The update for the trials with a measurement (``observed``); the others keep the
-    prediction, with NIS NaN and log-likelihood increment 0."""
+    prediction, with NIS NaN, log-likelihood increment 0, and an innovation (NaN) and its
+    covariance (the identity) that score nothing."""
     mean, covariance = mean.copy(), covariance.copy()
     nis = np.full(len(mean), np.nan)
     increment = np.zeros(len(mean))
+    m = z.shape[-1]
+    innovation = np.full((len(mean), m), np.nan)
+    innovation_covariance = np.broadcast_to(np.eye(m), (len(mean), m, m)).copy()
     if observed.any():
         with np.errstate(over="ignore", invalid="ignore"):
-            mean[observed], covariance[observed], nis[observed], increment[observed] = update(
+            (mean[observed], covariance[observed], nis[observed], increment[observed],
+             (innovation[observed], innovation_covariance[observed])) = update(
                 mean[observed], covariance[observed], z[observed], k)
-    return mean, covariance, nis, increment
+    return mean, covariance, nis, increment, (innovation, innovation_covariance)
 
 
 def prior_moments(prior, trials: int, dimension: int) -> tuple[np.ndarray, np.ndarray]:
@@ -115,7 +149,8 @@ def innovation_terms(kind: str, model, k: int, innovation: np.ndarray, innovatio
 
 
 def linear_update(kind, model, k, mean, covariance, z, predicted_measurement, H, noise_r):
-    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS, log p(z_k)).
+    """Kalman update with measurement matrix H (trials, m, d), Joseph form; returns (mean, P, NIS,
+    log p(z_k), (innovation, its covariance S)).
     The innovation's angular components are wrapped (:func:`~pfx.filters.kalman.measurement_form.measurement_innovation`)."""
     innovation = measurement_innovation(model, z, predicted_measurement)
     S, nis, log_density = innovation_terms(kind, model, k, innovation, H @ covariance @ transpose(H) + noise_r)
@@ -124,5 +159,5 @@ def linear_update(kind, model, k, mean, covariance, z, predicted_measurement, H,
     mean = mean + np.einsum("rdm,rm->rd", gain, innovation)
     complement = np.eye(mean.shape[-1]) - gain @ H
     covariance = complement @ covariance @ transpose(complement) + gain @ noise_r @ transpose(gain)
-    return mean, symmetric(covariance), nis, log_density
+    return mean, symmetric(covariance), nis, log_density, (innovation, S)
 

@@ -140,8 +140,9 @@ class UnscentedParameters(BaseModel):
 
 
 def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
-               diagnostics: Optional[dict] = None) -> FilterTrace:
-    """Run the UKF; ``diagnostics`` (if given) counts the covariance repairs (key 'repairs')."""
+               diagnostics: Optional[dict] = None, scores: bool = False) -> FilterTrace:
+    """Run the UKF; ``diagnostics`` (if given) counts the covariance repairs (key 'repairs');
+    ``scores``: the predictive scores (:func:`~pfx.filters.kalman.recursion.gaussian_recursion`)."""
     d = model.state_dimension
     c, _, _, weight = parameters.weights(d)
     curvature = parameters.beta - parameters.alpha ** 2          # the (beta - alpha^2) delta delta' term
@@ -172,12 +173,12 @@ def run_unscented(model, measurements, prior, parameters: UnscentedParameters,
         covariance = covariance - gain @ S @ transpose(gain)
         check_finite("ukf", model, k, "update", mean, covariance)
         factor["S"], covariance = robust_square_root(covariance, repairs)
-        return mean, covariance, nis, log_density
+        return mean, covariance, nis, log_density, (innovation, S)
 
     def update_skipped():
         factor.pop("S", None)          # the update's square root covers only the observed trials
 
-    trace = gaussian_recursion("ukf", model, measurements, prior, predict, update, update_skipped)
+    trace = gaussian_recursion("ukf", model, measurements, prior, predict, update, update_skipped, scores)
     if diagnostics is not None:
         diagnostics.update(repairs)
     return trace

@@ -80,7 +80,7 @@ class ParticleFilter:
         self.filter, self.model, self.measurements, self.random = bound, bound.model, measurements, random
         self.trials, self.steps, _ = measurements.shape
         particles = self.particles = bound.particles         # with an adaptive count: the maximum
-        self.recorders = recorders_for(bound.model, recording)
+        self.recorders = recorders_for(bound.model, recording, bound.weighting.is_likelihood)
         self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
         self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
         self.keep_previous = bound.move is not None and bound.move.needs_parents

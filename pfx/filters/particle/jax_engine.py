@@ -49,9 +49,11 @@ import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
-from pfx.filters.trace import FilterTrace
+from pfx.filters.particle.predictive import predictive_step
+from pfx.filters.trace import FilterTrace, Predictive
 from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.key_streams import KeyStreams
+from pfx.numerics.seeding import SCORE_STREAM
 
 # the bits of a step's ``failures``, per trial
 EVERY_PARTICLE_LOST, BAD_LIKELIHOOD, NON_FINITE_ESTIMATE = 1, 2, 4
@@ -92,6 +94,7 @@ class StepOutputs(NamedTuple):
     ancestors: Any = None     # (R, N) the genealogy
     particles: Any = None     # (R, N, d) the weighted cloud (the history the smoothers read)
     log_weights: Any = None   # (R, N)
+    predictive: Any = None    # the predictive law's moments and scores (pfx.filters.particle.predictive)
 
 
 class JaxParticleFilter:
@@ -169,10 +172,11 @@ class JaxParticleFilter:
             if program is None:
                 program = self._programs[flags] = jax.jit(lambda keys, inputs: self._filter(keys, inputs, flags))
             keys = KeyStreams.from_seeds(random.seeds).keys
-            cloud, outputs = program(keys, self._inputs(measurements))
+            inputs = self._inputs(measurements)
+            cloud, outputs = program(keys, inputs)
             cloud, outputs = jax.device_get((cloud, outputs))
         _raise_first_failure(self.model, np.asarray(outputs.failures))
-        return self._trace(cloud, outputs, recording, trials, steps)
+        return self._trace(cloud, outputs, recording, trials, steps, inputs.observed.T)
 
     def _inputs(self, measurements: np.ndarray) -> StepInputs:
         model, steps = self.model, measurements.shape[1]
@@ -188,7 +192,8 @@ class JaxParticleFilter:
                           measurement=np.nan_to_num(measurements, nan=0.0).swapaxes(0, 1),
                           observed=(~missing).T, control=control, times=times)
 
-    def _trace(self, cloud: Cloud, outputs: StepOutputs, recording, trials: int, steps: int) -> FilterTrace:
+    def _trace(self, cloud: Cloud, outputs: StepOutputs, recording, trials: int, steps: int,
+               observed: np.ndarray) -> FilterTrace:
         def by_trial(values):        # (T, R, ...) -> (R, T, ...)
             return None if values is None else np.ascontiguousarray(np.swapaxes(np.asarray(values), 0, 1))
 
@@ -213,6 +218,8 @@ class JaxParticleFilter:
             ancestors=by_trial(outputs.ancestors),
             particles=None if outputs.particles is None else by_trial(outputs.particles).astype(float),
             log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
+        if outputs.predictive is not None:
+            trace.predictive = _predictive(outputs.predictive, by_trial, observed)
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
@@ -227,12 +234,18 @@ class JaxParticleFilter:
                       log_likelihood=jnp.zeros(trials, jnp.float64),
                       lost_particles=jnp.zeros(trials, jnp.int32),
                       ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)))
-        return jax.lax.scan(lambda carried, step_inputs: self.step(carried, step_inputs, random, flags), cloud, inputs)
+        scores = random.derived(SCORE_STREAM) if flags.scores else None
+        return jax.lax.scan(lambda carried, step_inputs: self.step(carried, step_inputs, random, flags, scores),
+                            cloud, inputs)
 
-    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "_Flags"):
-        """Step k: predict, weight and normalise, estimate, resample (module docstring)."""
+    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "_Flags",
+             scores: Optional[KeyStreams] = None):
+        """Step k: predict, weight and normalise, estimate, resample (module docstring); with
+        ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
         random = random.at(inputs.step)
         predicted, lost, log_weights = self.predict(cloud, inputs, random)
+        predictive = self.predictive(predicted, log_weights, inputs, scores.at(inputs.step)) \
+            if scores is not None else None
         every_particle_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
         log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(log_weights, predicted, inputs)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
@@ -249,7 +262,8 @@ class JaxParticleFilter:
             if flags.radius is not None else None,
             standard_deviations=self.standard_deviations(weights, predicted, estimate) if flags.deviations else None,
             ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
-            particles=predicted if flags.history else None, log_weights=log_weights if flags.history else None)
+            particles=predicted if flags.history else None, log_weights=log_weights if flags.history else None,
+            predictive=None if predictive is None else {**predictive, "log_score": -increment})
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
                         lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
@@ -334,6 +348,14 @@ class JaxParticleFilter:
 
     # -- diagnostics (static flags) ------------------------------------------------------------
 
+    def predictive(self, state, log_weights, inputs: StepInputs, random: KeyStreams) -> dict:
+        """The predictive law of z_k from the predicted cloud and its weights, and its scores
+        (:func:`pfx.filters.particle.predictive.predictive_step`); NaN where z_k is missing is
+        set on the host (:meth:`_trace`)."""
+        measurement = inputs.measurement.astype(state.dtype)
+        values = predictive_step(self.model, state, log_weights, measurement, random)
+        return {name: value for name, value in values.items() if value is not None}
+
     def spread(self, weights, state):
         """Weighted RMS distance of the positions from their weighted mean (after resampling)."""
         positions = state[..., list(self.model.position_components)]
@@ -368,6 +390,7 @@ class _Flags(NamedTuple):
     deviations: bool
     genealogy: bool
     history: bool
+    scores: bool = False
 
     @classmethod
     def of(cls, recording) -> "_Flags":
@@ -375,7 +398,22 @@ class _Flags(NamedTuple):
         criterion = recording.spread_criterion
         return cls(spread=traced or criterion is not None,
                    radius=None if criterion is None else (float(criterion.radius), bool(criterion.weighted)),
-                   deviations=traced, genealogy=recording.genealogy, history=recording.history)
+                   deviations=traced, genealogy=recording.genealogy, history=recording.history,
+                   scores=recording.scores)
+
+
+def _predictive(outputs: dict, by_trial, observed: np.ndarray) -> Predictive:
+    """The trace's :class:`~pfx.filters.trace.Predictive` from the scan's outputs, (R, T, ...) in
+    float64, NaN at the steps without a measurement."""
+    def field(name):
+        if name not in outputs:
+            return None
+        values = by_trial(outputs[name]).astype(float)
+        mask = observed.reshape(observed.shape + (1,) * (values.ndim - 2))
+        return np.where(mask, values, np.nan)
+
+    return Predictive(mean=field("mean"), sd=field("sd"), crps=field("crps"), pit=field("pit"),
+                      energy_score=field("energy_score"), log_score=field("log_score"))
 
 
 def _overrides(model, method: str) -> bool:

@@ -203,7 +203,10 @@ class Recording:
     NIS). ``snapshot``: particle clouds to keep. ``trace_rows``: the rows of the batch whose
     per-step spread and posterior standard deviations steps.csv shows (None: none, as in ``pfx
     bench``, whose timings are the filter's). ``genealogy``: each step's ancestor indices
-    (``FilterTrace.ancestors``, (trials, T, N): memory T N per trial).
+    (``FilterTrace.ancestors``, (trials, T, N): memory T N per trial). ``scores``: the one-step-ahead
+    predictive distribution of the measurement and its proper scores (``FilterTrace.predictive``,
+    :mod:`pfx.filters.particle.predictive`; one measurement draw per particle and step, from
+    streams apart from the filter's).
     """
 
     spread_criterion: Optional[SpreadCriterion] = None
@@ -212,6 +215,7 @@ class Recording:
     trace_rows: Optional[np.ndarray] = None
     genealogy: bool = False
     history: bool = False
+    scores: bool = False
 
 
 class HistoryRecorder(Recorder):
@@ -228,8 +232,10 @@ class HistoryRecorder(Recorder):
             run.trace.log_weights[:, step - 1] = run.log_weights
 
 
-def recorders_for(model, recording: Recording) -> list[Recorder]:
-    """The recorders a :class:`~pfx.filters.particle.bound.Recording` asks for, in their order."""
+def recorders_for(model, recording: Recording, likelihood_weighting: bool = True) -> list[Recorder]:
+    """The recorders a :class:`~pfx.filters.particle.bound.Recording` asks for, in their order
+    (``likelihood_weighting``: whether the filter weighs by the model's likelihood, so that its
+    log-likelihood increment is a predictive density, for the log score)."""
     recorders: list[Recorder] = []
     rows = recording.trace_rows
     traced = rows is not None and len(rows) > 0
@@ -246,4 +252,8 @@ def recorders_for(model, recording: Recording) -> list[Recorder]:
         recorders.append(GenealogyRecorder())
     if recording.history:
         recorders.append(HistoryRecorder())
+    if recording.scores:
+        from pfx.filters.particle.predictive import PredictiveRecorder  # it builds on Recorder, above
+
+        recorders.append(PredictiveRecorder(model, likelihood_weighting))
     return recorders
