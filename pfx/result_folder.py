@@ -262,6 +262,12 @@ class ResultFolder:
         return self.optional_table("genealogy")
 
     @cached_property
+    def forecasts(self) -> pd.DataFrame:
+        """forecasts.csv: one row per (cell, trial, origin, horizon) of the forecasts asked for
+        (``outputs.forecasts``; empty if none: :mod:`pfx.filters.particle.forecasting`)."""
+        return self.optional_table("forecasts")
+
+    @cached_property
     def scene(self) -> pd.DataFrame:
         """scene.csv: the model's fixed world (beacons, walls, path; empty if it has none)."""
         return self.optional_table("scene")

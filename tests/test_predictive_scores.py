@@ -239,3 +239,102 @@ outputs: {figures: [], trace_trials: 2}
                               trials=2, seed=3)
     first = steps[(steps["arm"] == "pf") & (steps["trial"] == 0)]["measurement_z1"].to_numpy()
     assert np.allclose(first, simulation.measurements[0, :, 0])
+
+
+# -- forecasts (pfx/filters/particle/forecasting.py, outputs.forecasts) -------------------------
+
+def forecasts_of(model, measurements, backend: str, origin: int, horizons, particles: int = 2000):
+    """The particle filter's forecasts from step ``origin`` of every trial, as forecast_table's columns."""
+    from pfx.filters.particle.forecasting import ForecastRequest
+    from pfx.numerics.seeding import TrialStreams
+
+    bound = pfx.particle_filter(model, particles=particles, backend=backend)
+    request = ForecastRequest(rows=np.arange(len(measurements)), origins=frozenset({origin}),
+                              horizons=tuple(horizons), quantiles=(0.1, 0.5, 0.9))
+    trace = bound.planned.run(model, measurements, TrialStreams.from_seeds(range(100, 100 + len(measurements))),
+                              settings=bound.settings, prior=bound.prior, forecast=request)
+    return trace.forecasts
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_forecast_mean_and_variance_are_the_exact_k_step_moments(backend):
+    """From the Kalman filter's posterior N(m_k, P_k) at the origin, the exact h-step forecast of
+    x_{k+h} is N(a^h m_k, a^{2h} P_k + q sum_{j<h} a^{2j}). The particle filter's forecast mean,
+    per trial, differs from a^h m_k by Monte Carlo error only: the mean difference over 100
+    trials (each its own data) is within 4 standard errors; its forecast variance over the exact
+    one averages 1 within 4 standard errors plus the O(1/N) of a weighted sample."""
+    if backend == "jax":
+        pytest.importorskip("jax")
+    model = random_walk(steps=30)
+    measurements = simulated(model, 100, seed=21)
+    origin, horizons = 20, (1, 5)
+    kalman = pfx.filter(model, measurements, kind="kf").trace
+    mean, variance = kalman.estimates[:, origin - 1, 0], kalman.covariances[:, origin - 1, 0, 0]
+    table = pd.DataFrame(forecasts_of(model, measurements, backend, origin, horizons))
+    for horizon in horizons:
+        rows = table[table["horizon"] == horizon].sort_values("row")
+        exact_mean = 0.9 ** horizon * mean
+        exact_variance = 0.81 ** horizon * variance + sum(0.81 ** j for j in range(horizon))
+        difference = rows["state_mean_x1"].to_numpy() - exact_mean
+        assert abs(difference.mean()) < 4 * difference.std(ddof=1) / np.sqrt(len(difference)), horizon
+        ratio = rows["state_sd_x1"].to_numpy() ** 2 / exact_variance
+        assert abs(ratio.mean() - 1.0) < 4 * ratio.std(ddof=1) / np.sqrt(len(ratio)) + 2.0 / 2000, horizon
+        # the measurement's forecast adds the measurement variance 1
+        spread = rows["measurement_sd_z1"].to_numpy() ** 2
+        assert abs(np.mean(spread / (exact_variance + 1.0)) - 1.0) < 0.05, horizon
+
+
+def test_forecasts_leave_the_filter_as_it_was_and_skip_horizons_past_the_record():
+    model = random_walk(steps=12)
+    measurements = simulated(model, 3)
+    table = forecasts_of(model, measurements, "numpy", origin=10, horizons=(1, 2, 5), particles=300)
+    assert sorted(set(table["horizon"].tolist())) == [1, 2]          # 10 + 5 is past step 12
+    assert np.isfinite(table["crps_z1"]).all() and ((table["pit_z1"] >= 0) & (table["pit_z1"] <= 1)).all()
+    quantiles = [c for c in table if c.startswith("state_q")]
+    assert quantiles == ["state_q10_x1", "state_q50_x1", "state_q90_x1"]
+    assert (table["state_q10_x1"] <= table["state_q50_x1"]).all() and (table["state_q50_x1"] <= table["state_q90_x1"]).all()
+
+
+FORECAST_CONFIG = """
+name: forecasts
+seed: 3
+trials: 3
+model:
+  kind: linear_gaussian
+  transition_matrix: [[0.9]]
+  measurement_matrix: [[1.0]]
+  steps: 12
+  process_noise: {variance: 1.0}
+  measurement_noise: {variance: 1.0}
+  initial: {kind: gaussian, mean: [0.0], covariance: 1.0}
+filter: {particles: 200}
+arms:
+  kf: {kind: kf}
+  pf: {}
+outputs:
+  figures: []
+  forecasts: {horizons: [1, 3], origins: ORIGINS, trials: 2}
+"""
+
+
+def test_config_writes_forecasts_csv_for_the_particle_cells(tmp_path):
+    config = tmp_path / "forecasts.yaml"
+    config.write_text(FORECAST_CONFIG.replace("ORIGINS", "[4, 8]"))
+    pfx.run(config, out=tmp_path / "out")
+    table = pd.read_csv(tmp_path / "out" / "forecasts.csv")
+    assert set(table["arm"]) == {"pf"} and sorted(set(table["trial"])) == [0, 1]
+    assert sorted(set(zip(table["origin_time"], table["horizon"]))) == [(4.0, 1), (4.0, 3), (8.0, 1), (8.0, 3)]
+    assert (table["time"] == table["origin_time"] + table["horizon"]).all()
+
+
+@pytest.mark.parametrize("origins, key", [("[4.5]", "outputs.forecasts.origins[0]"), ("sometimes", "outputs.forecasts.origins")])
+def test_an_origin_that_is_no_step_is_refused_by_key(tmp_path, origins, key):
+    from typer.testing import CliRunner
+
+    from pfx.cli import app
+
+    config = tmp_path / "forecasts.yaml"
+    config.write_text(FORECAST_CONFIG.replace("ORIGINS", origins))
+    result = CliRunner().invoke(app, ["run", str(config), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and key in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "out").exists()

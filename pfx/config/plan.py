@@ -31,6 +31,7 @@ from pfx.config.estimation import (
     check_estimated_paths,
     check_figures_apply,
 )
+from pfx.config.forecasts import check_forecasts
 from pfx.config.plugin_faults import locate as locate_plugin_fault
 from pfx.config.plugin_faults import plan_time_fault
 from pfx.config.plugin_record import check_copies
@@ -106,6 +107,8 @@ class Plan:
             numbers_depend_on["datasets"] = self.experiment.datasets
         if outputs.genealogy:                        # likewise: genealogy.csv is a table of the results
             numbers_depend_on["genealogy"] = outputs.genealogy
+        if outputs.forecasts.requested:              # and forecasts.csv
+            numbers_depend_on["forecasts"] = outputs.forecasts.model_dump(mode="json")
         if self.experiment.estimation is not None:   # every setting but the iterations (more extend a run)
             estimation = self.experiment.estimation.model_dump(mode="json", exclude={"iterations"})
             if self.experiment.estimation.particle_count is None:
@@ -404,6 +407,9 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("datasets", None)     # nor is that of a config without datasets
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
+    if not experiment.outputs.forecasts.requested:
+        resolved["outputs"].pop("forecasts", None)     # nor that of a config without forecasts.csv
+    check_forecasts(experiment, cells, file)
     if "figures" in experiment.outputs.model_fields_set:
         check_figures_apply(experiment.outputs.figures, experiment.estimation, file)
     if experiment.estimation is None:

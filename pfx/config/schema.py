@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, Stri
 from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
 from pfx.config.estimation import EstimationConfig
+from pfx.config.forecasts import ForecastOutputs
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS
 from pfx.filters.particle.adaptive import KLDSampling
@@ -255,6 +256,10 @@ def _build(plugins: frozenset) -> ConfigSchema:
         trace_trials: StrictInt = Field(3, ge=0, le=10_000, description="trials per cell whose per-step traces go to steps.csv")
         particles: ParticleSnapshots = Field(default_factory=ParticleSnapshots,
                                              description="particle clouds to keep in particles.csv")
+        forecasts: ForecastOutputs = Field(
+            default_factory=ForecastOutputs,
+            description="forecasts from the filter's cloud, k steps ahead, to forecasts.csv: {horizons, origins, trials, "
+                        "quantiles} (docs/forecasts.md); default none")
         genealogy: StrictInt = Field(
             0, ge=0, le=100, description="trials per cell (the first ones) whose genealogy goes to genealogy.csv: "
                                          "each particle's ancestor, weight and state at every step (particle "

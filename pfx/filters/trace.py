@@ -94,6 +94,9 @@ class FilterTrace:
     # the one-step-ahead predictive distribution of the measurement and its scores, when asked for
     # (``metrics.scores``; :class:`Predictive`); None otherwise
     predictive: Optional["Predictive"] = None
+    # forecasts from the weighted clouds, when asked for (pfx.filters.particle.forecasting): columns
+    # of equal length, one row per forecast trial, origin and horizon; None otherwise
+    forecasts: Optional[dict] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -23,8 +23,10 @@ import pandas as pd
 from pfx.analysis.genealogy import distinct_ancestor_counts
 from pfx.analysis.metrics import MetricInputs, compute_metrics, error_distance, normalised_squares, state_error
 from pfx.analysis.step_summary import step_values
+from pfx.config.forecasts import ForecastOutputs, origin_steps
 from pfx.config.plan import Cell
 from pfx.config.schema import ParticleSnapshots
+from pfx.filters.particle.forecasting import ForecastRequest
 from pfx.filters.particle.recorders import SnapshotRequest, SpreadCriterion
 from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
@@ -39,11 +41,12 @@ class BatchResult:
     particles: Optional[pd.DataFrame] = None
     step_values: Optional[dict] = None        # every trial's per-step values (pfx.analysis.step_summary)
     genealogy: Optional[pd.DataFrame] = None  # genealogy.csv rows (outputs.genealogy)
+    forecasts: Optional[pd.DataFrame] = None  # forecasts.csv rows (outputs.forecasts)
 
 
 def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
               snapshots: Optional[ParticleSnapshots] = None, datasets: Optional[int] = None,
-              genealogy_trials: int = 0) -> BatchResult:
+              genealogy_trials: int = 0, forecasts: Optional[ForecastOutputs] = None) -> BatchResult:
     """Simulate the truth and run the filter for some trials of one cell; return table rows."""
     truth_seeds = [truth_seed(seed, t, datasets) for t in trials]
     filter_seeds = [filter_seed(seed, cell.stream_key, t) for t in trials]
@@ -65,6 +68,9 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
         options.update(genealogy=True, history=True)
     if cell.metrics.scores and cell.planned_filter.computes_scores:     # the predictive distribution's scores
         options["scores"] = True
+    forecast = _forecast_request(cell, trials, forecasts)
+    if forecast is not None:
+        options["forecast"] = forecast
     started = time.perf_counter()
     trace = cell.planned_filter.run(
         cell.filter_model, measurements, TrialStreams.from_seeds(filter_seeds), settings=cell.filter,
@@ -81,7 +87,33 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
         steps = _steps_frame(cell, trials, traced, truth, trace, measurements, genealogy_trials)
     particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
     genealogy = _genealogy_frame(cell, trials, written, trace) if written else None
-    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model), genealogy)
+    forecast_rows = _forecasts_frame(cell, trials, trace.forecasts) if forecast is not None else None
+    return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model), genealogy,
+                       forecast_rows)
+
+
+def _forecast_request(cell: Cell, trials: list[int], forecasts: Optional[ForecastOutputs]):
+    """What to forecast in this batch (outputs.forecasts): its first trials' clouds at the
+    origins, for a particle filter; None when nothing is asked of it."""
+    if forecasts is None or not forecasts.requested or not cell.filter.uses_particles:
+        return None
+    rows = np.array([i for i, t in enumerate(trials) if t < forecasts.trials], dtype=np.intp)
+    if not rows.size:
+        return None
+    return ForecastRequest(rows=rows, origins=origin_steps(forecasts, np.asarray(cell.truth_model.times(), dtype=float)),
+                           horizons=tuple(forecasts.horizons), quantiles=tuple(forecasts.quantiles))
+
+
+def _forecasts_frame(cell: Cell, trials: list[int], columns: Optional[dict]) -> Optional[pd.DataFrame]:
+    """forecasts.csv rows: one per (trial, origin, horizon), the cell's labels first."""
+    if not columns:
+        return None
+    times = np.asarray(cell.truth_model.times(), dtype=float)
+    frame = {"cell": cell.key, **cell.labels, "trial": np.asarray(trials)[columns["row"]],
+             "origin_step": columns["origin"], "origin_time": times[columns["origin"] - 1],
+             "horizon": columns["horizon"], "step": columns["step"], "time": times[columns["step"] - 1]}
+    frame.update({name: values for name, values in columns.items() if name not in ("row", "origin", "horizon", "step")})
+    return pd.DataFrame(frame).sort_values(["trial", "origin_step", "horizon"], kind="stable", ignore_index=True)
 
 
 def _predictive_columns(model, predictive, row: int) -> dict:

@@ -61,8 +61,11 @@ from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
 OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "genealogy.csv",
-                "scene.csv", "config.yaml", "manifest.json")
-CELL_TABLES = ("steps", "steps_summary", "particles", "genealogy", "trials")     # per cell in cells/; trials last
+                "forecasts.csv", "scene.csv", "config.yaml", "manifest.json")
+# per cell in cells/; trials last (they mark the cell finished)
+CELL_TABLES = ("steps", "steps_summary", "particles", "genealogy", "forecasts", "trials")
+# the tables of trials' rows that a run writes whole and an extension appends to
+ROW_TABLES = ("trials", "steps", "particles", "genealogy", "forecasts")
 
 
 def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
@@ -264,7 +267,7 @@ def batch_arguments(plan: Plan, cell: Cell, trials: list[int]) -> tuple:
     """
     outputs = plan.experiment.outputs
     return (cell, plan.experiment.seed, trials, outputs.trace_trials, outputs.particles, plan.experiment.datasets,
-            outputs.genealogy)
+            outputs.genealogy, outputs.forecasts if outputs.forecasts.requested else None)
 
 
 def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, budget: int, progress: bool,
@@ -357,7 +360,7 @@ def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: d
               "steps_summary": summarize_steps(values, cell.truth_model.state_names, {"cell": cell.key, **cell.labels},
                                                cell.truth_model.times()),
               "trials": trials}
-    for name in ("particles", "genealogy"):
+    for name in ("particles", "genealogy", "forecasts"):
         kept = [getattr(r, name) for r in results if getattr(r, name) is not None]
         if kept:
             tables[name] = pd.concat(kept, ignore_index=True)
@@ -390,15 +393,15 @@ def _assemble(plan: Plan, out: Path, manifest: dict, cell_times: dict, wall_time
     summary, the scene, the finished manifest and the figures; remove cells/."""
     order = [cell.key for cell in plan.cells]
     kept = {name: ResultFolder(out).optional_table(name) if state.kept_trials else None
-            for name in ("trials", "steps", "steps_summary", "particles", "genealogy")}
+            for name in (*ROW_TABLES, "steps_summary")}
     tables = {name: _combined([frame for key in order for frame in _cell_tables(out, key, name, kept[name])])
-              for name in ("trials", "steps", "particles", "genealogy")}
+              for name in ROW_TABLES}
     summaries = []
     for key in order:
         parts = _cell_tables(out, key, "steps_summary", kept["steps_summary"])
         summaries.append(merge_step_summaries(*parts) if len(parts) == 2 else parts[0])
     tables["steps_summary"] = pd.concat(summaries, ignore_index=True)
-    for name in ("trials", "steps", "steps_summary", "particles", "genealogy"):
+    for name in (*ROW_TABLES, "steps_summary"):
         if tables[name] is not None:
             write_csv(tables[name], out / f"{name}.csv")
     write_csv(summarize(tables["trials"], plan.label_columns), out / "summary.csv")

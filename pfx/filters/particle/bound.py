@@ -36,6 +36,7 @@ import numpy as np
 
 from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.engine import ParticleFilter
+from pfx.filters.particle.forecasting import forecast_table
 from pfx.filters.particle.jax_support import check_jax_settings
 from pfx.filters.particle.recorders import Recording
 from pfx.filters.particle.resampling import RESAMPLERS, Resampling
@@ -89,6 +90,8 @@ class BoundParticleFilter:
             history = FilterHistory(trace.particles, trace.log_weights, trace.ancestors)
             for smoother in self.smoothers:     # after the filter's draws, from the same streams
                 trace.smoothed[smoother.label] = smoother.smooth(history, self.model, random)
+        if recording.forecast is not None:      # from the kept clouds, on the forecast streams
+            trace.forecasts = forecast_table(self.model, recording.forecast, measurements, random)
         return trace
 
 

@@ -60,6 +60,7 @@ import numpy as np
 from pfx.errors import ModelContractError, ModelNumericalError, note_step
 from pfx.filters.particle.cloud import active_uniform, posterior_mean, resample_rows
 from pfx.filters.particle.moves import MoveContext
+from pfx.filters.particle.predictive import PredictiveRecorder
 from pfx.filters.particle.recorders import Recording, recorders_for
 from pfx.filters.trace import FilterTrace
 from pfx.numerics.log_weights import effective_sample_size, normalise_rows
@@ -80,7 +81,9 @@ class ParticleFilter:
         self.filter, self.model, self.measurements, self.random = bound, bound.model, measurements, random
         self.trials, self.steps, _ = measurements.shape
         particles = self.particles = bound.particles         # with an adaptive count: the maximum
-        self.recorders = recorders_for(bound.model, recording, bound.weighting.is_likelihood)
+        self.recorders = recorders_for(bound.model, recording)
+        if recording.scores:         # the predictive law's scores (its log score needs to know the weighting)
+            self.recorders.append(PredictiveRecorder(bound.model, bound.weighting.is_likelihood))
         self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
         self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
         self.keep_previous = bound.move is not None and bound.move.needs_parents

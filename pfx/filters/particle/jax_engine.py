@@ -95,6 +95,8 @@ class StepOutputs(NamedTuple):
     particles: Any = None     # (R, N, d) the weighted cloud (the history the smoothers read)
     log_weights: Any = None   # (R, N)
     predictive: Any = None    # the predictive law's moments and scores (pfx.filters.particle.predictive)
+    forecast_particles: Any = None     # (r, N, d) the forecast rows' weighted cloud (pfx.filters.particle.forecasting)
+    forecast_log_weights: Any = None   # (r, N)
 
 
 class JaxParticleFilter:
@@ -220,6 +222,11 @@ class JaxParticleFilter:
             log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
         if outputs.predictive is not None:
             trace.predictive = _predictive(outputs.predictive, by_trial, observed)
+        if recording.forecast is not None:          # the origins' clouds, for the host's forecasts
+            for step in sorted(recording.forecast.origins):
+                if 1 <= step <= steps:
+                    recording.forecast.clouds[step] = (np.asarray(outputs.forecast_particles[step - 1], dtype=float),
+                                                       np.asarray(outputs.forecast_log_weights[step - 1], dtype=float))
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
@@ -263,7 +270,9 @@ class JaxParticleFilter:
             standard_deviations=self.standard_deviations(weights, predicted, estimate) if flags.deviations else None,
             ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
             particles=predicted if flags.history else None, log_weights=log_weights if flags.history else None,
-            predictive=None if predictive is None else {**predictive, "log_score": -increment})
+            predictive=None if predictive is None else {**predictive, "log_score": -increment},
+            forecast_particles=None if flags.forecast_rows is None else predicted[jnp.asarray(flags.forecast_rows)],
+            forecast_log_weights=None if flags.forecast_rows is None else log_weights[jnp.asarray(flags.forecast_rows)])
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
                         lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
@@ -391,6 +400,7 @@ class _Flags(NamedTuple):
     genealogy: bool
     history: bool
     scores: bool = False
+    forecast_rows: Optional[tuple] = None
 
     @classmethod
     def of(cls, recording) -> "_Flags":
@@ -399,7 +409,8 @@ class _Flags(NamedTuple):
         return cls(spread=traced or criterion is not None,
                    radius=None if criterion is None else (float(criterion.radius), bool(criterion.weighted)),
                    deviations=traced, genealogy=recording.genealogy, history=recording.history,
-                   scores=recording.scores)
+                   scores=recording.scores,
+                   forecast_rows=None if recording.forecast is None else tuple(int(r) for r in recording.forecast.rows))
 
 
 def _predictive(outputs: dict, by_trial, observed: np.ndarray) -> Predictive:

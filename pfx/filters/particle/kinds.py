@@ -41,12 +41,12 @@ class SampleImportanceResampling(FilterKind):
 
     def run(self, model, measurements, random, *, settings=None, prior=None, spread_criterion=None,
             consistency=False, snapshot=None, trace_rows: Optional[np.ndarray] = None, genealogy: bool = False,
-            history: bool = False, scores: bool = False):
+            history: bool = False, scores: bool = False, forecast=None):
         """Run the bound filter (its model, settings and prior are the plan's; ``model``,
         ``settings`` and ``prior``, the generic interface's, are the same objects)."""
         return self.bound.run(measurements, random, Recording(
             spread_criterion=spread_criterion, consistency=consistency, snapshot=snapshot, trace_rows=trace_rows,
-            genealogy=genealogy, history=history, scores=scores))
+            genealogy=genealogy, history=history, scores=scores, forecast=forecast))
 
 
 @FILTERS.register_kind

@@ -206,7 +206,8 @@ class Recording:
     (``FilterTrace.ancestors``, (trials, T, N): memory T N per trial). ``scores``: the one-step-ahead
     predictive distribution of the measurement and its proper scores (``FilterTrace.predictive``,
     :mod:`pfx.filters.particle.predictive`; one measurement draw per particle and step, from
-    streams apart from the filter's).
+    streams apart from the filter's). ``forecast``: the weighted clouds to forecast from (a
+    :class:`~pfx.filters.particle.forecasting.ForecastRequest`, which keeps them).
     """
 
     spread_criterion: Optional[SpreadCriterion] = None
@@ -216,6 +217,19 @@ class Recording:
     genealogy: bool = False
     history: bool = False
     scores: bool = False
+    forecast: Optional[object] = None       # a ForecastRequest (pfx.filters.particle.forecasting)
+
+
+class ForecastRecorder(Recorder):
+    """Keeps the weighted clouds (before resampling) a forecast request asks for: its rows, at
+    its origin steps (:mod:`pfx.filters.particle.forecasting` forecasts from them after the run)."""
+
+    def __init__(self, request):
+        self.request = request
+
+    def record(self, stage: str, step: int, run) -> None:
+        if stage == "weighted":
+            self.request.keep(step, run.state, run.log_weights)
 
 
 class HistoryRecorder(Recorder):
@@ -232,10 +246,9 @@ class HistoryRecorder(Recorder):
             run.trace.log_weights[:, step - 1] = run.log_weights
 
 
-def recorders_for(model, recording: Recording, likelihood_weighting: bool = True) -> list[Recorder]:
+def recorders_for(model, recording: Recording) -> list[Recorder]:
     """The recorders a :class:`~pfx.filters.particle.bound.Recording` asks for, in their order
-    (``likelihood_weighting``: whether the filter weighs by the model's likelihood, so that its
-    log-likelihood increment is a predictive density, for the log score)."""
+    (the predictive scores' recorder, :mod:`pfx.filters.particle.predictive`, is the engine's to add)."""
     recorders: list[Recorder] = []
     rows = recording.trace_rows
     traced = rows is not None and len(rows) > 0
@@ -252,8 +265,6 @@ def recorders_for(model, recording: Recording, likelihood_weighting: bool = True
         recorders.append(GenealogyRecorder())
     if recording.history:
         recorders.append(HistoryRecorder())
-    if recording.scores:
-        from pfx.filters.particle.predictive import PredictiveRecorder  # it builds on Recorder, above
-
-        recorders.append(PredictiveRecorder(model, likelihood_weighting))
+    if recording.forecast is not None:
+        recorders.append(ForecastRecorder(recording.forecast))
     return recorders

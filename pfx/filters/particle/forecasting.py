@@ -1,0 +1,134 @@
+r"""Forecasts from a particle filter's cloud: k steps ahead, without updates.
+
+At an origin step :math:`k` the weighted cloud :math:`\{x_{k,i}, w_{k,i}\}` (after the weight
+update, before resampling) represents :math:`p(x_k \mid z_{1:k})`. Propagating every particle
+through the model's transition :math:`h` times, weights unchanged, gives a weighted sample of
+the h-step forecast :math:`p(x_{k+h} \mid z_{1:k})`:
+
+.. math::
+
+    x_{k+j,i} \sim p(x_{k+j} \mid x_{k+j-1,i}, u_{k+j}), \qquad j = 1..h,
+
+and one measurement draw per particle, :math:`\tilde z_{k+h,i} \sim p(z \mid x_{k+h,i})`, a
+weighted sample of :math:`p(z_{k+h} \mid z_{1:k})`. :func:`forecast_table` summarises each
+horizon: the weighted mean, standard deviation and quantiles of every state and measurement
+component, and, where the measurement :math:`z_{k+h}` exists (in the record, not missing), its
+scores (:mod:`pfx.numerics.proper_scores`): CRPS and randomised PIT per component, the energy
+score of the vector, and the log score :math:`-\log \sum_i w_i\, p(z_{k+h} \mid x_{k+h,i})`,
+computed in the log domain from the model's ``log_likelihood``. (At h = 1 these are the
+one-step predictive scores of ``metrics.scores`` again, from other draws.)
+
+The draws come from each trial's *forecast stream* (:meth:`~pfx.numerics.seeding.TrialStreams.derived`),
+apart from the filter's, so a run with forecasts filters exactly as one without. Horizons that
+reach past the record's last step are left out: the model's time axis (its controls, covariates
+and substep times) ends there.
+
+The clouds come from the engine that ran the filter (:class:`ForecastRequest` names the rows and
+origin steps to keep), so forecasts are the same on either backend: this module runs on the host,
+with NumPy, on the model's own methods.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import logsumexp
+
+from pfx.filters.particle.resampling import inverse_cdf
+from pfx.numerics.proper_scores import sample_crps, sample_energy_score, sample_pit, weighted_moments
+from pfx.numerics.seeding import FORECAST_STREAM
+
+
+@dataclass
+class ForecastRequest:
+    """Which forecasts to make: from the weighted clouds of the batch's ``rows`` at the
+    ``origins`` (steps), ``horizons`` steps ahead, summarised by ``quantiles``. The engine keeps
+    each origin's cloud of those rows in ``clouds``: step -> (state (r, N, d), log-weights (r, N))."""
+
+    rows: np.ndarray
+    origins: frozenset
+    horizons: tuple
+    quantiles: tuple
+    clouds: dict = field(default_factory=dict)
+
+    def keep(self, step: int, state: np.ndarray, log_weights: np.ndarray) -> None:
+        if step in self.origins:
+            self.clouds[step] = (np.array(state[self.rows], dtype=float), np.array(log_weights[self.rows], dtype=float))
+
+
+def weighted_quantiles(values: np.ndarray, weights: np.ndarray, probabilities) -> np.ndarray:
+    r"""The weighted sample's quantiles, row by row: values (R, N), weights (R, N) normalised ->
+    (R, q). The p-quantile is :math:`\min\{v_{(j)} : W_{(j)} > p\}` over the sorted values and
+    their cumulative weights (the inverse CDF of :func:`pfx.filters.particle.resampling.inverse_cdf`)."""
+    order = np.argsort(values, axis=-1)
+    sorted_values = np.take_along_axis(values, order, axis=-1)
+    sorted_weights = np.take_along_axis(weights, order, axis=-1)
+    points = np.broadcast_to(np.asarray(probabilities, dtype=float), (len(values), len(probabilities)))
+    return np.take_along_axis(sorted_values, inverse_cdf(sorted_weights, points), axis=-1)
+
+
+def quantile_label(probability: float) -> str:
+    """A quantile's column label: q05 for 0.05, q50 for 0.5, q02_5 for 0.025."""
+    percent = round(100.0 * probability, 6)
+    if percent == int(percent):
+        return f"q{int(percent):02d}"
+    whole, fraction = f"{percent:g}".split(".")
+    return f"q{int(whole):02d}_{fraction}"
+
+
+def forecast_table(model, request: ForecastRequest, measurements: np.ndarray, random) -> dict[str, np.ndarray]:
+    """Every forecast of ``request`` as columns of equal length (one row per forecast trial,
+    origin and horizon): ``row`` (the batch row), ``origin``, ``horizon``, ``step``, then the
+    state's and the measurement's summaries and the scores (module docstring). ``measurements``
+    (R, T, m) are the batch's; ``random`` the batch's streams (the forecast streams derive from them)."""
+    steps = measurements.shape[1]
+    streams = random.derived(FORECAST_STREAM).subset(request.rows)
+    rows: list[dict[str, np.ndarray]] = []
+    for origin in sorted(request.clouds):
+        state, log_weights = request.clouds[origin]
+        weights = np.exp(log_weights - logsumexp(log_weights, axis=-1, keepdims=True))
+        reachable = [h for h in sorted(request.horizons) if origin + h <= steps]
+        for horizon in range(1, max(reachable, default=0) + 1):
+            state = model.transition(state, origin + horizon, streams)
+            if horizon in reachable:
+                observed = measurements[request.rows, origin + horizon - 1]
+                rows.append({"row": request.rows, "origin": np.full(len(request.rows), origin),
+                             "horizon": np.full(len(request.rows), horizon),
+                             "step": np.full(len(request.rows), origin + horizon),
+                             **_summaries(model, state, weights, observed, streams, request.quantiles)})
+    if not rows:
+        return {}
+    return {name: np.concatenate([row[name] for row in rows]) for name in rows[0]}
+
+
+def _summaries(model, state, weights, observed, streams, quantiles) -> dict[str, np.ndarray]:
+    """One horizon's columns: the state's and the measurement's weighted mean, sd and quantiles,
+    the measurement that came, and its scores (NaN where it is missing)."""
+    columns: dict[str, np.ndarray] = {}
+    labels = [quantile_label(p) for p in quantiles]
+    state_mean, state_sd = weighted_moments(state, weights)
+    for j, name in enumerate(model.state_names):
+        columns[f"state_mean_{name}"], columns[f"state_sd_{name}"] = state_mean[:, j], state_sd[:, j]
+        for label, values in zip(labels, weighted_quantiles(state[..., j], weights, quantiles).T):
+            columns[f"state_{label}_{name}"] = values
+    draws = np.asarray(model.simulate_measurement(state, streams), dtype=float)
+    present = ~np.isnan(observed).any(axis=-1)
+    value = np.where(present[:, None], observed, 0.0)      # a missing one scores nothing (NaN below)
+    mean, sd = weighted_moments(draws, weights)
+    uniform = streams.uniform((draws.shape[-1],))
+    for j, name in enumerate(model.measurement_names):
+        columns[f"measurement_mean_{name}"], columns[f"measurement_sd_{name}"] = mean[:, j], sd[:, j]
+        for label, values in zip(labels, weighted_quantiles(draws[..., j], weights, quantiles).T):
+            columns[f"measurement_{label}_{name}"] = values
+        columns[f"observed_{name}"] = observed[:, j]
+        columns[f"crps_{name}"] = np.where(present, sample_crps(draws[..., j], weights, value[:, j]), np.nan)
+        columns[f"pit_{name}"] = np.where(present, sample_pit(draws[..., j], weights, value[:, j], uniform[:, j]),
+                                          np.nan)
+    if draws.shape[-1] > 1:
+        columns["energy_score"] = np.where(present, sample_energy_score(draws, weights, value), np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        likelihood = np.asarray(model.log_likelihood(value[:, None, :], state), dtype=float)
+        density = logsumexp(np.log(weights) + likelihood, axis=-1)
+    columns["log_score"] = np.where(present, -density, np.nan)
+    return columns
