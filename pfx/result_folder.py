@@ -286,6 +286,21 @@ class ResultFolder:
     def manifest(self) -> dict:
         return json.loads((self.path / "manifest.json").read_text())
 
+    @cached_property
+    def config(self) -> dict:
+        """config.yaml: the config as it ran, every default written out
+        (:mod:`pfx.run.folder_record`); an empty mapping for a folder without a readable one."""
+        from pfx.safe_yaml import parse_yaml
+
+        path = self.path / "config.yaml"
+        if not path.is_file():
+            return {}
+        try:
+            config = parse_yaml(path.read_text(), str(path))
+        except (ConfigError, UnicodeDecodeError):
+            return {}
+        return config if isinstance(config, dict) else {}
+
     @property
     def units(self) -> dict:
         return self.manifest.get("units", {})

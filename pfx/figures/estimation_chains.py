@@ -27,11 +27,16 @@ figures show what a reader checks before trusting the posterior summary (posteri
   histograms' scale: a prior that lies wholly above them (an improper flat prior's density 1,
   in whatever units the parameter has) is noted in the panel. Each panel's title gives
   the split R-hat (about 1 when the chains agree; above 1.01 they do not yet) and the bulk
-  effective sample size from posterior.csv.
+  effective sample size from posterior.csv. Where pfx simulated the data (the config has no
+  ``data:`` section), the true value of each parameter, the config's model's
+  (:func:`true_parameter_values`), is a dash-dotted line: how far the posterior sits from the
+  value that made the data. Recorded data have no known truth, and no line.
 * ``posterior_pairs``: the draws after warm-up of every pair of parameters, evenly thinned to
   at most :data:`MOST_POINTS_PER_CELL` per cell, with each parameter's histogram on the
   diagonal and the correlation of the draws above it: a ridge (two variances that trade off
   against each other) is what slows a random walk down and what an adapted proposal follows.
+  With simulated data, the true point is a star in each scatter, a dash-dotted line on the
+  diagonal.
 
 Each cell has one colour in every figure (:func:`pfx.figures.layout.one_colour_per_cell`);
 in the traces, where a column holds one cell, the colours tell the chains apart.
@@ -56,6 +61,8 @@ MOST_POINTS_PER_CELL = 2000     # of a pair plot's scatter: more is one blot, an
 FEWEST_BINS, MOST_BINS = 10, 50  # of a histogram of n draws: sqrt(n) bins within these
 WARM_UP_SHADE = "0.88"
 LONGEST_AXIS_NAME = 16          # characters of a parameter's name on a vertical axis, unbroken
+TRUE_VALUE = "true value"       # the legend's name of the value that simulated the data
+TRUE_LINE = {"color": "black", "linestyle": "-.", "linewidth": 1.6}
 
 
 # -- reading the tables ---------------------------------------------------------------------------
@@ -145,6 +152,69 @@ def finite_or_nan(values) -> np.ndarray:
     """Values to plot: an infinite log-likelihood (a filter whose weights all vanished) as a gap."""
     values = np.asarray(values, dtype=float)
     return np.where(np.isfinite(values), values, np.nan)
+
+
+# -- the true values, where pfx simulated the data -----------------------------------------------
+
+def true_parameter_values(result: ResultFolder) -> dict[str, dict[str, float]]:
+    """cell key -> estimated parameter (its column name) -> the value the data were simulated
+    with; empty when the data were recorded (``data:``, the manifest's ``recorded_data``), when
+    the folder has no config.yaml, or for a parameter without one number to show.
+
+    An estimation cell without recorded data fits the dataset of trial 0 simulated from the
+    true model: the config's ``model:`` section (config.yaml, every default written out), with
+    the cell's sweep values set in. A parameter swept itself takes its cell's value (its label
+    column, the path's dots as underscores); one inside a swept mapping, or holding a swept
+    key, has no value read here, rather than a wrong one.
+    """
+    config = result.config
+    model = config.get("model")
+    parameters = (config.get("estimation") or {}).get("parameters") or {}
+    if result.recorded_data or config.get("data") or not isinstance(model, dict) or not isinstance(parameters, dict):
+        return {}
+    sweep = config.get("sweep") or {}
+    values: dict[str, dict[str, float]] = {}
+    for entry in result.manifest.get("cells", []):
+        cell_values = {}
+        for path, settings in parameters.items():
+            column = (settings or {}).get("name") or path.removeprefix("model.")
+            value = _true_value(path, model, sweep, entry)
+            if value is not None:
+                cell_values[column] = value
+        values[str(entry.get("cell"))] = cell_values
+    return values
+
+
+def _true_value(path: str, model: dict, sweep: dict, cell: dict) -> Optional[float]:
+    """The number at the dotted ``path`` (``model.a.b``) in the cell's true model; None if
+    there is no one finite number there (see :func:`true_parameter_values`)."""
+    overlapping = [key for key in sweep if key == path or key.startswith(f"{path}.") or path.startswith(f"{key}.")]
+    if overlapping == [path]:
+        value = cell.get(path.replace(".", "_"))
+    elif overlapping:
+        return None
+    else:
+        value = model
+        for part in path.split(".")[1:]:
+            value = value.get(part) if isinstance(value, dict) else None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
+def true_values_of(truths: dict[str, dict[str, float]], cells, parameter: str) -> dict[str, float]:
+    """cell -> the parameter's true value, for the ``cells`` that have one."""
+    return {cell: truths[cell][parameter] for cell in cells if parameter in truths.get(cell, {})}
+
+
+def draw_true_value(axes, values: dict[str, float], lines: dict[str, CellLine]) -> None:
+    """A vertical line at the true value: one black line when every cell has the same value,
+    else each cell's in its colour."""
+    if len(set(values.values())) == 1:
+        axes.axvline(next(iter(values.values())), **TRUE_LINE, zorder=4)
+        return
+    for cell, value in values.items():
+        axes.axvline(value, **{**TRUE_LINE, "color": lines[cell].colour}, zorder=4)
 
 
 # -- chain_traces -----------------------------------------------------------------------------------
@@ -245,7 +315,7 @@ def parameter_panels(count: int, panel_size=(3.6, 2.8)):
 def posterior_marginals(result: ResultFolder):
     """PMMH posterior of each parameter: histogram of the draws after warm-up (chains pooled) per cell, the prior dashed, the posterior mean marked.
 
-    From chains.csv, with the prior density from priors.csv and, from posterior.csv, the mean and each panel's split R-hat and bulk effective sample size.
+    From chains.csv, with the prior density from priors.csv and, from posterior.csv, the mean and each panel's split R-hat and bulk effective sample size. Where pfx simulated the data (no `data:` section), the true value from config.yaml's model is a dash-dotted line.
     """
     chains = read_chains(result)
     if chains is None or chains.after_warm_up.empty:
@@ -255,8 +325,9 @@ def posterior_marginals(result: ResultFolder):
     draws = chains.after_warm_up
     posterior = result.optional_table("posterior")
     priors = result.optional_table("priors")
+    truths = true_parameter_values(result)
     figure, panels, columns = parameter_panels(len(chains.parameters))
-    drew_prior = False
+    drew_prior = drew_truth = False
     for index, (axes, parameter) in enumerate(zip(panels, chains.parameters)):
         notes = []
         for cell, line in chains.lines.items():
@@ -273,6 +344,10 @@ def posterior_marginals(result: ResultFolder):
             text = diagnostics_text(summary)
             if text:
                 notes.append(f"{line.label}: {text}" if len(chains.lines) > 1 else text)
+        true_values = true_values_of(truths, chains.lines, parameter)
+        if true_values:
+            draw_true_value(axes, true_values, chains.lines)
+            drew_truth = True
         if "parameter" in priors:
             prior = priors[priors["parameter"].astype(str) == parameter].sort_values("value")
             if not prior.empty:
@@ -293,9 +368,13 @@ def posterior_marginals(result: ResultFolder):
     extra = [Line2D([], [], color="0.3", linewidth=1.6, label="posterior mean")]
     if drew_prior:
         extra.append(Line2D([], [], color="black", linestyle="--", linewidth=1.2, label="prior"))
+    if drew_truth:
+        extra.append(Line2D([], [], **TRUE_LINE, label=TRUE_VALUE))
     figure.suptitle(f"{result.manifest.get('name', '')}: PMMH posterior marginals\n"
                     f"draws after warm-up, pooled over {count_text(chains.chain_counts())} chains "
-                    f"({count_text(draws.groupby('cell', sort=False).size())} per cell)", fontsize=11)
+                    f"({count_text(draws.groupby('cell', sort=False).size())} per cell)"
+                    + ("\ndash-dotted: the true value, which simulated the data" if drew_truth else ""),
+                    fontsize=11)
     legend_outside(figure, extra)
     return figure
 
@@ -323,12 +402,13 @@ def correlation(x: np.ndarray, y: np.ndarray) -> float:
 def posterior_pairs(result: ResultFolder):
     """PMMH posterior pair plot: the draws after warm-up of every pair of parameters, a colour per cell; histograms on the diagonal, correlations above.
 
-    From chains.csv, chains pooled, evenly thinned to at most 2000 points per cell (the correlations use every draw): ridges show the parameters the data cannot tell apart.
+    From chains.csv, chains pooled, evenly thinned to at most 2000 points per cell (the correlations use every draw): ridges show the parameters the data cannot tell apart. Where pfx simulated the data, the true point is a star.
     """
     chains = read_chains(result)
     if chains is None or chains.after_warm_up.empty:
         return None
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     parameters = chains.parameters
     count = len(parameters)
@@ -337,6 +417,8 @@ def posterior_pairs(result: ResultFolder):
                                 layout="constrained")
     draws = {cell: rows[parameters].to_numpy(dtype=float)
              for cell, rows in chains.after_warm_up.groupby("cell", sort=False)}
+    truths = true_parameter_values(result)
+    drew_truth = False
     for row in range(count):
         for column in range(count):
             axes = grid[row, column]
@@ -358,6 +440,8 @@ def posterior_pairs(result: ResultFolder):
                     shown = values[evenly_thinned(len(values))]
                     axes.scatter(shown[:, column], shown[:, row], s=3, alpha=0.35, color=line.colour,
                                  linewidths=0, rasterized=True)
+            drew_truth = _draw_true_point(axes, truths, chains, parameters[column],
+                                          parameters[row] if row != column else None) or drew_truth
             axes.grid(alpha=0.3)
             if row == column:
                 axes.set_title(parameters[row], fontsize=9)
@@ -374,6 +458,29 @@ def posterior_pairs(result: ResultFolder):
     per_cell = count_text(len(values) for values in draws.values())
     figure.suptitle(f"{result.manifest.get('name', '')}: PMMH posterior, parameters in pairs\n"
                     f"draws after warm-up pooled over {count_text(chains.chain_counts())} chains ({per_cell} per cell, "
-                    f"at most {MOST_POINTS_PER_CELL} drawn); above the diagonal: correlation", fontsize=11)
-    legend_outside(figure)
+                    f"at most {MOST_POINTS_PER_CELL} drawn); above the diagonal: correlation"
+                    + ("\nstar: the true point, which simulated the data (a dash-dotted line on the diagonal)"
+                       if drew_truth else ""), fontsize=11)
+    legend_outside(figure, [Line2D([], [], linestyle="none", marker="*", markersize=11, color="black",
+                                   label=TRUE_VALUE)] if drew_truth else [])
     return figure
+
+
+def _draw_true_point(axes, truths: dict, chains: Chains, x_parameter: str, y_parameter: Optional[str]) -> bool:
+    """The true value in one panel of the pair plot: a line on the diagonal (``y_parameter``
+    None), a star at the true point in a scatter; each distinct value once, black when the cells
+    share it. Whether anything was drawn."""
+    x_values = true_values_of(truths, chains.lines, x_parameter)
+    if y_parameter is None:
+        if x_values:
+            draw_true_value(axes, x_values, chains.lines)
+        return bool(x_values)
+    y_values = true_values_of(truths, chains.lines, y_parameter)
+    points = {cell: (x_values[cell], y_values[cell]) for cell in x_values if cell in y_values}
+    one_point = len(set(points.values())) == 1
+    for cell, (x, y) in points.items():
+        axes.scatter([x], [y], marker="*", s=140, color="black" if one_point else chains.lines[cell].colour,
+                     edgecolors="white", linewidths=0.8, zorder=5)
+        if one_point:
+            break
+    return bool(points)

@@ -1,10 +1,13 @@
 """Map figures for planar models: the world (scene.csv), paths (steps.csv), particles (particles.csv).
 
-* ``trajectory_map``: the true and the estimated path of a representative trial, over the
-  model's scene (beacons, walls, designed path), one panel per cell: of the cell's traced
-  trials, the one with the median position RMSE (the lower middle one of an even count), so a
-  panel shows neither the luckiest nor the worst trial; its title names it. Panels of the
-  same world (one model) share their axes, so their paths compare at a glance.
+* ``trajectory_map``: the true and the estimated path of one trial over the model's scene
+  (beacons, walls, designed path), one panel per cell, and the same trial in every panel: the
+  smallest trial number that steps.csv traced in every drawn cell. A trial's truth comes from
+  its own stream, the same in every cell of one model, so the panels show the filters on one
+  true path (a trial picked per panel would compare different paths, and could pick the
+  luckiest for one filter and the worst for another). The figure's title names the trial, each
+  panel's its position RMSE. Panels of the same world (one model) share their axes, so their
+  paths compare at a glance.
 * ``particle_snapshots``: the particle cloud at the kept steps of the first cell's first trial
   (marker area proportional to weight), with the true and estimated positions.
 * ``particle_animation``: the same, step by step, as an animated GIF.
@@ -14,6 +17,8 @@ They need a model with at least two position components; models draw their world
 """
 
 from __future__ import annotations
+
+from typing import Optional
 
 import numpy as np
 
@@ -85,23 +90,23 @@ def _grid(count: int, share: bool = False):
     return figure, axes_list
 
 
-def _representative_trial(result: ResultFolder, rows) -> tuple[int, float, int]:
-    """(trial, its position RMSE, traced trials) for one cell's rows of steps.csv: the traced
-    trial with the median position RMSE (trials.csv's ``rmse_position``; the lower middle one
-    of an even count, the lower trial number on a tie). Without the truth (no RMSE): the
-    first traced trial, with RMSE NaN."""
-    traced = sorted(int(t) for t in rows["trial"].unique())
-    trials = result.trials
-    rmse = {}
-    if "rmse_position" in trials:
-        cell_trials = trials[(trials["cell"] == rows["cell"].iloc[0]) & trials["trial"].isin(traced)]
-        rmse = {int(t): float(v) for t, v in zip(cell_trials["trial"], cell_trials["rmse_position"])
-                if np.isfinite(v)}
-    if not rmse:
-        return traced[0], float("nan"), len(traced)
-    ranked = sorted(rmse, key=lambda trial: (rmse[trial], trial))
-    chosen = ranked[(len(ranked) - 1) // 2]
-    return chosen, rmse[chosen], len(traced)
+def shared_trial(frame, cells: list[str]) -> Optional[int]:
+    """The smallest trial number that ``frame`` (steps.csv with each row's cell label in
+    ``_cell``) traced in every one of ``cells``; None if no trial is traced in all of them."""
+    common = None
+    for cell in cells:
+        traced = {int(trial) for trial in frame.loc[frame["_cell"] == cell, "trial"]}
+        common = traced if common is None else common & traced
+    return min(common) if common else None
+
+
+def _trial_rmse(result: ResultFolder, cell_key: str, trial: int) -> float:
+    """The position RMSE of one trial of one cell (trials.csv's ``rmse_position``); NaN without it."""
+    trials = result.optional_table("trials")
+    if "rmse_position" not in trials:
+        return float("nan")
+    rows = trials[(trials["cell"] == cell_key) & (trials["trial"] == trial)]
+    return float(rows["rmse_position"].iloc[0]) if not rows.empty else float("nan")
 
 
 def _same_world(frame, cells: list[str]) -> bool:
@@ -114,9 +119,9 @@ def _same_world(frame, cells: list[str]) -> bool:
 
 @FIGURES.register("trajectory_map")
 def trajectory_map(result: ResultFolder):
-    """True and estimated path of a representative trial (the median position RMSE of the traced ones) over the model's world, per cell.
+    """True and estimated path of one trial over the model's world, a panel per cell, the same trial in every panel (the smallest trial number traced in every cell).
 
-    Planar models: the world from scene.csv; panels of one world share their axes.
+    Planar models: the world from scene.csv; panels of one world share their axes; the title names the trial, each panel its position RMSE.
     """
     planar = _planar(result)
     steps = result.steps
@@ -126,11 +131,13 @@ def trajectory_map(result: ResultFolder):
     frame = steps.assign(_cell=result.cell_names(steps))
     names = list(dict.fromkeys(frame["_cell"]))
     cells = names[:MAX_PANELS]
+    common = shared_trial(frame, cells)
     figure, axes_list = _grid(len(cells), share=_same_world(frame, cells))
     unit = result.units.get("position", "")
     for axes, cell in zip(axes_list, cells):
         rows = frame[frame["_cell"] == cell]
-        trial, rmse, traced = _representative_trial(result, rows)
+        # No trial traced in every cell (a folder written by hand): each panel its own first.
+        trial = common if common is not None else int(rows["trial"].min())
         rows = rows[rows["trial"] == trial].sort_values("step")
         draw_scene(axes, result.scene)
         axes.plot(rows[f"truth_{x_name}"], rows[f"truth_{y_name}"], color="black", linewidth=1.6, label="true path")
@@ -138,18 +145,20 @@ def trajectory_map(result: ResultFolder):
                   marker=".", markersize=4, label="estimated path")
         axes.scatter(rows[f"truth_{x_name}"].iloc[:1], rows[f"truth_{y_name}"].iloc[:1], marker="o",
                      color="black", zorder=6, label="start")
-        if not np.isfinite(rmse):
-            which = f"trial {trial}" + (f", first of {traced} traced" if traced > 1 else "")
-        elif traced > 1:
-            which = f"trial {trial}, median RMSE of {traced} traced trials: {rmse:.3g} {unit}".rstrip()
-        else:
-            which = f"trial {trial}: RMSE {rmse:.3g} {unit}".rstrip()
+        rmse = _trial_rmse(result, rows["cell"].iloc[0], trial)
+        which = f"trial {trial}" + (f": RMSE {rmse:.3g} {unit}".rstrip() if np.isfinite(rmse) else "")
         axes.set_title(f"{cell}\n({which})", fontsize=10)
         _axes_labels(axes, result, x_name, y_name)
     handles, labels = axes_list[0].get_legend_handles_labels()
     figure.legend(handles, labels, loc="outside lower center", ncol=4, fontsize=8)
     shown = f" (the first {len(cells)} of {len(names)} cells)" if len(names) > len(cells) else ""
-    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths{shown}", fontsize=12)
+    if common is None:
+        which = "no trial traced in every cell: each panel its first traced trial"
+    elif len(cells) > 1:
+        which = f"trial {common} in every panel (the first trial traced in every cell)"
+    else:
+        which = f"trial {common}"
+    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths{shown}\n{which}", fontsize=12)
     return figure
 
 

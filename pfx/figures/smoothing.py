@@ -10,7 +10,12 @@ falls short: resampling makes the particles' ancestral lines coalesce back in ti
   :math:`\sqrt{\sum_j \mathrm{rms}_{k,j}^2}` over the position states :math:`j` (the RMS of
   the error distance: the mean over trials of a sum of squares is the sum of the means), from
   ``rms_error_<state>`` (the filter) and ``rms_error_<smoother>_<state>``. A panel per cell,
-  a line per estimator, the same colour for an estimator in every panel.
+  a line per estimator, the same colour for an estimator in every panel. Each panel has its own
+  y axis (time is shared): one cell whose filter diverges would otherwise flatten every other
+  cell's lines to zero. Within a panel, a line that diverges (infinite, or more than 100 times
+  the smallest peak of the panel) stops at the axes' edge and a note above the panel says where
+  and how far it went; the axis keeps the scale of the panel's other lines, or of the finite
+  values when every line of the panel diverges.
 * ``genealogy_tree`` (genealogy.csv): the classic picture of path degeneracy, for the first
   trial of the first cell: every particle at each step (area proportional to its weight) at its
   first position state, every parent-to-child edge drawn faint, and the ancestral lines of the
@@ -29,15 +34,19 @@ or an empty ``distinct_ancestors`` column.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from pfx.analysis.genealogy import NO_PARENT, ancestral_lines, trial_genealogy
 from pfx.figures.layout import (
+    CellLine,
+    SmallMultiples,
     cell_labels,
+    grid_columns,
     legend_columns_of,
     legend_outside,
     off_scale_limit,
-    panel_per_cell,
     peak_text,
     plot_within,
     small_multiples,
@@ -103,11 +112,50 @@ def _position_axis(result: ResultFolder, states: list[str]) -> tuple[str, str, s
     return what, with_unit(what, unit), unit
 
 
+def panels_with_own_y_axes(result: ResultFolder, table, single_size=(7.5, 4.3),
+                           panel_size=(4.0, 2.7)) -> SmallMultiples:
+    """One panel per cell of ``table``, laid out as :func:`pfx.figures.layout.panel_per_cell`
+    lays them out (titled by the cell's label, a single cell's panel untitled), but only the
+    time axis is shared: each panel has a y axis of its own, so that a cell whose error grows a
+    thousandfold leaves the other cells' lines readable."""
+    import matplotlib.pyplot as plt
+
+    cells = table.drop_duplicates("cell")
+    labels = cell_labels(cells, legend_columns_of(result, table))
+    count = len(labels)
+    columns = grid_columns(count)
+    rows = math.ceil(count / columns)
+    size = single_size if count == 1 else (panel_size[0] * columns + 1.0, panel_size[1] * rows + 1.4)
+    figure, grid = plt.subplots(rows, columns, figsize=size, sharex=True, squeeze=False, layout="constrained")
+    panels = list(grid.flat)
+    for unused in panels[count:]:       # the grid's empty places at the end of the last row
+        figure.delaxes(unused)
+    lines = {key: CellLine(key, index, label, "C0") for index, (key, label) in enumerate(zip(cells["cell"], labels))}
+    return SmallMultiples(figure, panels[:count], labels if count > 1 else [""], lines)
+
+
+def panel_limit(series: dict) -> tuple[float, list]:
+    """The y limit of one panel and the lines it keeps whole, from ``series`` (line -> values).
+
+    :func:`pfx.figures.layout.off_scale_limit` over the lines' peaks: a line that diverges
+    (infinite, or more than 100 times the smallest peak) is left out of the limit. When every
+    line of the panel diverges, the limit is that of their finite values, so the panel still
+    shows where each line was before it left.
+    """
+    peaks = {name: float(np.nanmax(np.abs(values))) for name, values in series.items()}
+    limit, in_scale = off_scale_limit(peaks)
+    if not in_scale:
+        finite = np.concatenate([np.abs(values[np.isfinite(values)]) for values in series.values()])
+        largest = float(finite.max()) if finite.size else 0.0
+        limit = 1.15 * largest if largest > 0 else 1.0
+    return limit, in_scale
+
+
 @FIGURES.register("smoothing_error_over_time")
 def smoothing_error_over_time(result: ResultFolder):
-    """RMS position error over time of the filter and of every smoother it ran, a panel per cell.
+    """RMS position error over time of the filter and of every smoother it ran, a panel per cell, each panel with its own y axis.
 
-    From steps_summary.csv, every trial: `rms_error_<state>` (the filter) and `rms_error_<smoother>_<state>` of the position states; a line per estimator (`filter`, `ffbs`, `rts`, ...). Needs a smoother in `outputs`.
+    From steps_summary.csv, every trial: `rms_error_<state>` (the filter) and `rms_error_<smoother>_<state>` of the position states; a line per estimator (`filter`, `ffbs`, `rts`, ...). A line that diverges (infinite, or 100 times the panel's smallest peak) stops at the edge of its panel, which says so. Needs a smoother in `outputs`.
     """
     summary = result.steps_summary
     states = result.position_states or result.state_names
@@ -124,19 +172,24 @@ def smoothing_error_over_time(result: ResultFolder):
     if not any(estimator != FILTER for _, estimator in series):
         return None                # no smoother (or no truth to measure one against)
     what, y_label, unit = _position_axis(result, states)
-    layout = panel_per_cell(result, summary)
+    layout = panels_with_own_y_axes(result, summary)
     colours = {FILTER: FILTER_COLOUR} | {kind: f"C{index % 10}" for index, kind in enumerate(kinds)}
-    peaks = {key: float(np.nanmax(np.abs(values))) for key, (_, values) in series.items()}
-    limit, in_scale = off_scale_limit(peaks)
-    for (cell, estimator), (x, values) in series.items():
-        first_outside = plot_within(layout.axes_for(cell), x, values, limit, colours[estimator], estimator)
-        if (cell, estimator) not in in_scale and first_outside is not None:
-            layout.note(cell, f"{estimator}: off scale from {time_text(x[first_outside], result)} "
-                              f"(up to {peak_text(peaks[(cell, estimator)], unit)})")
-    layout.panels[0].set_ylim(0, limit)
+    for cell in dict.fromkeys(cell for cell, _ in series):
+        panel = {estimator: values for (owner, estimator), (_, values) in series.items() if owner == cell}
+        limit, in_scale = panel_limit(panel)
+        axes = layout.axes_for(cell)
+        for estimator, values in panel.items():
+            x = series[(cell, estimator)][0]
+            first_outside = plot_within(axes, x, values, limit, colours[estimator], estimator)
+            if estimator not in in_scale and first_outside is not None:
+                layout.note(cell, f"{estimator}: off scale from {time_text(x[first_outside], result)} "
+                                  f"(up to {peak_text(float(np.nanmax(np.abs(values))), unit)})")
+        axes.set_ylim(0, limit)
     title = (f"{result.manifest.get('name', '')}: {what} over time, filter and smoothers\n"
              f"RMS over {trials_text(summary, result.steps_summary_covers_every_trial)} per cell; "
              "a smoother's estimate at a step uses every measurement of the trial")
+    if len(layout.panels) > 1:
+        title += "\neach panel has its own y scale"
     without = summary[~summary["cell"].isin({cell for cell, estimator in series if estimator != FILTER})]
     without = without.drop_duplicates("cell")
     if not without.empty:          # say so, rather than leave the reader looking for their lines
