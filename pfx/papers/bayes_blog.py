@@ -190,8 +190,8 @@ def landmark_demo_part(results: PaperResults) -> Part:
     model, filter_settings = config.get("model", {}), config.get("filter", {})
     sigma = _range_sigma(config)
     for name, caption in (
-            ("trajectory_map.png", "The landmark demo, its traced trial of median position RMSE (the title names "
-                                   "it): the target's path (black), the filter's estimate (blue), the four "
+            ("trajectory_map.png", "The landmark demo, trial 0 (the title gives its position RMSE): "
+                                   "the target's path (black), the filter's estimate (blue), the four "
                                    "landmarks (red)."),
             ("particle_snapshots.png", "The particle cloud of trial 0 at a few steps, from the uniform prior over "
                                        "the square to tracking (marker area ∝ weight)."),
