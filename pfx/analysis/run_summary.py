@@ -200,14 +200,17 @@ def _degeneracy_text(found: Degeneracy) -> str:
 
 def next_command(folder: Path, manifest: dict) -> str | None:
     """``pfx compare`` by the column that varies most naturally (the arm, else the first swept
-    column), or None when the run has a single cell. The metric is the position RMSE, or the
-    log-likelihood where there is no RMSE (recorded data without the truth)."""
+    column), or None when the run has a single cell. The metric is the position RMSE, or where
+    there is no RMSE (recorded data without the truth) the first CRPS when the run scored its
+    predictions (``metrics.scores``), else the log-likelihood."""
     columns = manifest.get("legend_columns", [])
     if len(manifest.get("cells", [])) < 2 or not columns:
         return None
     summary = pd.read_csv(folder / "summary.csv")
     has_rmse = "rmse_position_mean" in summary and summary["rmse_position_mean"].notna().any()
-    metric = "rmse_position" if has_rmse else "log_likelihood --higher-is-better"
+    crps = [column.removesuffix("_mean") for column in summary.columns
+            if column.startswith("crps_") and column.endswith("_mean") and summary[column].notna().any()]
+    metric = "rmse_position" if has_rmse else crps[0] if crps else "log_likelihood --higher-is-better"
     return f"pfx compare {shlex.quote(str(folder))} --metric {metric} --by {columns[0]}"
 
 
