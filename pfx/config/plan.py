@@ -407,6 +407,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("datasets", None)     # nor is that of a config without datasets
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
+    if not experiment.metrics.scores and "metrics" in resolved:
+        resolved["metrics"].pop("scores", None)        # nor that of a config without scores
     if not experiment.outputs.forecasts.requested:
         resolved["outputs"].pop("forecasts", None)     # nor that of a config without forecasts.csv
     check_forecasts(experiment, cells, file)

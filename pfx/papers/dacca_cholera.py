@@ -45,6 +45,7 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.papers.score_tables import score_part
 
 BENCHMARK = "dacca-cholera"
 EXPERIMENT = "dacca"
@@ -182,7 +183,15 @@ def months_part(results: PaperResults) -> Part:
     return Part(items, [])
 
 
-PARTS = (likelihood_part, months_part)
+def scores_part(results: PaperResults) -> Part:
+    """The bootstrap filter's predictive scores of the deaths at two particle counts
+    (:mod:`pfx.papers.score_tables`)."""
+    claim = results.numbers.get("claims", {}).get("scores", "the predictive scores at N = 1000 equal those at 5000")
+    return score_part(results, "scores", by="n_particles", baseline="5000", claim=claim,
+                      cell_name=lambda row: f"N = {int(row['n_particles']):,}")
+
+
+PARTS = (likelihood_part, months_part, scores_part)
 
 
 @REPORTS.register(BENCHMARK)

@@ -81,6 +81,7 @@ from pfx.papers.estimation_nile_exact import (
     kalman_log_likelihood,
     local_level,
 )
+from pfx.papers.score_tables import score_part
 
 PMMH, IF2 = "pmmh", "if2"
 ARMS = {"KF": "KF arm: MH, exact likelihood", "PF": "PF arm: PMMH, bootstrap filter"}
@@ -372,7 +373,15 @@ def maximum_part(results: PaperResults) -> Part:
     return Part(items, [Verdict(claim, verdict_from_checks(checks), evidence)])
 
 
-PARTS = (posterior_part, if2_part, maximum_part)
+def scores_part(results: PaperResults) -> Part:
+    """The bootstrap filter's predictive scores on the Nile against the Kalman filter's exact ones
+    (:mod:`pfx.papers.score_tables`)."""
+    claim = results.numbers.get("claims", {}).get("scores", "the particle filter's predictive scores equal the "
+                                                  "Kalman filter's exact ones")
+    return score_part(results, "scores", by="arm", baseline="KF", claim=claim)
+
+
+PARTS = (posterior_part, if2_part, maximum_part, scores_part)
 
 
 @REPORTS.register(BENCHMARK)

@@ -45,6 +45,7 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.papers.score_tables import score_part
 
 BENCHMARK = "sv-gbp-usd"
 Z_LIMIT = 3.0              # standard errors beyond which a mean disagrees with its expectation
@@ -277,7 +278,13 @@ def collapse_part(results: PaperResults) -> Part:
     return Part(items)
 
 
-PARTS = (exact_part, filters_part, reference_part, collapse_part)
+def scores_part(results: PaperResults) -> Part:
+    """The three filters' predictive scores on the returns (:mod:`pfx.papers.score_tables`)."""
+    claim = results.numbers.get("claims", {}).get("scores", "the three filters predict the returns alike")
+    return score_part(results, "scores", by="arm", baseline="bootstrap", claim=claim)
+
+
+PARTS = (exact_part, filters_part, reference_part, collapse_part, scores_part)
 
 
 @REPORTS.register(BENCHMARK)
