@@ -14,6 +14,7 @@ from pfx.figures import (
     degeneracy,  # noqa: F401
     estimation_chains,  # noqa: F401
     estimator_spread,  # noqa: F401
+    forecasts,  # noqa: F401
     if2,  # noqa: F401
     log_likelihood,  # noqa: F401
     mahalanobis,  # noqa: F401
@@ -23,6 +24,7 @@ from pfx.figures import (
     pmmh_efficiency,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
+    scores,  # noqa: F401
     smoothing,  # noqa: F401
     state_errors,  # noqa: F401
     sweeps,  # noqa: F401
