@@ -30,6 +30,7 @@ from scipy import stats
 from pfx.analysis.compare import paired_comparison
 from pfx.analysis.summary import describe
 from pfx.papers.base import (
+    Figure,
     PaperResults,
     Part,
     Table,
@@ -40,7 +41,15 @@ from pfx.papers.base import (
     verdict_from_checks,
 )
 
-SCORES = ("crps", "log_score")
+FIGURE_CAPTIONS = {
+    "pit_histogram.png": "The PIT of each step's measurement under the filter's one-step-ahead predictive law (the "
+                         "first run), with the uniform density and its 95% band per bar: a U shape is an "
+                         "over-confident forecast, a hump an under-confident one.",
+    "score_over_time.png": "The CRPS and the log score of each step's measurement, per cell (the mean over the traced "
+                           "runs): where the model predicts the record worst.",
+    "forecast_fan.png": "Forecasts from a few origins, 1 to 10 steps ahead: the quantile bands of the predicted "
+                        "measurement (90% lightest, 50% darker, the median a line) over the record (points).",
+}
 EXCESS_FACTOR = 2.0          # the O(1/N) excess allowed: EXCESS_FACTOR |mean score| / N
 
 
@@ -117,10 +126,12 @@ def score_part(results: PaperResults, experiment: str, *, by: str, baseline: str
                   "t-intervals over the runs; the difference from the baseline paired run by run (pfx compare). "
                   "PIT: the Kolmogorov-Smirnov p-value of the first run's PITs against U(0, 1): a small one says "
                   "the model's predictions of this record are miscalibrated (docs/scores.md).")
+    items = [table] + [Figure(experiment, name, caption) for name, caption in FIGURE_CAPTIONS.items()
+                       if name in results.figures(experiment)]
     verdict = Verdict(claim, verdict_from_checks(checks),
                       "paired differences from the baseline (95% intervals) against the O(1/N) excess allowed, "
                       f"2|mean|/N: {'; '.join(evidence)}.")
-    return Part([table], [verdict])
+    return Part(items, [verdict])
 
 
 def _difference(comparison: pd.DataFrame, first: pd.Series, by: str, groups: list[str]):
