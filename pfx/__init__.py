@@ -52,6 +52,7 @@ _LAZY_NAMES = {
     "namespace": "pfx.numerics.arrays",
     "with_values": "pfx.numerics.arrays",
     "special_functions": "pfx.numerics.arrays",
+    "repeat": "pfx.numerics.arrays",
     # count-valued transitions, drawn from the trial's streams on either backend (docs/plugins.md)
     "multinomial": "pfx.laws.count_transitions",
     "euler_multinomial": "pfx.laws.count_transitions",

@@ -380,3 +380,26 @@ def test_uniform_law_draws_in_its_box(dtype):
     assert np.all(values >= low) and np.all(values <= high)
     standard_error = (high - low) / math.sqrt(12.0 * len(values))
     assert np.all(np.abs(values.mean(axis=0) - (low + high) / 2.0) < STANDARD_ERRORS * standard_error)
+
+
+def test_repeat_is_a_loop_on_numpy_and_one_compiled_body_on_jax():
+    """pfx.repeat: the plain loop's numbers on NumPy and on JAX; traced, the program holds the
+    body once, whatever the count (a Python loop would unroll it: the falling body's 64 RK4
+    substeps took XLA minutes to compile)."""
+    from pfx.numerics.arrays import repeat
+
+    def body(carry):
+        x, v = carry
+        return x + 0.1 * v, v - 0.1 * x
+
+    start = (np.array([1.0, 2.0]), np.array([0.5, -0.5]))
+    expected = start
+    for _ in range(64):
+        expected = body(expected)
+    on_numpy = repeat(64, body, start)
+    assert all(np.array_equal(a, b) for a, b in zip(on_numpy, expected))
+    with jax.enable_x64(True):
+        on_jax = repeat(64, body, tuple(jnp.asarray(a) for a in start))
+        assert all(np.allclose(np.asarray(a), b, rtol=1e-14) for a, b in zip(on_jax, expected))
+        sizes = [len(jax.make_jaxpr(lambda x, v, n=n: repeat(n, body, (x, v)))(*start).jaxpr.eqns) for n in (2, 64)]
+    assert sizes[0] == sizes[1]

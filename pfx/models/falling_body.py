@@ -51,7 +51,7 @@ from pydantic import Field, StrictFloat, StrictInt
 from pfx.laws.initial import GaussianLaw, PointLaw
 from pfx.laws.noise import Noise
 from pfx.models.base import MODELS, Model
-from pfx.numerics.arrays import namespace
+from pfx.numerics.arrays import namespace, repeat
 from pfx.numerics.compiled import compiled
 
 FOOT = 0.3048
@@ -143,17 +143,21 @@ class FallingBody(Model):
         altitude, velocity, coefficient = state[..., 0], state[..., 1], state[..., 2]
         h = self.dt / self.substeps
         derivative = self._derivative
-        for _ in range(self.substeps):
+
+        def substep(position):
+            altitude, velocity = position
             if self.integrator == "euler":
                 da, dv = derivative(altitude, velocity, coefficient)
-                altitude, velocity = altitude + h * da, velocity + h * dv
-                continue
+                return altitude + h * da, velocity + h * dv
             a1, v1 = derivative(altitude, velocity, coefficient)
             a2, v2 = derivative(altitude + 0.5 * h * a1, velocity + 0.5 * h * v1, coefficient)
             a3, v3 = derivative(altitude + 0.5 * h * a2, velocity + 0.5 * h * v2, coefficient)
             a4, v4 = derivative(altitude + h * a3, velocity + h * v3, coefficient)
-            altitude = altitude + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-            velocity = velocity + h / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4)
+            return (altitude + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+                    velocity + h / 6.0 * (v1 + 2.0 * v2 + 2.0 * v3 + v4))
+
+        # one compiled loop body on the jax backend, not `substeps` unrolled copies (pfx.numerics.arrays.repeat)
+        altitude, velocity = repeat(self.substeps, substep, (altitude, velocity))
         # x_k = f(x_{k-1}) + w_k, component by component.
         xp = namespace(state, noise)
         if xp is not np:

@@ -24,7 +24,7 @@ JAX is imported only when a JAX array is met: pfx runs without it.
 from __future__ import annotations
 
 from types import ModuleType
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -71,3 +71,19 @@ def constant_like(constant: Any, array: Any) -> Any:
     if not is_jax_array(array):
         return constant
     return namespace(array).asarray(constant, dtype=array.dtype)
+
+
+def repeat(times: int, body: Callable[[Any], Any], carry: Any) -> Any:
+    """``body`` applied ``times`` times to ``carry`` (a value or a tuple of values): a Python loop
+    on NumPy, ``jax.lax.fori_loop`` on JAX. Traced, a Python loop would unroll into ``times``
+    copies of ``body`` (64 RK4 substeps: a program XLA takes minutes to compile); the JAX loop
+    compiles ``body`` once. The backend is the carry's (:func:`namespace`); on NumPy the numbers
+    are those of the plain loop, operation for operation."""
+    values = carry if isinstance(carry, tuple) else (carry,)
+    if namespace(*values) is np:
+        for _ in range(times):
+            carry = body(carry)
+        return carry
+    import jax
+
+    return jax.lax.fori_loop(0, times, lambda _, current: body(current), carry)
