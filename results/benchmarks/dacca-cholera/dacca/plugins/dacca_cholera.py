@@ -73,6 +73,11 @@ at the MLE (a large negative noise emptying a small I: a handful of the 4.8 mill
 particle-months of the J = 1000 check in tests/test_dacca_plugin.py), and a marked particle's
 weight is the floor, so it is not resampled: both rules give the same likelihood there.
 
+**Both backends.** ``propagate``, ``log_likelihood`` and ``simulate_measurement`` take NumPy or
+JAX arrays (``xp = namespace(state)``, :mod:`pfx.numerics.arrays`), and ``propagate``'s time may
+be a JAX tracer (the covariates are then interpolated in the compiled step): the state is built
+as a stack of its components rather than written in place, and the positivity rule is a select.
+
 Run it: ``pfx run configs/benchmarks/dacca-cholera/dacca.yaml``.
 """
 
@@ -82,11 +87,13 @@ import numpy as np
 from pydantic import Field, StrictInt
 
 import pfx
+from pfx import namespace
 
 IMMUNITY_STAGES = 3
 SEASONAL_BASIS = 6
 TOLERANCE = 1.0e-18                  # pomp's tol: the likelihood's floor and the scale's
 LOG_TOLERANCE = float(np.log(TOLERANCE))
+HALF_LOG_TWO_PI = float(0.5 * np.log(2.0 * np.pi))
 COVARIATES = ("trend", "dpopdt", "pop") + tuple(f"seas_{i + 1}" for i in range(SEASONAL_BASIS))
 STATES = ("S", "I", "Y") + tuple(f"R{j + 1}" for j in range(IMMUNITY_STAGES)) + ("deaths", "W", "count")
 SUSCEPTIBLE, SEVERE, INAPPARENT, FIRST_IMMUNE, DEATHS, NOISE_INTEGRAL, COUNT = 0, 1, 2, 3, 6, 7, 8
@@ -185,14 +192,17 @@ class DaccaCholera(pfx.Model):
         return np.concatenate([compartments, [0.0, 0.0, 0.0]])
 
     def propagate(self, state, control, noise, time):
+        xp = namespace(state, noise)
         step = self.substep_duration
-        covariates = self.covariates_at(time)
+        covariates = self.covariates_at(time)          # NumPy, or JAX when the time is traced
         population, population_growth, seasons = covariates[POP], covariates[DPOPDT], covariates[SEASONS]
-        beta = np.exp(float(np.dot(seasons, self.logbeta)) + self.beta_trend * covariates[TREND])
-        omega = np.exp(float(np.dot(seasons, self.logomega)))
+        cx = namespace(covariates)
+        logbeta, logomega = (cx.asarray(values, dtype=covariates.dtype) for values in (self.logbeta, self.logomega))
+        beta = cx.exp(cx.dot(seasons, logbeta) + self.beta_trend * covariates[TREND])
+        omega = cx.exp(cx.dot(seasons, logomega))
         susceptible, severe, inapparent = state[..., SUSCEPTIBLE], state[..., SEVERE], state[..., INAPPARENT]
         immune = [state[..., FIRST_IMMUNE + j] for j in range(IMMUNITY_STAGES)]
-        noise_increment = np.sqrt(step) * noise[..., 0]                      # dW ~ N(0, h)
+        noise_increment = float(np.sqrt(step)) * noise[..., 0]               # dW ~ N(0, h)
 
         passage_rate = self.eps * IMMUNITY_STAGES
         passages = [self.gamma * severe] + [passage_rate * stage for stage in immune]
@@ -201,33 +211,33 @@ class DaccaCholera(pfx.Model):
         disease_deaths = self.deltaI * severe
         wanings = self.rho * inapparent
 
-        new = np.empty_like(state)
-        new[..., SUSCEPTIBLE] = susceptible + (population_growth + self.delta * population - infections
-                                               - self.delta * susceptible + passages[-1] + wanings) * step
-        new[..., SEVERE] = severe + (self.clin * infections - disease_deaths - self.delta * severe - passages[0]) * step
-        new[..., INAPPARENT] = inapparent + ((1.0 - self.clin) * infections - self.delta * inapparent - wanings) * step
+        new = [None] * len(STATES)                 # the new state's components, in STATES order
+        new[SUSCEPTIBLE] = susceptible + (population_growth + self.delta * population - infections
+                                          - self.delta * susceptible + passages[-1] + wanings) * step
+        new[SEVERE] = severe + (self.clin * infections - disease_deaths - self.delta * severe - passages[0]) * step
+        new[INAPPARENT] = inapparent + ((1.0 - self.clin) * infections - self.delta * inapparent - wanings) * step
         for j in range(IMMUNITY_STAGES):
-            new[..., FIRST_IMMUNE + j] = immune[j] + (passages[j] - passages[j + 1] - self.delta * immune[j]) * step
-        new[..., DEATHS] = state[..., DEATHS] + disease_deaths * step
-        new[..., NOISE_INTEGRAL] = state[..., NOISE_INTEGRAL] + noise_increment
-        new[..., COUNT] = state[..., COUNT]
-        mark_violations(new)
-        frozen = state[..., COUNT] != 0.0          # pomp: a marked particle stays as it is until the next observation
-        if frozen.any():
-            new[frozen] = state[frozen]
-        return new
+            new[FIRST_IMMUNE + j] = immune[j] + (passages[j] - passages[j + 1] - self.delta * immune[j]) * step
+        new[DEATHS] = state[..., DEATHS] + disease_deaths * step
+        new[NOISE_INTEGRAL] = state[..., NOISE_INTEGRAL] + noise_increment
+        new[COUNT] = state[..., COUNT]
+        shape = xp.broadcast_shapes(*(component.shape for component in new))
+        new = mark_violations([xp.broadcast_to(component, shape) for component in new])
+        frozen = state[..., COUNT:COUNT + 1] != 0.0   # pomp: a marked particle stays as it is until the next observation
+        return xp.where(frozen, state, xp.stack(new, axis=-1))
 
     def measurement_mean(self, state):
         return state[..., DEATHS:DEATHS + 1].copy()
 
     def log_likelihood(self, measurement, state):
+        xp = namespace(measurement, state)
         deaths = state[..., DEATHS]
         scale = self.tau * deaths + TOLERANCE
         residual = (measurement[..., 0] - deaths) / scale
-        normal = -0.5 * residual**2 - np.log(scale) - 0.5 * np.log(2.0 * np.pi)
-        floored = np.logaddexp(normal, LOG_TOLERANCE)                        # log(N(y; C, scale^2) + tol)
-        violated = (state[..., COUNT] > 0.0) | ~np.isfinite(self.tau * deaths)
-        return np.where(violated, LOG_TOLERANCE, floored)
+        normal = -0.5 * residual**2 - xp.log(scale) - HALF_LOG_TWO_PI
+        floored = xp.logaddexp(normal, LOG_TOLERANCE)                        # log(N(y; C, scale^2) + tol)
+        violated = (state[..., COUNT] > 0.0) | ~xp.isfinite(self.tau * deaths)
+        return xp.where(violated, LOG_TOLERANCE, floored)
 
     def simulate_measurement(self, state, random):
         # pomp draws NA for a marked particle; pfx's measurements are numbers, so every month gets a draw.
@@ -235,18 +245,26 @@ class DaccaCholera(pfx.Model):
         return deaths + (self.tau * deaths + TOLERANCE) * random.standard_normal(state.shape[1:-1] + (1,))
 
 
-def mark_violations(state: np.ndarray) -> None:
-    """pomp's positivity rule, in place and in pomp's order: a negative compartment is set to 0
-    with the one it drains (S with I and Y; I or Y with S; R_j with R_(j+1); R_k with S), and
-    ``count`` records which (VIOLATION_MARKS). Checks cost one comparison each when none occurs."""
+def mark_violations(components: list) -> list:
+    """pomp's positivity rule on the state's components (a list in STATES order, NumPy or JAX
+    arrays of one shape), in pomp's order: a negative compartment is set to 0 with the one it
+    drains (S with I and Y; I or Y with S; R_j with R_(j+1); R_k with S), and ``count`` records
+    which (VIOLATION_MARKS). Returns the new list; ``components`` is not changed.
+
+    A rule sees what the rules before it left (S's rule may clear I before I's is checked). On
+    NumPy a rule that finds no negative value is skipped (one comparison each when none occurs,
+    the usual case); in a compiled JAX step every rule is a select."""
+    components = list(components)
+    xp = namespace(*components)
     last = FIRST_IMMUNE + IMMUNITY_STAGES - 1
     rules = [(SUSCEPTIBLE, (SUSCEPTIBLE, SEVERE, INAPPARENT), "S"), (SEVERE, (SEVERE, SUSCEPTIBLE), "I"),
              (INAPPARENT, (INAPPARENT, SUSCEPTIBLE), "Y"), (DEATHS, (DEATHS,), "deaths")]
     rules += [(FIRST_IMMUNE + j, (FIRST_IMMUNE + j, FIRST_IMMUNE + j + 1), "R") for j in range(IMMUNITY_STAGES - 1)]
     rules += [(last, (last, SUSCEPTIBLE), "R")]
     for component, cleared, mark in rules:
-        negative = state[..., component] < 0.0
-        if negative.any():
+        negative = components[component] < 0.0
+        if xp is not np or negative.any():      # on JAX a select, whatever the values
             for other in cleared:
-                state[..., other] = np.where(negative, 0.0, state[..., other])
-            state[..., COUNT] += np.where(negative, VIOLATION_MARKS[mark], 0.0)
+                components[other] = xp.where(negative, 0.0, components[other])
+            components[COUNT] = components[COUNT] + xp.where(negative, VIOLATION_MARKS[mark], 0.0)
+    return components
