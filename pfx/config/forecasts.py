@@ -4,7 +4,8 @@ A forecast starts from a particle filter's weighted cloud at an *origin* (a step
 named by its time in the model's unit, or ``all`` of them) and runs the model's transition
 ``horizons`` steps ahead without updates (:mod:`pfx.filters.particle.forecasting`). The first
 ``trials`` trials of every particle-filter cell are forecast; cells of other kinds (kf, the grid)
-have no cloud and write none, which the docs say (docs/forecasts.md).
+have no cloud and write none, which the docs say (docs/forecasts.md). After PMMH, ``trials`` is
+the number of posterior draws to forecast from (:mod:`pfx.estimation.posterior_forecasts`).
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ class ForecastOutputs(BaseModel):
     origins: Union[str, list[Union[StrictInt, StrictFloat]]] = Field(
         "all", description="the times (the model's time unit, steps.csv's `time`) to forecast from, after their "
                            "measurement; `all`: every step")
-    trials: StrictInt = Field(1, ge=1, le=10_000, description="how many trials per cell (the first ones) to forecast")
+    trials: StrictInt = Field(1, ge=1, le=10_000, description="how many trials per cell (the first ones) to forecast; after PMMH, how "
+                                                                     "many posterior draws")
     quantiles: list[Annotated[float, Field(gt=0.0, lt=1.0)]] = Field(
         default_factory=lambda: [0.05, 0.25, 0.5, 0.75, 0.95],
         description="the quantiles of every forecast state and measurement component")
@@ -56,9 +58,9 @@ def check_forecasts(experiment, cells, file: str) -> None:
     if not forecasts.requested:
         return
     key = "outputs.forecasts"
-    if experiment.estimation is not None:
-        raise ConfigError("forecasts are made from a filter run's trials; an estimation run has none (forecasts from "
-                          "posterior draws are not built yet)", file=file, key=key)
+    if experiment.estimation is not None and experiment.estimation.method != "pmmh":
+        raise ConfigError("after estimation, forecasts come from PMMH's posterior draws (method: pmmh); IF2 gives "
+                          "point estimates: forecast from them with a filter run at those values", file=file, key=key)
     if not any(cell.filter.uses_particles for cell in cells):
         raise ConfigError("forecasts start from a particle filter's cloud, and no cell runs one (kind particle or sis)",
                           file=file, key=key)

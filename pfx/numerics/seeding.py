@@ -40,6 +40,7 @@ STUDY_ROLE = 2
 ESTIMATION_ROLE = 3
 SPREAD_ROLE = 4
 RESTART_ROLE = 5
+POSTERIOR_FORECAST_ROLE = 6
 # the streams derived from a trial's filter seed (TrialStreams.derived): apart from the filter's
 # own draws, so that asking for scores or forecasts changes no number of the filter
 SCORE_STREAM = 1
@@ -89,6 +90,13 @@ def restart_seed(root_seed: int, cell_key: int, chain: int) -> int:
     """Seed of the one filter run that estimates a PMMH chain's likelihood again at its current
     point when the chain changes particle count after its warm-up (``particles: auto``)."""
     sequence = np.random.SeedSequence(root_seed, spawn_key=(RESTART_ROLE, cell_key, chain))
+    return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def posterior_forecast_seed(root_seed: int, cell_key: int, draw: int) -> int:
+    """Seed of the filter run (and its forecasts) at posterior draw ``draw`` of a PMMH cell
+    (:mod:`pfx.estimation.posterior_forecasts`)."""
+    sequence = np.random.SeedSequence(root_seed, spawn_key=(POSTERIOR_FORECAST_ROLE, cell_key, draw))
     return int(sequence.generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 

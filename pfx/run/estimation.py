@@ -40,6 +40,7 @@ from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
+from pfx.estimation.posterior_forecasts import posterior_forecasts
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
@@ -75,9 +76,9 @@ from pfx.run.particle_count_pilot import (
 
 CHECKPOINT_SECONDS = 10.0
 # every table a run may write; likelihood_spread.csv only where a flagged cell's spread was measured,
-# particle_count.csv only where a cell's particles are `auto`
+# particle_count.csv only where a cell's particles are `auto`, forecasts.csv only with outputs.forecasts
 TABLES = (*(f"{name}.csv" for names in ESTIMATION_TABLES.values() for name in names), LIKELIHOOD_SPREAD.file,
-          PARTICLE_COUNT.file)
+          PARTICLE_COUNT.file, "forecasts.csv")
 RECORD = ("config.yaml", MANIFEST)
 
 
@@ -358,6 +359,21 @@ def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray,
 
 # -- the tables ---------------------------------------------------------------------------------------------
 
+def _posterior_forecasts(plan: Plan, work: list[CellWork], forecasts) -> pd.DataFrame:
+    """forecasts.csv after PMMH: every particle-filter cell's forecasts from its posterior draws
+    (:mod:`pfx.estimation.posterior_forecasts`), the cell's labels first."""
+    frames = []
+    for item in work:
+        if not item.cell.filter.uses_particles:
+            continue
+        rows = item.rows[item.rows["iteration"] <= plan.experiment.estimation.iterations]
+        table = posterior_forecasts(item.target, rows, forecasts, plan.experiment.seed, item.cell.stream_key)
+        if not table.empty:
+            frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=table.index),
+                                     table], axis=1))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
 def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str], None]) -> None:
     """The tables of every cell, from its rows (labels first, as in trials.csv)."""
     estimation = plan.experiment.estimation
@@ -407,6 +423,9 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
         write_csv(pd.concat(summaries, ignore_index=True), out / "posterior.csv")
         draws = table[~table["warm_up"].astype(bool)]
         write_csv(prior_grid(estimation, draws), out / "priors.csv")
+        forecasts = plan.experiment.outputs.forecasts
+        if forecasts.requested:            # from posterior draws, each with its own filter
+            write_csv(_posterior_forecasts(plan, work, forecasts), out / "forecasts.csv")
         if spreads:
             write_csv(pd.concat(spreads, ignore_index=True), out / LIKELIHOOD_SPREAD.file)
         else:                   # an extended run whose chains are no longer flagged: no stale measurement

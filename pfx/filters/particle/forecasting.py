@@ -51,6 +51,7 @@ class ForecastRequest:
     horizons: tuple
     quantiles: tuple
     clouds: dict = field(default_factory=dict)
+    samples: list = field(default_factory=list)     # the forecasts' weighted samples, once made
 
     def keep(self, step: int, state: np.ndarray, log_weights: np.ndarray) -> None:
         if step in self.origins:
@@ -77,58 +78,104 @@ def quantile_label(probability: float) -> str:
     return f"q{int(whole):02d}_{fraction}"
 
 
-def forecast_table(model, request: ForecastRequest, measurements: np.ndarray, random) -> dict[str, np.ndarray]:
-    """Every forecast of ``request`` as columns of equal length (one row per forecast trial,
-    origin and horizon): ``row`` (the batch row), ``origin``, ``horizon``, ``step``, then the
-    state's and the measurement's summaries and the scores (module docstring). ``measurements``
-    (R, T, m) are the batch's; ``random`` the batch's streams (the forecast streams derive from them)."""
+@dataclass
+class ForecastSample:
+    """The weighted sample of one forecast, for the rows of a request: the propagated states
+    (r, N, d) and their weights (r, N), one measurement draw per particle (r, N, m), the
+    measurement that came (r, m; NaN where missing), each particle's log-likelihood of it (r, N)
+    and the draws V (r, m) of the randomised PIT."""
+
+    origin: int
+    horizon: int
+    rows: np.ndarray
+    state: np.ndarray
+    weights: np.ndarray
+    draws: np.ndarray
+    observed: np.ndarray
+    log_likelihood: np.ndarray
+    uniform: np.ndarray
+
+
+def forecast_samples(model, request: ForecastRequest, measurements: np.ndarray, random) -> list[ForecastSample]:
+    """Every forecast of ``request`` as its weighted sample, by origin then horizon (module
+    docstring). ``measurements`` (R, T, m) are the batch's; ``random`` the batch's streams (the
+    forecast streams derive from them)."""
     steps = measurements.shape[1]
     streams = random.derived(FORECAST_STREAM).subset(request.rows)
-    rows: list[dict[str, np.ndarray]] = []
+    samples = []
     for origin in sorted(request.clouds):
         state, log_weights = request.clouds[origin]
         weights = np.exp(log_weights - logsumexp(log_weights, axis=-1, keepdims=True))
         reachable = [h for h in sorted(request.horizons) if origin + h <= steps]
         for horizon in range(1, max(reachable, default=0) + 1):
             state = model.transition(state, origin + horizon, streams)
-            if horizon in reachable:
-                observed = measurements[request.rows, origin + horizon - 1]
-                rows.append({"row": request.rows, "origin": np.full(len(request.rows), origin),
-                             "horizon": np.full(len(request.rows), horizon),
-                             "step": np.full(len(request.rows), origin + horizon),
-                             **_summaries(model, state, weights, observed, streams, request.quantiles)})
-    if not rows:
-        return {}
-    return {name: np.concatenate([row[name] for row in rows]) for name in rows[0]}
+            if horizon not in reachable:
+                continue
+            observed = measurements[request.rows, origin + horizon - 1]
+            draws = np.asarray(model.simulate_measurement(state, streams), dtype=float)
+            value = np.where(np.isnan(observed), 0.0, observed)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                likelihood = np.asarray(model.log_likelihood(value[:, None, :], state), dtype=float)
+            samples.append(ForecastSample(origin, horizon, request.rows, state, weights, draws, observed,
+                                          likelihood, streams.uniform((draws.shape[-1],))))
+    return samples
 
 
-def _summaries(model, state, weights, observed, streams, quantiles) -> dict[str, np.ndarray]:
-    """One horizon's columns: the state's and the measurement's weighted mean, sd and quantiles,
-    the measurement that came, and its scores (NaN where it is missing)."""
+def pooled(samples: list[ForecastSample]) -> ForecastSample:
+    """One forecast from several rows' samples of the same origin and horizon (each row a
+    posterior draw of the parameters with its own filter): their particles side by side, each
+    row's weights divided by the number of rows: the mixture of the rows' forecasts, as one row."""
+    first, count = samples[0], sum(len(sample.rows) for sample in samples)
+
+    def side_by_side(name):
+        return np.concatenate([np.concatenate(list(getattr(sample, name)), axis=0) for sample in samples])[None]
+
+    return ForecastSample(first.origin, first.horizon, np.array([0]), side_by_side("state"),
+                          side_by_side("weights") / count, side_by_side("draws"), first.observed[:1],
+                          side_by_side("log_likelihood"), first.uniform[:1])
+
+
+def summaries(model, sample: ForecastSample, quantiles) -> dict[str, np.ndarray]:
+    """One forecast's columns, a value per row: the state's and the measurement's weighted mean,
+    sd and quantiles, the measurement that came, and its scores (NaN where it is missing)."""
     columns: dict[str, np.ndarray] = {}
     labels = [quantile_label(p) for p in quantiles]
+    state, weights, draws = sample.state, sample.weights, sample.draws
     state_mean, state_sd = weighted_moments(state, weights)
     for j, name in enumerate(model.state_names):
         columns[f"state_mean_{name}"], columns[f"state_sd_{name}"] = state_mean[:, j], state_sd[:, j]
         for label, values in zip(labels, weighted_quantiles(state[..., j], weights, quantiles).T):
             columns[f"state_{label}_{name}"] = values
-    draws = np.asarray(model.simulate_measurement(state, streams), dtype=float)
-    present = ~np.isnan(observed).any(axis=-1)
-    value = np.where(present[:, None], observed, 0.0)      # a missing one scores nothing (NaN below)
+    present = ~np.isnan(sample.observed).any(axis=-1)
+    value = np.where(present[:, None], sample.observed, 0.0)      # a missing one scores nothing (NaN below)
     mean, sd = weighted_moments(draws, weights)
-    uniform = streams.uniform((draws.shape[-1],))
     for j, name in enumerate(model.measurement_names):
         columns[f"measurement_mean_{name}"], columns[f"measurement_sd_{name}"] = mean[:, j], sd[:, j]
         for label, values in zip(labels, weighted_quantiles(draws[..., j], weights, quantiles).T):
             columns[f"measurement_{label}_{name}"] = values
-        columns[f"observed_{name}"] = observed[:, j]
+        columns[f"observed_{name}"] = sample.observed[:, j]
         columns[f"crps_{name}"] = np.where(present, sample_crps(draws[..., j], weights, value[:, j]), np.nan)
-        columns[f"pit_{name}"] = np.where(present, sample_pit(draws[..., j], weights, value[:, j], uniform[:, j]),
-                                          np.nan)
+        columns[f"pit_{name}"] = np.where(present, sample_pit(draws[..., j], weights, value[:, j],
+                                                              sample.uniform[:, j]), np.nan)
     if draws.shape[-1] > 1:
         columns["energy_score"] = np.where(present, sample_energy_score(draws, weights, value), np.nan)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        likelihood = np.asarray(model.log_likelihood(value[:, None, :], state), dtype=float)
-        density = logsumexp(np.log(weights) + likelihood, axis=-1)
+    with np.errstate(divide="ignore"):
+        density = logsumexp(np.log(weights) + sample.log_likelihood, axis=-1)
     columns["log_score"] = np.where(present, -density, np.nan)
     return columns
+
+
+def forecast_table(model, request: ForecastRequest, measurements: np.ndarray, random) -> dict[str, np.ndarray]:
+    """Every forecast of ``request`` as columns of equal length (one row per forecast trial,
+    origin and horizon): ``row`` (the batch row), ``origin``, ``horizon``, ``step``, then
+    :func:`summaries`'s columns."""
+    rows = []
+    request.samples = forecast_samples(model, request, measurements, random)
+    for sample in request.samples:
+        count = len(sample.rows)
+        rows.append({"row": sample.rows, "origin": np.full(count, sample.origin),
+                     "horizon": np.full(count, sample.horizon), "step": np.full(count, sample.origin + sample.horizon),
+                     **summaries(model, sample, request.quantiles)})
+    if not rows:
+        return {}
+    return {name: np.concatenate([row[name] for row in rows]) for name in rows[0]}

@@ -1,0 +1,93 @@
+r"""Forecasts after PMMH: from posterior draws of the parameters, each with its own filter.
+
+A filter at fixed parameters forecasts with its own uncertainty about the state only. After
+PMMH, the parameters are uncertain too, and the posterior predictive forecast integrates over
+them:
+
+.. math::
+
+    p(z_{k+h} \mid z_{1:k}) \approx \frac1D \sum_{d=1}^{D} \hat p(z_{k+h} \mid z_{1:k}, \theta_d),
+
+with :math:`\theta_1..\theta_D` drawn from the chains after their warm-up. Each draw runs the
+cell's particle filter on the data with its own stream, and forecasts from its cloud at the
+origins (:mod:`pfx.filters.particle.forecasting`). forecasts.csv then holds, per origin and
+horizon, one row per draw (``draw`` = 0..D-1, with its chain, iteration and parameter values)
+and the posterior predictive forecast itself (``draw`` = ``pooled``: every draw's particles side
+by side, each draw's weights divided by D, so its quantiles are those of the mixture).
+
+The D draws are spread evenly over the kept iterations of the chains pooled in (chain,
+iteration) order (``outputs.forecasts.trials`` names D); the seeds of their filters depend on
+(seed, cell, draw) only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from pfx.config.forecasts import ForecastOutputs, origin_steps
+from pfx.errors import ModelNumericalError
+from pfx.filters import FILTERS
+from pfx.filters.particle.forecasting import ForecastRequest, pooled, summaries
+from pfx.numerics.seeding import TrialStreams, posterior_forecast_seed
+
+POOLED = "pooled"
+
+
+def posterior_draws(chains: pd.DataFrame, columns: list[str], count: int) -> pd.DataFrame:
+    """``count`` rows of the chains after their warm-up, spread evenly in (chain, iteration) order."""
+    kept = chains[~chains["warm_up"].astype(bool)].sort_values(["chain", "iteration"], kind="stable")
+    if kept.empty:
+        return kept
+    positions = np.unique(np.linspace(0, len(kept) - 1, min(count, len(kept))).round().astype(int))
+    return kept.iloc[positions][["chain", "iteration", *columns]].reset_index(drop=True)
+
+
+def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs, root_seed: int,
+                        cell_key: int) -> pd.DataFrame:
+    """forecasts.csv's rows of one PMMH cell (module docstring), without the cell's labels."""
+    columns = target.estimation.columns
+    draws = posterior_draws(chains, columns, forecasts.trials)
+    settings = target.cell.filter
+    origins = origin_steps(forecasts, np.asarray(target.cell.filter_model.times(), dtype=float))
+    by_place: dict[tuple[int, int], list] = {}
+    frames = []
+    for index, draw in draws.iterrows():
+        model = target.model_at(draw[columns].to_numpy(dtype=float))
+        if model is None:            # a draw the model refuses cannot have been accepted; kept for safety
+            continue
+        request = ForecastRequest(rows=np.array([0]), origins=origins, horizons=tuple(forecasts.horizons),
+                                  quantiles=tuple(forecasts.quantiles))
+        prior = target.prior_of(model)
+        random = TrialStreams.from_seeds([posterior_forecast_seed(root_seed, cell_key, index)])
+        try:
+            planned = FILTERS[settings.kind].plan(model, settings, prior)
+            planned.run(model, target.measurements[None], random, settings=settings, prior=prior, forecast=request)
+        except ModelNumericalError:
+            continue
+        for sample in request.samples:
+            by_place.setdefault((sample.origin, sample.horizon), []).append(sample)
+            frames.append({"draw": str(index), "chain": int(draw["chain"]), "iteration": int(draw["iteration"]),
+                           **{name: float(draw[name]) for name in columns},
+                           **_place(sample), **_first(summaries(model, sample, forecasts.quantiles))})
+    names = target.cell.filter_model          # the mixture's column names: every draw's model has them
+    for samples in by_place.values():
+        mixture = pooled(samples)
+        frames.append({"draw": POOLED, "chain": np.nan, "iteration": np.nan, **{name: np.nan for name in columns},
+                       **_place(mixture), **_first(summaries(names, mixture, forecasts.quantiles))})
+    if not frames:
+        return pd.DataFrame()
+    table = pd.DataFrame(frames)
+    times = np.asarray(target.cell.filter_model.times(), dtype=float)
+    table.insert(table.columns.get_loc("origin_step") + 1, "origin_time", times[table["origin_step"] - 1])
+    table.insert(table.columns.get_loc("step") + 1, "time", times[table["step"] - 1])
+    return table.sort_values(["origin_step", "horizon"], kind="stable", ignore_index=True)
+
+
+def _place(sample) -> dict:
+    return {"origin_step": sample.origin, "horizon": sample.horizon, "step": sample.origin + sample.horizon}
+
+
+def _first(columns: dict) -> dict:
+    """One row's values of :func:`~pfx.filters.particle.forecasting.summaries`'s columns."""
+    return {name: float(values[0]) for name, values in columns.items()}
