@@ -243,8 +243,10 @@ def test_the_kalman_increments_are_the_exact_conditional_log_densities():
 
 def test_steps_csv_and_steps_summary_carry_the_increments(runs):
     steps, summary = runs["none"].steps, runs["none"].steps_summary
-    for cell in build_plan(_config(), "none.yaml").cells:      # a cell's own columns: the new one last
-        assert steps_columns(cell)[-1] == "log_likelihood_increment"
+    for cell in build_plan(_config(), "none.yaml").cells:      # after a cell's own columns, before the measurements
+        columns = steps_columns(cell)
+        measured = [f"measurement_{name}" for name in cell.truth_model.measurement_names]
+        assert columns[-len(measured) - 1:] == ["log_likelihood_increment", *measured]
     columns = list(summary.columns)       # after a cell's own columns (a smoother's come from its cell)
     start = columns.index("rms_error_velocity") + 1
     assert columns[start:start + 4] == [f"log_likelihood_increment_{s}" for s in ("mean", "std", "ci95_low",

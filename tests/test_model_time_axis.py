@@ -173,3 +173,42 @@ def test_the_contract_checks_see_the_time_axis_properties():
 
     assert missing_methods(Slipped, Model) == []
     assert [name for name, _ in methods_meant_as_properties(Slipped, Model)] == ["propagations_per_step"]
+
+
+class Clock(Model):
+    """A model whose presets read the time of the initial state: its initial law is a point at
+    start_time (a population read from a covariate at t_0 would be the use)."""
+
+    kind: Literal["clock"] = "clock"
+
+    @property
+    def state_names(self):
+        return ("time",)
+
+    @property
+    def measurement_dimension(self):
+        return 1
+
+    def presets(self):
+        return {"steps": 4, "dt": 0.5, "process_noise": Noise(variance=0.01), "measurement_noise": Noise(variance=0.1),
+                "initial": PointLaw(state=[self.start_time])}
+
+    def propagate(self, state, control, noise):
+        return state + self.dt + noise
+
+    def measurement_mean(self, state):
+        return state
+
+
+def test_presets_see_the_time_of_the_initial_state_and_follow_recorded_times():
+    """start_time is t_1 - dt: 0 for the evenly spaced default; with recorded times, the first
+    time less dt, and the fields the presets filled are derived again from it; a field the config
+    gave stays as given."""
+    clock = Clock()
+    assert clock.start_time == 0.0 and clock.initial.state == [0.0]
+    clock.use_recorded_times(np.array([1900.0, 1900.5, 1901.0, 1901.5]))
+    assert clock.start_time == 1899.5 and clock.initial.state == [1899.5]
+    assert clock.substep_time(1, 0) == 1899.5
+    given = Clock(initial=PointLaw(state=[7.0]))
+    given.use_recorded_times(np.array([1900.0, 1900.5, 1901.0, 1901.5]))
+    assert given.initial.state == [7.0]

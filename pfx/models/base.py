@@ -73,16 +73,11 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, Str
 from pfx.laws.initial import InitialLaw
 from pfx.laws.noise import Noise
 from pfx.models.contract_checks import NOISE_VARIANCES, check_contract
-from pfx.models.time_axis import TimeAxis, covariate_table
+from pfx.models.time_axis import TimeAxis, covariate_table, plain_data
 from pfx.numerics.angles import wrap_components
 from pfx.numerics.arrays import namespace, with_values
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
-
-
-def _as_data(value: Any) -> Any:
-    """A field's value as plain data (pydantic models dumped), for comparing."""
-    return value.model_dump(mode="json") if isinstance(value, BaseModel) else value
 
 
 class Model(TimeAxis, BaseModel):
@@ -115,7 +110,7 @@ class Model(TimeAxis, BaseModel):
         """The fields holding what :meth:`presets` derives (left out, or given equal to it): a
         model rebuilt from the other fields derives them again, so that they follow a changed
         parameter (a filter's model with its own overrides, a PMMH chain's stationary initial law)."""
-        return {name for name, value in self.presets().items() if _as_data(getattr(self, name)) == _as_data(value)}
+        return {name for name, value in self.presets().items() if plain_data(getattr(self, name)) == plain_data(value)}
 
     def check(self) -> None:
         """Cross-field checks; raise ValueError('@key: reason')."""
@@ -436,13 +431,17 @@ class Model(TimeAxis, BaseModel):
         if missing:
             raise ValueError(f"@{missing[0]}: required for model {self.kind}")
         self._check_substeps()
+        self._bind_and_set_up()
+        return self
+
+    def _bind_and_set_up(self) -> None:
+        """The checks, the laws bound to their dimensions, ``setup()``: what follows from the fields."""
         self.check()
         _bind(self.process_noise, self.process_noise_dimension, "process_noise", need_density=False)
         _bind(self.measurement_noise, self.measurement_dimension, "measurement_noise", need_density=True)
         _bind(self.initial, self.state_dimension, "initial")
         self.setup()
         self._transition_density = None           # derived again from these parameters when asked
-        return self
 
     def with_parameter_arrays(self, values: dict[str, np.ndarray]) -> "Model":
         """A copy of the model whose parameters at the dotted paths of ``values`` (each one of

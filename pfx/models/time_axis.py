@@ -120,8 +120,35 @@ class TimeAxis:
         return self.dt * np.arange(1, self.steps + 1)
 
     def use_recorded_times(self, times: np.ndarray) -> None:
-        """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`)."""
+        """Take the times of steps 1..T from recorded data (:mod:`pfx.config.data`); the fields
+        the model's presets filled are derived again, so that presets that read the time of the
+        initial state (:attr:`start_time`) see the data's (:meth:`Model.derive_presets_again`)."""
+        derived = self.preset_fields()
         self._recorded_times = np.asarray(times, dtype=float).copy()
+        self.derive_presets_again(derived)
+
+    def derive_presets_again(self, fields: set[str]) -> None:
+        """Set ``fields`` (some of the model's ``preset_fields()``, found before a change of what
+        its presets read, such as the recorded times) to what ``presets()`` derives now, and redo
+        what follows from them (checks, the laws' binding, ``setup()``); nothing when none changes."""
+        values = self.presets() if fields else {}
+        changed = {name: values[name] for name in fields
+                   if name in values and plain_data(values[name]) != plain_data(getattr(self, name))}
+        if not changed:
+            return
+        for name, value in changed.items():
+            object.__setattr__(self, name, value)
+        self._bind_and_set_up()
+
+    @property
+    def start_time(self) -> float:
+        """t_0, the time of the initial state x_0: one step before the first measurement, t_1 -
+        dt (with recorded times, the data's first time less dt; else 0). A model's ``presets``
+        may read it, an initial law at the start of the record (a population, say) from it; with
+        recorded data the presets are derived again once the data's times are known."""
+        if self._recorded_times is None:       # t_k = k dt: t_0 = 0, even before presets give dt
+            return 0.0
+        return self.substep_time(1, 0)
 
     def step_duration(self, step: int) -> float:
         """The time from step k-1 to step k: ``dt``, or with recorded irregular times (only for
@@ -299,3 +326,8 @@ def covariate_table(model) -> Optional[tuple[np.ndarray, np.ndarray]]:
                          "as a number, so the values between them cannot be interpolated; use smaller values "
                          "(other units)")
     return times, values
+
+
+def plain_data(value: Any) -> Any:
+    """A field's value as plain data (a pydantic model dumped), for comparing."""
+    return value.model_dump(mode="json") if hasattr(value, "model_dump") else value
