@@ -308,7 +308,8 @@ def test_a_config_without_burn_in_keeps_its_cell_keys():
     assert not set(cell.key for cell in burnt.cells) & set(committed["cell"])
     assert [cell.filter_key for cell in burnt.cells] == [cell.filter_key for cell in plan.cells]
     assert MetricsConfig().identity() == {key: value for key, value in MetricsConfig().model_dump(mode="json").items()
-                                          if key != "burn_in"}
+                                          if key not in ("burn_in", "scores")}
+    assert MetricsConfig(scores=True).identity()["scores"] is True          # asked for: another cell
 
 
 # -- the figure --------------------------------------------------------------------------------

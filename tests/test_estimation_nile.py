@@ -62,7 +62,7 @@ def test_the_configs_are_valid_and_the_flows_are_the_data_file():
         assert plan.experiment.estimation.columns == ["r", "q"]
     numbers = load_config_file(CONFIGS / "paper.yaml")
     assert numbers["flows"] == flows().tolist()
-    assert set(numbers["claims"]) == {"pmmh", "if2", "maximum_likelihood"}
+    assert set(numbers["claims"]) == {"pmmh", "if2", "maximum_likelihood", "scores"}
     assert numbers["maximum_likelihood"]["r"] == 15099.0 and numbers["maximum_likelihood"]["q"] == 1469.1
 
 
