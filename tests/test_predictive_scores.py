@@ -104,6 +104,26 @@ def test_randomised_pit_spreads_the_ties():
     assert gaussian_pit(1.0, 2.0, 1.0 + 2.0 * 1.959963984540054) == pytest.approx(0.975)
 
 
+# a small linear-Gaussian config with a Kalman and a particle arm (tests add metrics and outputs)
+SMALL_CONFIG = """
+name: scores
+seed: 3
+trials: 4
+model:
+  kind: linear_gaussian
+  transition_matrix: [[0.9]]
+  measurement_matrix: [[1.0]]
+  steps: 12
+  process_noise: {variance: 1.0}
+  measurement_noise: {variance: 1.0}
+  initial: {kind: gaussian, mean: [0.0], covariance: 1.0}
+filter: {particles: 200}
+arms:
+  kf: {kind: kf}
+  pf: {}
+"""
+
+
 def random_walk(steps: int = 40, **overrides):
     """x_k = 0.9 x_{k-1} + w_k, z_k = x_k + v_k, unit variances: the Kalman filter is exact."""
     parameters = dict(steps=steps, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
@@ -205,25 +225,7 @@ def test_config_writes_the_score_columns(tmp_path):
     """``metrics.scores``: steps.csv's predictive columns and trials.csv's means, for a particle
     and a Kalman arm; the measurements are in steps.csv whether or not scores are asked for."""
     config = tmp_path / "scores.yaml"
-    config.write_text("""
-name: scores
-seed: 3
-trials: 4
-model:
-  kind: linear_gaussian
-  transition_matrix: [[0.9]]
-  measurement_matrix: [[1.0]]
-  steps: 12
-  process_noise: {variance: 1.0}
-  measurement_noise: {variance: 1.0}
-  initial: {kind: gaussian, mean: [0.0], covariance: 1.0}
-filter: {particles: 200}
-arms:
-  kf: {kind: kf}
-  pf: {}
-metrics: {scores: true}
-outputs: {figures: [], trace_trials: 2}
-""")
+    config.write_text(SMALL_CONFIG + "metrics: {scores: true}\noutputs: {figures: [], trace_trials: 2}\n")
     out = tmp_path / "out"
     pfx.run(config, out=out)
     trials = pd.read_csv(out / "trials.csv")
@@ -295,23 +297,7 @@ def test_forecasts_leave_the_filter_as_it_was_and_skip_horizons_past_the_record(
     assert (table["state_q10_x1"] <= table["state_q50_x1"]).all() and (table["state_q50_x1"] <= table["state_q90_x1"]).all()
 
 
-FORECAST_CONFIG = """
-name: forecasts
-seed: 3
-trials: 3
-model:
-  kind: linear_gaussian
-  transition_matrix: [[0.9]]
-  measurement_matrix: [[1.0]]
-  steps: 12
-  process_noise: {variance: 1.0}
-  measurement_noise: {variance: 1.0}
-  initial: {kind: gaussian, mean: [0.0], covariance: 1.0}
-filter: {particles: 200}
-arms:
-  kf: {kind: kf}
-  pf: {}
-outputs:
+FORECAST_CONFIG = SMALL_CONFIG + """outputs:
   figures: []
   forecasts: {horizons: [1, 3], origins: ORIGINS, trials: 2}
 """
