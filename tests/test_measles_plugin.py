@@ -11,12 +11,15 @@ docs/benchmarks/measles-london.md), checked in seconds:
   variance h. Within 4 standard errors of the sample mean and variance (fixed seeds), in term
   and on the school-entry day (the cohort's births);
 * the discretised normal measurement against scipy's normal, down to pomp's floor;
-* a pfx run of the first weeks on both backends: finite log-likelihoods whose means agree.
+* a pfx run of the first weeks on both backends: finite log-likelihoods whose means agree;
+* the benchmark's report (pfx/papers/measles_london.py) on the committed folder with chosen
+  estimates: the published value judged by the derived tolerance, pypomp's by 3 standard errors.
 """
 
 from __future__ import annotations
 
 import math
+import shutil
 
 import numpy as np
 import pandas as pd
@@ -144,8 +147,8 @@ def test_the_plugin_defaults_are_the_published_mle_of_the_benchmark():
     assert abs(start[:4].sum() - model.covariates_at(model.initial_time)[0]) <= 2.0
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
-@pytest.mark.parametrize("time", [IN_TERM, SCHOOL_ENTRY], ids=["in-term", "school-entry"])
+@pytest.mark.parametrize("backend, time", [("numpy", IN_TERM), ("numpy", SCHOOL_ENTRY), ("jax", IN_TERM)],
+                         ids=["numpy-in-term", "numpy-school-entry", "jax-in-term"])
 def test_one_substep_has_the_exact_euler_multinomial_and_gamma_noise_moments(backend, time):
     model = measles()
     moved = one_substep(model, backend, time, seed=11 if time == IN_TERM else 29)
@@ -155,6 +158,22 @@ def test_one_substep_has_the_exact_euler_multinomial_and_gamma_noise_moments(bac
     for name, (mean, variance) in exact_moments(model, time).items():
         index = "SEIRWC".index(name)
         assert_moments(moved[..., index] - START[index], mean, variance, f"{name} at {time}")
+
+
+def test_a_substep_starting_on_a_terms_first_or_last_day_is_in_term_whatever_the_times_last_bits():
+    """In 1950, 1954, 1958 and 1962 daily substeps start on whole days of the year, 32 of them on
+    a term's boundary: each is in term (days 7-100, ... inclusive), even a few 1e-11 days off."""
+    model = measles()
+    h = 1.0 / 365.25
+    in_term = model.R0 * (1 + model.amplitude * 0.2411 / 0.7589) * -math.expm1(-(model.gamma + model.mu) * h) / h
+    holiday = model.R0 * (1 - model.amplitude) * -math.expm1(-(model.gamma + model.mu) * h) / h
+    for year in (1950, 1954, 1958, 1962):
+        for first, last in ((7, 100), (115, 199), (252, 300), (308, 356)):
+            for day, outside in ((first, first - 1), (last, last + 1)):
+                for noise in (-3e-11, 0.0, 3e-11):
+                    time = year + (day + noise) / 365.25
+                    assert model.seasonal_rates(time)[1] == pytest.approx(in_term, rel=1e-12), (year, day, noise)
+                assert model.seasonal_rates(year + outside / 365.25)[1] == pytest.approx(holiday, rel=1e-12)
 
 
 @pytest.mark.parametrize("cases, recoveries", [(100.0, 150.0), (100.0, 205.0), (100.0, 400.0), (2500.0, 5000.0),
@@ -181,7 +200,7 @@ def test_the_measurement_keeps_its_tails_exact_below_what_subtracting_cdfs_resol
     assert model.log_likelihood(np.array([[[1200.0]]]), state)[0, 0] == pytest.approx(expected, rel=1e-9)
 
 
-def run_first_weeks(tmp_path, backend, weeks=10, trials=24, particles=200):
+def run_first_weeks(tmp_path, backend, weeks=6, trials=24, particles=200):
     measurements = tmp_path / "weeks.csv"
     pd.read_csv(CORRECTED).head(weeks).to_csv(measurements, index=False)
     config = {"name": f"measles-{backend}", "seed": 7, "trials": trials, "plugins": [str(PLUGIN)],
@@ -204,3 +223,41 @@ def test_the_first_weeks_filter_on_both_backends_with_the_same_likelihood(tmp_pa
 def test_the_first_weeks_filter_on_numpy(tmp_path):
     runs = run_first_weeks(tmp_path, "numpy", trials=4)
     assert np.isfinite(runs).all() and np.all(runs < 0.0)
+
+
+def report_on(tmp_path, log_likelihoods):
+    """The benchmark's report on a copy of the committed result folder whose runs' estimates are
+    replaced by ``log_likelihoods`` (and the facts by configs/.../paper.yaml)."""
+    from pfx.papers import REPORTS
+    from pfx.papers.base import PaperResults
+
+    folder = tmp_path / "measles-london"
+    shutil.copytree(REPOSITORY / "results" / "benchmarks" / "measles-london" / "measles", folder / "measles")
+    shutil.copy(PAPER, folder / "paper.yaml")
+    trials = pd.read_csv(folder / "measles" / "trials.csv")
+    trials = trials.iloc[:len(log_likelihoods)].assign(log_likelihood=log_likelihoods)
+    trials.to_csv(folder / "measles" / "trials.csv", index=False)
+    return REPORTS["measles-london"](PaperResults(folder))
+
+
+def test_the_report_judges_the_published_value_by_the_derived_tolerance(tmp_path):
+    """log-mean-exp within 1.92 + 3 sqrt(0.16^2 + se^2) of -3804.9: 40 runs of sd 1 (se 0.158,
+    tolerance 2.59) whose log-mean-exp lies 2.4 from it pass; 2.8 from it do not."""
+    from scipy.special import logsumexp
+
+    spread = stats.norm.ppf((np.arange(40) + 0.5) / 40)
+    spread = spread / spread.std(ddof=1)
+    base = logsumexp(spread) - math.log(40)
+    for gap, verdict in ((2.4, "reproduced"), (-2.4, "reproduced"), (2.8, "not reproduced")):
+        section = report_on(tmp_path / str(gap), -3804.9 + gap - base + spread)
+        assert section.verdicts[0].verdict == verdict, (gap, section.verdicts[0].evidence)
+        assert "2.59" in section.verdicts[0].claim
+
+
+def test_the_report_compares_pfx_with_pypomps_reference_run(tmp_path):
+    """pypomp's recorded mean -3803.048 +- 0.221: 40 runs of sd 1 (se 0.158) 0.7 above it are
+    within 3 standard errors of the difference (0.272); 0.9 above are not."""
+    spread = stats.norm.ppf((np.arange(40) + 0.5) / 40)
+    spread = spread / spread.std(ddof=1)
+    assert report_on(tmp_path / "near", -3803.048 + 0.7 + spread).verdicts[1].verdict == "reproduced"
+    assert report_on(tmp_path / "far", -3803.048 + 0.9 + spread).verdicts[1].verdict == "not reproduced"

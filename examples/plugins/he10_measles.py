@@ -29,7 +29,7 @@ from time :math:`t`, with the covariates read at :math:`t`:
                         (1 - c) B & \text{otherwise} \end{cases}
         \quad\text{births per year, a share } c \text{ (cohort) entering at once},\\
     s(t) &= 1 + a\, 0.2411 / 0.7589 \text{ in term (days 7-100, 115-199, 252-300, 308-356 of
-           the year)}, \quad 1 - a \text{ in holidays},\\
+           the year, inclusive)}, \quad 1 - a \text{ in holidays},\\
     \beta &= R_0\, s(t)\, (1 - e^{-(\gamma + \mu) h}) / h, \qquad
     \lambda = \beta\, (I + \iota)^{\alpha} / P,\\
     dW &\sim \Gamma(\text{shape } h / \sigma_{SE}^2, \text{ scale } \sigma_{SE}^2)
@@ -65,6 +65,17 @@ whole number (pomp's ``nearbyint``), :math:`W = C = 0`.
 **The parameters** default to He et al.'s maximum-likelihood estimate for London (their Table 2;
 pypomp's ``AK_mles.csv``), under pomp's names; at them He et al. report log L = -3804.9.
 
+**Where it differs from pomp's and pypomp's code.** The term rule is evaluated on the substep's
+start time. In 1950, 1954, 1958 and 1962 the daily substeps start on whole days of the year, and
+32 of them start exactly on a term's first or last day: on floating-point times the comparisons
+``day >= 7`` and ``day <= 100`` are then decided by the time's last bits (pomp's double-precision
+times, pypomp's 32-bit ones and pfx's each decide them their own way, a few in term, a few not).
+The plugin rounds the day to 10^-6 first, so that every one of them is in term, as the rule says.
+Which way they fall moves the log-likelihood by about one unit
+(docs/benchmarks/measles-london.md). pypomp computes in 32-bit floats; the measurement's
+probability is computed here in the log domain, so a week far in the normal's tail keeps its
+exact value down to the floor, where the difference of two CDFs near 1 would round to 0.
+
 ``propagate`` is the substep's mean (:math:`dW = h`, every draw at its expectation): what pfx's
 look-ahead and Gaussian filters would use; the particle filter draws with ``sample_substep``.
 
@@ -87,6 +98,7 @@ DAYS_PER_YEAR = 365.25
 SCHOOL_ENTRY = 251.0 / 365.0              # the cohort enters school on day 251 (pomp's test)
 TERMS = ((7.0, 100.0), (115.0, 199.0), (252.0, 300.0), (308.0, 356.0))   # days of the year in term
 TERM_SHARE = 0.7589                       # the share of the year in term: mean seasonality 1
+DAY_RESOLUTION = 1.0e-6                   # days: the term test's resolution (seasonal_rates)
 STATES = ("S", "E", "I", "R", "W", "C")
 SUSCEPTIBLE, EXPOSED, INFECTIOUS, RECOVERED, NOISE, CASES = range(6)
 POP, BIRTHRATE = 0, 1
@@ -199,7 +211,11 @@ class He10Measles(pfx.Model):
         year_fraction = time - tx.floor(time)
         entering = tx.abs(year_fraction - SCHOOL_ENTRY) < 0.5 * step
         birth_rate = (1.0 - self.cohort) * births + tx.where(entering, self.cohort * births / step, 0.0)
-        day = year_fraction * DAYS_PER_YEAR
+        # In 1950, 1954, 1958 and 1962 the daily substeps start on whole days of the year, so 32 of
+        # them start exactly on a term's first or last day, where the time's last bits (1e-11 of
+        # a day) would decide the comparison: the day is rounded to DAY_RESOLUTION first, so that
+        # such a substep counts as in term, as the rule (days 7-100, ... inclusive) says.
+        day = tx.round(year_fraction * DAYS_PER_YEAR / DAY_RESOLUTION) * DAY_RESOLUTION
         in_term = False
         for first, last in TERMS:
             in_term = in_term | ((day >= first) & (day <= last))
