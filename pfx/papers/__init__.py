@@ -20,6 +20,7 @@ from pfx.papers import (  # noqa: F401  (register the reports)
     estimation_sv,
     han_lee,
     kim_mcl,
+    measles_london,
     park_mpf,
     prob_robotics,
     sv_gbp_usd,
@@ -32,6 +33,7 @@ GALLERY_ORDER = ("han-lee", "park-mpf", "bayes-blog", "kim-mcl", "prob-robotics"
 
 # The field's published benchmarks (configs/benchmarks/<name>/ -> results/benchmarks/<name>/,
 # `make reproduce-benchmarks`): their own gallery, results/benchmarks/README.md, in this order.
-BENCHMARK_ORDER = ("dapper-lorenz", "sv-gbp-usd", "dacca-cholera", "estimation-nile", "estimation-sv")
+BENCHMARK_ORDER = ("dapper-lorenz", "sv-gbp-usd", "dacca-cholera", "measles-london", "estimation-nile",
+                   "estimation-sv")
 
 __all__ = ["BENCHMARK_ORDER", "GALLERY_ORDER", "REPORTS"]

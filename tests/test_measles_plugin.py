@@ -1,0 +1,263 @@
+"""He et al.'s (2010) measles model as a pfx plugin (examples/plugins/he10_measles.py; the benchmark
+docs/benchmarks/measles-london.md), checked in seconds:
+
+* the data files (examples/data/london-measles-*.csv): 730 weeks on pomp's grid, the corrected
+  series differing from the record in He et al.'s one week, the covariates covering the run;
+* the plugin loads with the London MLE as its defaults (those of the benchmark's paper.yaml);
+* one substep's moments, on both backends, against the exact ones written out here: the
+  recoveries C, Bin(I, q_IR); the change of I, two independent binomials; the changes of S and
+  E, binomials whose probability depends on the gamma white noise dW (their moments integrated
+  over dW's gamma law by quadrature) plus the Poisson births; W's increment, mean 0 and
+  variance h. Within 4 standard errors of the sample mean and variance (fixed seeds), in term
+  and on the school-entry day (the cohort's births);
+* the discretised normal measurement against scipy's normal, down to pomp's floor;
+* a pfx run of the first weeks on both backends: finite log-likelihoods whose means agree;
+* the benchmark's report (pfx/papers/measles_london.py) on the committed folder with chosen
+  estimates: the published value judged by the derived tolerance, pypomp's by 3 standard errors.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from scipy import stats
+
+import pfx
+from pfx.numerics.seeding import TrialStreams
+
+pytestmark = pytest.mark.usefixtures("fresh_plugins")
+REPOSITORY = __import__("pathlib").Path(__file__).resolve().parents[1]
+PLUGIN = REPOSITORY / "examples" / "plugins" / "he10_measles.py"
+DATA = REPOSITORY / "examples" / "data"
+CASES, CORRECTED = DATA / "london-measles-cases.csv", DATA / "london-measles-cases-he2010.csv"
+COVARIATES = DATA / "london-measles-covariates.csv"
+PAPER = REPOSITORY / "configs" / "benchmarks" / "measles-london" / "paper.yaml"
+TRIALS, PARTICLES = 200, 500          # 1e5 draws of one substep
+WEEK = 7.0 / 365.25
+START = np.array([120_000.0, 2_000.0, 1_500.0, 3_200_000.0, 0.0, 0.0])      # S, E, I, R, W, C
+IN_TERM = 1955.2                      # day 73 of the year: in the spring term
+SCHOOL_ENTRY = 1955.0 + 251.0 / 365.0
+
+
+def table() -> dict:
+    frame = pd.read_csv(COVARIATES)
+    return {name: frame[name].tolist() for name in frame.columns}
+
+
+def measles(**parameters):
+    pfx.load_plugin(str(PLUGIN))
+    return pfx.model("he10_measles", covariates=table(), **parameters)
+
+
+def assert_moments(draws, mean, variance, label):
+    """Sample mean and variance within 4 standard errors (the variance's from the fourth moment)."""
+    draws = np.asarray(draws, dtype=float).ravel()
+    count = len(draws)
+    centred = draws - draws.mean()
+    sample_variance = centred.var(ddof=1)
+    mean_error = math.sqrt(variance / count)
+    variance_error = math.sqrt(max(np.mean(centred**4) - sample_variance**2, 0.0) / count)
+    assert abs(draws.mean() - mean) < 4 * mean_error, (label, draws.mean(), mean, mean_error)
+    assert abs(sample_variance - variance) < 4 * variance_error, (label, sample_variance, variance, variance_error)
+
+
+def exact_moments(model, time):
+    """The exact means and variances of one substep's changes from START at ``time`` (module
+    docstring), from the equations and the covariate table, not from the plugin's code."""
+    frame = pd.read_csv(COVARIATES)
+    population = np.interp(time, frame["time"], frame["pop"])
+    births_per_year = np.interp(time, frame["time"], frame["birthrate"])
+    h = 1.0 / 365.25
+    day = (time - math.floor(time)) * 365.25
+    entering = abs(time - math.floor(time) - 251.0 / 365.0) < h / 2
+    birth_rate = (1 - model.cohort) * births_per_year + (model.cohort * births_per_year / h if entering else 0.0)
+    in_term = any(first <= day <= last for first, last in ((7, 100), (115, 199), (252, 300), (308, 356)))
+    seasonality = 1 + model.amplitude * 0.2411 / 0.7589 if in_term else 1 - model.amplitude
+    beta = model.R0 * seasonality * -math.expm1(-(model.gamma + model.mu) * h) / h
+    susceptible, exposed, infectious = START[:3]
+    force = beta * (infectious + model.iota) ** model.alpha / population
+    noise = stats.gamma(h / model.sigmaSE**2, scale=model.sigmaSE**2)        # dW
+
+    def leaving(x):                    # P(an S leaves | dW = x), P(it is infected | dW = x)
+        rate = force * x / h
+        total = -math.expm1(-(rate + model.mu) * h)
+        return total, total * rate / (rate + model.mu)
+
+    def binomial_mixture(count, probability):       # mean, variance of Bin(count, p(dW)) over dW
+        first = noise.expect(probability, epsabs=1e-14, epsrel=1e-12)
+        second = noise.expect(lambda x: probability(x) ** 2, epsabs=1e-14, epsrel=1e-12)
+        return count * first, count * (first - second) + count**2 * (second - first**2)
+
+    s_mean, s_variance = binomial_mixture(susceptible, lambda x: leaving(x)[0])
+    infections_mean, infections_variance = binomial_mixture(susceptible, lambda x: leaving(x)[1])
+    leave_e, leave_i = -math.expm1(-(model.sigma + model.mu) * h), -math.expm1(-(model.gamma + model.mu) * h)
+    onset, recovery = leave_e * model.sigma / (model.sigma + model.mu), leave_i * model.gamma / (model.gamma + model.mu)
+    births = birth_rate * h
+    return {
+        "S": (births - s_mean, births + s_variance),
+        "E": (infections_mean - exposed * leave_e, infections_variance + exposed * leave_e * (1 - leave_e)),
+        "I": (exposed * onset - infectious * leave_i,
+              exposed * onset * (1 - onset) + infectious * leave_i * (1 - leave_i)),
+        "W": (0.0, h),
+        "C": (infectious * recovery, infectious * recovery * (1 - recovery)),
+    }
+
+
+def one_substep(model, backend, time, seed):
+    state = np.broadcast_to(START, (TRIALS, PARTICLES, 6))
+    seeds = range(seed, seed + TRIALS)
+    if backend == "numpy":
+        return model.sample_substep(state.copy(), None, time, TrialStreams.from_seeds(seeds))
+    jax = pytest.importorskip("jax")
+    import jax.numpy as jnp
+
+    from pfx.numerics.key_streams import KeyStreams
+
+    random = KeyStreams.from_seeds(seeds)
+    with jax.enable_x64(True):
+        return np.asarray(jax.jit(lambda: model.sample_substep(jnp.asarray(state), None, time, random))())
+
+
+def test_data_files_are_the_730_weeks_with_he_et_als_correction():
+    record, corrected = pd.read_csv(CASES), pd.read_csv(CORRECTED)
+    assert list(record.columns) == ["time", "cases"] and len(record) == 730
+    assert np.allclose(record["time"], 1950.0 + (5.0 + 7.0 * np.arange(730)) / 365.25, rtol=0.0, atol=1e-9)
+    assert (record["time"] == corrected["time"]).all()
+    changed = np.flatnonzero(record["cases"] != corrected["cases"])
+    week = 1950.0 + (pd.Timestamp("1955-08-26") - pd.Timestamp("1950-01-01")).days / 365.25
+    assert len(changed) == 1 and abs(record["time"][changed[0]] - week) < 1e-9
+    assert record["cases"][changed[0]] == 0 and corrected["cases"][changed[0]] == 76
+    covariates = pd.read_csv(COVARIATES)
+    assert list(covariates.columns) == ["time", "pop", "birthrate"]
+    assert covariates["time"].iloc[0] <= record["time"].iloc[0] - WEEK and covariates["time"].iloc[-1] >= record["time"].iloc[-1]
+
+
+def test_the_plugin_defaults_are_the_published_mle_of_the_benchmark():
+    model = measles()
+    mle = yaml.safe_load(PAPER.read_text())["mle"]
+    assert {name: getattr(model, name) for name in mle} == mle
+    assert model.substeps == 7 and model.initial_time == pytest.approx(1950.0 - 2.0 / 365.25, abs=1e-12)
+    start = model.initial_state()
+    assert np.all(start == np.round(start)) and start[4:].tolist() == [0.0, 0.0]
+    assert abs(start[:4].sum() - model.covariates_at(model.initial_time)[0]) <= 2.0
+
+
+@pytest.mark.parametrize("backend, time", [("numpy", IN_TERM), ("numpy", SCHOOL_ENTRY), ("jax", IN_TERM)],
+                         ids=["numpy-in-term", "numpy-school-entry", "jax-in-term"])
+def test_one_substep_has_the_exact_euler_multinomial_and_gamma_noise_moments(backend, time):
+    model = measles()
+    moved = one_substep(model, backend, time, seed=11 if time == IN_TERM else 29)
+    assert np.all(moved[..., [0, 1, 2, 5]] == np.round(moved[..., [0, 1, 2, 5]]))
+    population = np.interp(time, table()["time"], table()["pop"])
+    assert np.allclose(moved[..., :4].sum(axis=-1), population, rtol=1e-12)          # R = P - S - E - I
+    for name, (mean, variance) in exact_moments(model, time).items():
+        index = "SEIRWC".index(name)
+        assert_moments(moved[..., index] - START[index], mean, variance, f"{name} at {time}")
+
+
+def test_a_substep_starting_on_a_terms_first_or_last_day_is_in_term_whatever_the_times_last_bits():
+    """In 1950, 1954, 1958 and 1962 daily substeps start on whole days of the year, 32 of them on
+    a term's boundary: each is in term (days 7-100, ... inclusive), even a few 1e-11 days off."""
+    model = measles()
+    h = 1.0 / 365.25
+    in_term = model.R0 * (1 + model.amplitude * 0.2411 / 0.7589) * -math.expm1(-(model.gamma + model.mu) * h) / h
+    holiday = model.R0 * (1 - model.amplitude) * -math.expm1(-(model.gamma + model.mu) * h) / h
+    for year in (1950, 1954, 1958, 1962):
+        for first, last in ((7, 100), (115, 199), (252, 300), (308, 356)):
+            for day, outside in ((first, first - 1), (last, last + 1)):
+                for noise in (-3e-11, 0.0, 3e-11):
+                    time = year + (day + noise) / 365.25
+                    assert model.seasonal_rates(time)[1] == pytest.approx(in_term, rel=1e-12), (year, day, noise)
+                assert model.seasonal_rates(year + outside / 365.25)[1] == pytest.approx(holiday, rel=1e-12)
+
+
+@pytest.mark.parametrize("cases, recoveries", [(100.0, 150.0), (100.0, 205.0), (100.0, 400.0), (2500.0, 5000.0),
+                                               (0.0, 0.0), (0.0, 3.0), (0.0, 40.0), (7.0, 0.0), (3000.0, 10.0)])
+def test_the_measurement_is_pomps_discretised_normal_with_its_floor(cases, recoveries):
+    model = measles()
+    state = np.zeros((1, 1, 6))
+    state[..., 5] = recoveries
+    mean = model.rho * recoveries
+    sd = math.sqrt(mean * (1 - model.rho + model.psi**2 * mean)) + 1e-18
+    upper = stats.norm.cdf(cases + 0.5, mean, sd)
+    probability = upper - stats.norm.cdf(cases - 0.5, mean, sd) if cases > 0 else upper
+    expected = math.log(probability + 1e-18)
+    assert model.log_likelihood(np.array([[[cases]]]), state)[0, 0] == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def test_the_measurement_keeps_its_tails_exact_below_what_subtracting_cdfs_resolves():
+    model = measles()
+    state = np.zeros((1, 1, 6))
+    state[..., 5] = 1000.0                # m = 488, sd about 58: 1200 reports are 12 sd above
+    mean = model.rho * 1000.0
+    sd = math.sqrt(mean * (1 - model.rho + model.psi**2 * mean))
+    expected = np.logaddexp(np.log(stats.norm.sf(1199.5, mean, sd) - stats.norm.sf(1200.5, mean, sd)), math.log(1e-18))
+    assert model.log_likelihood(np.array([[[1200.0]]]), state)[0, 0] == pytest.approx(expected, rel=1e-9)
+
+
+def run_first_weeks(tmp_path, backend, weeks=6, trials=24, particles=200):
+    measurements = tmp_path / "weeks.csv"
+    pd.read_csv(CORRECTED).head(weeks).to_csv(measurements, index=False)
+    config = {"name": f"measles-{backend}", "seed": 7, "trials": trials, "plugins": [str(PLUGIN)],
+              "model": {"kind": "he10_measles"},
+              "data": {"measurements": str(measurements), "covariates": str(COVARIATES)},
+              "filter": {"kind": "particle", "particles": particles, "resampler": "systematic",
+                         "ess_threshold": 1.0, "backend": backend},
+              "outputs": {"figures": []}}
+    return pfx.run(config, out=tmp_path / backend).trials["log_likelihood"].to_numpy()
+
+
+def test_the_first_weeks_filter_on_both_backends_with_the_same_likelihood(tmp_path):
+    pytest.importorskip("jax")
+    numpy_runs, jax_runs = run_first_weeks(tmp_path, "numpy"), run_first_weeks(tmp_path, "jax")
+    assert np.isfinite(numpy_runs).all() and np.isfinite(jax_runs).all()
+    error = math.sqrt(numpy_runs.var(ddof=1) / len(numpy_runs) + jax_runs.var(ddof=1) / len(jax_runs))
+    assert abs(numpy_runs.mean() - jax_runs.mean()) < 4 * error, (numpy_runs.mean(), jax_runs.mean(), error)
+
+
+def test_the_first_weeks_filter_on_numpy(tmp_path):
+    runs = run_first_weeks(tmp_path, "numpy", trials=4)
+    assert np.isfinite(runs).all() and np.all(runs < 0.0)
+
+
+def report_on(tmp_path, log_likelihoods):
+    """The benchmark's report on a copy of the committed result folder whose runs' estimates are
+    replaced by ``log_likelihoods`` (and the facts by configs/.../paper.yaml)."""
+    from pfx.papers import REPORTS
+    from pfx.papers.base import PaperResults
+
+    folder = tmp_path / "measles-london"
+    shutil.copytree(REPOSITORY / "results" / "benchmarks" / "measles-london" / "measles", folder / "measles")
+    shutil.copy(PAPER, folder / "paper.yaml")
+    trials = pd.read_csv(folder / "measles" / "trials.csv")
+    trials = trials.iloc[:len(log_likelihoods)].assign(log_likelihood=log_likelihoods)
+    trials.to_csv(folder / "measles" / "trials.csv", index=False)
+    return REPORTS["measles-london"](PaperResults(folder))
+
+
+def test_the_report_judges_the_published_value_by_the_derived_tolerance(tmp_path):
+    """log-mean-exp within 1.92 + 3 sqrt(0.16^2 + se^2) of -3804.9: 40 runs of sd 1 (se 0.158,
+    tolerance 2.59) whose log-mean-exp lies 2.4 from it pass; 2.8 from it do not."""
+    from scipy.special import logsumexp
+
+    spread = stats.norm.ppf((np.arange(40) + 0.5) / 40)
+    spread = spread / spread.std(ddof=1)
+    base = logsumexp(spread) - math.log(40)
+    for gap, verdict in ((2.4, "reproduced"), (-2.4, "reproduced"), (2.8, "not reproduced")):
+        section = report_on(tmp_path / str(gap), -3804.9 + gap - base + spread)
+        assert section.verdicts[0].verdict == verdict, (gap, section.verdicts[0].evidence)
+        assert "2.59" in section.verdicts[0].claim
+
+
+def test_the_report_compares_pfx_with_pypomps_reference_run(tmp_path):
+    """pypomp's recorded mean -3803.048 +- 0.221: 40 runs of sd 1 (se 0.158) 0.7 above it are
+    within 3 standard errors of the difference (0.272); 0.9 above are not."""
+    spread = stats.norm.ppf((np.arange(40) + 0.5) / 40)
+    spread = spread / spread.std(ddof=1)
+    assert report_on(tmp_path / "near", -3803.048 + 0.7 + spread).verdicts[1].verdict == "reproduced"
+    assert report_on(tmp_path / "far", -3803.048 + 0.9 + spread).verdicts[1].verdict == "not reproduced"
