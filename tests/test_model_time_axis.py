@@ -212,3 +212,26 @@ def test_presets_see_the_time_of_the_initial_state_and_follow_recorded_times():
     given = Clock(initial=PointLaw(state=[7.0]))
     given.use_recorded_times(np.array([1900.0, 1900.5, 1901.0, 1901.5]))
     assert given.initial.state == [7.0]
+
+
+class DrawingTank(Tank):
+    """The tank with a substep of its own (as a count model's ``sample_substep``), reading the
+    covariates at the substep's time."""
+
+    kind: Literal["drawing_tank"] = "drawing_tank"
+
+    def sample_substep(self, state, control, time, random):
+        inflow = self.covariates_at(time)[0]
+        return state + inflow * self.substep_duration * random.uniform(state.shape[1:])
+
+
+def test_a_plugins_own_substep_reading_covariates_passes_the_plan_time_probe():
+    """Before the data's times are known the default time axis starts at 0; the reproducibility
+    probe calls the transition at step 1's substep times moved into the covariate table (as it
+    does propagate), not outside it (a measles plugin's table starts in 1950)."""
+    from pfx.models.contract_checks import reproducibility_fault
+
+    table = {**TABLE, "time": [1950.0 + t for t in TABLE["time"]]}
+    assert reproducibility_fault(DrawingTank(steps=3, dt=1.0, substeps=4, covariates=table,
+                                             process_noise=Noise(variance=0.01), measurement_noise=Noise(variance=0.1),
+                                             initial=PointLaw(state=[5.0, 0.0]))) is None

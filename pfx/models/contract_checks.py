@@ -233,6 +233,9 @@ def _probe_reproducibility(model) -> Optional[str]:
     states = np.asarray(model.initial.sample(fresh(), (particles,)), dtype=float)
     noise = np.asarray(model.process_noise.sample(fresh(), (particles,)), dtype=float)
     control, time = model.control(1), model.within_covariate_table(model.substep_time(1, 0))
+    # the transition at step 1's substep times, moved into the covariate table as propagate's time
+    # is: before the data's times are known, the default axis starts at 0
+    times = [model.within_covariate_table(model.substep_time(1, j)) for j in range(model.propagations_per_step)]
     measurement = np.asarray(model.simulate_measurement(states[:, 0].copy(), fresh()), dtype=float)
 
     draw_hint = "draw from the random argument it is given (the trial's streams)"
@@ -244,7 +247,7 @@ def _probe_reproducibility(model) -> Optional[str]:
         ("propagate", True, lambda: model.propagate_at(states.copy(), control, noise.copy(), time),
          "its randomness must come from its noise argument (drawn from the trial's stream)"),
         ("transition", defined_by_user_code(model, "transition", "sample_transition", "sample_substep"),
-         lambda: model.transition(states.copy(), 1, fresh()),
+         lambda: model.sample_transition(states.copy(), control, times, fresh()),
          draw_hint),
         ("measurement_mean", True, lambda: model.measurement_mean(states.copy()), "h(x) must not be random"),
         ("simulate_measurement", defined_by_user_code(model, "simulate_measurement", "measure"),
