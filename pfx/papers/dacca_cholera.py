@@ -27,9 +27,7 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy.special import logsumexp
 
-from pfx.analysis.summary import describe
 from pfx.papers.base import (
     REPORTS,
     Figure,
@@ -45,31 +43,13 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.papers.likelihood_runs import estimate_numbers
 from pfx.papers.score_tables import score_part
 
 BENCHMARK = "dacca-cholera"
 EXPERIMENT = "dacca"
 Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
 WORST_MONTHS = 5
-
-
-def log_mean_exp(values: np.ndarray) -> float:
-    r""":math:`\log \frac1R \sum_r e^{v_r}`, in the log domain."""
-    return float(logsumexp(values) - math.log(len(values)))
-
-
-def estimate_numbers(trials: pd.DataFrame) -> pd.DataFrame:
-    """Per N: the runs' log-likelihood estimates summarised (mean and its 95% interval, standard
-    deviation and error, log-mean-exp) and the mean time per run."""
-    rows = []
-    for particles, group in trials.groupby("n_particles"):
-        values = group["log_likelihood"].to_numpy(dtype=float)
-        statistics = describe(values)
-        rows.append({"N": int(particles), "runs": len(values), "mean": statistics["mean"],
-                     "low": statistics["ci95_low"], "high": statistics["ci95_high"],
-                     "sd": float(np.std(values, ddof=1)), "se": float(np.std(values, ddof=1) / math.sqrt(len(values))),
-                     "log_mean_exp": log_mean_exp(values), "seconds": float(group["run_time_s"].mean())})
-    return pd.DataFrame(rows).set_index("N")
 
 
 def worst_months(results: PaperResults) -> pd.DataFrame:

@@ -29,9 +29,7 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy.special import logsumexp
 
-from pfx.analysis.summary import describe
 from pfx.papers.base import (
     REPORTS,
     Figure,
@@ -47,29 +45,13 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.papers.likelihood_runs import estimate_numbers
 
 BENCHMARK = "measles-london"
 EXPERIMENT = "measles"
 Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
 WORST_WEEKS = 5
 ORIGIN, DAYS_PER_YEAR = 1950.0, 365.25       # pomp's time: 1950 + days since 1950-01-01 / 365.25
-
-
-def estimate_numbers(trials: pd.DataFrame) -> pd.DataFrame:
-    r"""Per N: the runs' log-likelihood estimates summarised (mean and its 95% interval, standard
-    deviation and error, log-mean-exp :math:`\log \frac1R \sum_r e^{\hat\ell_r}`) and the mean time
-    per run. (dacca_cholera.py summarises its runs the same way; a report imports base.py only.)"""
-    rows = []
-    for particles, group in trials.groupby("n_particles"):
-        values = group["log_likelihood"].to_numpy(dtype=float)
-        statistics = describe(values)
-        sd = float(np.std(values, ddof=1))
-        rows.append({"N": int(particles), "runs": len(values), "mean": statistics["mean"],
-                     "low": statistics["ci95_low"], "high": statistics["ci95_high"], "sd": sd,
-                     "se": sd / math.sqrt(len(values)),
-                     "log_mean_exp": float(logsumexp(values) - math.log(len(values))),
-                     "seconds": float(group["run_time_s"].mean())})
-    return pd.DataFrame(rows).set_index("N")
 
 
 def published_tolerance(published: dict, standard_error: float) -> float:
