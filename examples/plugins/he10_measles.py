@@ -190,22 +190,11 @@ class He10Measles(pfx.Model):
 
     # -- the substep ------------------------------------------------------------------------
 
-    def covariates_on_table(self, time):
-        """``covariates_at(time)``, a host time first moved onto the table's span. pfx checks
-        before a run that the table covers every substep's start, but its plan-time
-        reproducibility probe calls ``sample_substep`` (through ``transition``) at the times of
-        a model whose data times are not bound yet (0 here), where ``covariates_at`` refuses; a
-        traced (JAX) time is clamped by ``covariates_at`` itself."""
-        if pfx.namespace(time) is np:
-            times = self.covariates["time"]
-            time = min(max(float(time), times[0]), times[-1])
-        return self.covariates_at(time)
-
     def seasonal_rates(self, time):
         """(b, beta, P) at the substep starting at ``time``: the births per year with the cohort
         effect, the term-time transmission rate and the population (module docstring)."""
         step = self.substep_duration
-        covariates = self.covariates_on_table(time)      # NumPy, or JAX when the time is traced
+        covariates = self.covariates_at(time)             # NumPy, or JAX when the time is traced
         tx = pfx.namespace(covariates, time)
         population, births = covariates[POP], covariates[BIRTHRATE]
         year_fraction = time - tx.floor(time)
