@@ -13,7 +13,7 @@ so a killed run leaves no stale lock. Runs started together may interleave in an
   path no longer naming the file it locked, and starts again from the mkdir.
 
 What a run read of the folder before it held the lock, it reads again once it does
-(:func:`pfx.result_folder.inspect_folder` with ``locked``).
+(:func:`pfx.folder_state.inspect_folder` with ``locked``).
 """
 
 from __future__ import annotations

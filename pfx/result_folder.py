@@ -1,36 +1,15 @@
 """The result folder, in one place: writing its files atomically, reading its tables
-(:class:`ResultFolder`, all that figures and reports see), its manifest, and its state: what a
-run may do with a folder that already holds results.
+(:class:`ResultFolder`, all that figures and reports see) and its manifest.
 
 Files are written atomically: to a temporary file in the same folder, then renamed over the
 target, so a reader (or an interrupted run) never sees half a file. Missing values (a trial
 that never converged) are written as empty fields, never as ``nan``; a diverged value is
 written as ``inf`` (pandas reads it back as infinity).
 
-A folder belongs to the results its ``manifest.json`` describes. Its ``results_hash`` covers
-what the numbers depend on (cells, seed, traced trials; see
-:attr:`pfx.config.plan.Plan.results_hash`), so a run of a config that differs only in its
-name, description, figures or trial count keeps the results:
-
-=====================================  ==========================================================
-folder                                 a run with the same results hash
-=====================================  ==========================================================
-empty or missing                       runs everything
-finished, same trials                  up to date; rewrites the record and renders figures if
-                                       the outputs asked for changed
-finished, fewer trials than asked      extends it: runs only the new trials (each trial has its
-                                       own random streams), then merges
-finished, more trials than asked       refused (the extra trials would be dropped)
-interrupted (``cells/`` kept)          resumes the same run; another trial count is refused
-=====================================  ==========================================================
-
-An estimation folder has iterations instead of trials (:func:`_estimation_contents`): a
-finished one with more iterations than asked is refused, an interrupted one is resumed (with
-more iterations than it holds, extended).
-
-A folder with another results hash, or not made by pfx, is refused unless ``--fresh``. A
-folder this process could not create or write into (under a regular file, read-only) is
-refused before anything is written (:func:`check_writable`; every command that writes runs it).
+What a run may do with a folder that already holds results (resume, extend, refuse) is
+:mod:`pfx.folder_state`'s to decide. A folder this process could not create or write into (under
+a regular file, read-only) is refused before anything is written (:func:`check_writable`; every
+command that writes runs it).
 
 One run writes a folder at a time (:func:`pfx.folder_lock.folder_lock`); what a run read before it held the
 lock is read again once it does, since another run may have been writing the folder meanwhile.
@@ -43,13 +22,11 @@ import os
 import shutil
 import stat
 import tempfile
-from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
 from pfx.errors import ConfigError
-from pfx.folder_lock import LOCK_FILE, held_error, lock_holder
 from pfx.numerics.hashing import canonical_hash
 from pfx.user_files import UnreadableFile, read_user_file
 
@@ -338,19 +315,6 @@ class ResultFolder:
 
 # -- the state of a folder a run writes to --------------------------------------------------------
 
-@dataclass
-class FolderState:
-    """What a result folder holds for a run that may write to it."""
-
-    manifest: Optional[dict] = None     # None: nothing there yet (or --fresh)
-    kept_trials: int = 0                # trials per cell already in its tables (a finished run)
-    done: set[str] = field(default_factory=set)     # cells finished in cells/ (an interrupted run)
-
-    @property
-    def complete(self) -> bool:
-        return bool(self.manifest and self.manifest.get("complete"))
-
-
 def read_manifest(out: Path) -> Optional[dict]:
     """The folder's manifest, or None if it has none or it is unreadable."""
     try:        # a user names the folder: its manifest.json could be a pipe that never ends
@@ -430,78 +394,6 @@ def check_writable(out: Path, what: str = "result folder") -> None:
             raise ConfigError(f"cannot create the {what}: {folder} is not writable (permission denied); "
                               "choose another folder", file=str(out))
         return
-
-
-def inspect_folder(plan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
-    """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
-    write to (see the module docstring) or could not write to (:func:`check_writable`).
-
-    ``locked``: this process holds the folder's lock (:func:`folder_lock`), so what it reads
-    is settled. Without the lock, another run may be writing the folder at this very moment:
-    what it has written so far (a config.yaml before its manifest, a temporary file) is no
-    reason to refuse, so a folder that looks wrong is refused as that run's (naming it) while
-    the run holds the lock, and read again once none does.
-    """
-    out = Path(out)
-    check_writable(out)
-    if locked or fresh:
-        return _contents(plan, out, fresh)
-    try:
-        return _contents(plan, out, fresh)
-    except ConfigError:
-        holder = lock_holder(out)
-        if holder is not None:
-            raise held_error(out, holder) from None
-    return _contents(plan, out, fresh)
-
-
-def _contents(plan, out: Path, fresh: bool) -> FolderState:
-    """:func:`inspect_folder`'s reading of the folder's files."""
-    try:
-        entries = [] if fresh or not out.exists() else [p for p in out.iterdir() if p.name != LOCK_FILE]
-    except FileNotFoundError:          # removed since, by a run that kept nothing: as if never made
-        entries = []
-    if not entries:
-        return FolderState()
-    if not (out / MANIFEST).exists():
-        raise ConfigError("result folder exists and was not made by pfx; choose another --out or "
-                          "use --fresh", file=str(out))
-    manifest = read_manifest(out)
-    if manifest is None:
-        raise ConfigError("result folder has an unreadable manifest.json; use --fresh", file=str(out))
-    if manifest.get("results_hash") != plan.results_hash:
-        raise ConfigError(f"result folder holds results of a different config (results hash "
-                          f"{manifest.get('results_hash')} != {plan.results_hash}); use --fresh to "
-                          "replace them or --out for another folder", file=str(out))
-    if not plan.cells:                       # a study: no trials
-        return FolderState(manifest=manifest)
-    if plan.experiment.estimation is not None:
-        return _estimation_contents(plan, out, manifest)
-    asked, held = plan.experiment.trials, int(manifest.get("trials", 0))
-    if manifest.get("complete"):
-        if asked < held:
-            raise ConfigError(f"result folder holds {held} trials per cell and the config asks for {asked}, "
-                              f"which would drop {held - asked}; ask for {held} or more (more extend the "
-                              "run), use --fresh to recompute, or --out for another folder", file=str(out))
-        return FolderState(manifest=manifest, kept_trials=held)
-    if asked != held:
-        raise ConfigError(f"result folder holds an interrupted run of {held} trials per cell; finish it "
-                          f"first (--trials {held}), or use --fresh", file=str(out))
-    done = {path.name.split(".")[0] for path in (out / CELLS).glob("*.trials.csv")}
-    return FolderState(manifest=manifest, kept_trials=int(manifest.get("extending_from", 0)), done=done)
-
-
-def _estimation_contents(plan, out: Path, manifest: dict) -> FolderState:
-    """An estimation folder with the same results hash: it has no trials, but iterations. A
-    finished one holds the manifest's ``iterations`` (fewer asked would drop some: refused); an
-    unfinished one is resumed, and its progress files are the estimation run's to read and check
-    (:mod:`pfx.run.estimation`), before it writes anything."""
-    asked, held = plan.experiment.estimation.iterations, (manifest.get("estimation") or {}).get("iterations")
-    if manifest.get("complete") and isinstance(held, int) and asked < held:
-        raise ConfigError(f"result folder holds {held} iterations per chain and the config asks for {asked}, which "
-                          f"would drop {held - asked}; ask for {held} or more (more extend the chains), use --fresh "
-                          "to recompute, or --out for another folder", file=str(out), key="estimation.iterations")
-    return FolderState(manifest=manifest)
 
 
 def clear_outputs(out: Path, names) -> None:

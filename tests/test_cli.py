@@ -24,8 +24,8 @@ from conftest import REPO_ROOT, csv_fields, tiny_config_dict, write_config_file
 from scipy import stats
 
 import pfx
-from pfx.analysis.metrics import metric_range
 from pfx.analysis.summary import MINIMUM_VALUES
+from pfx.analysis.value_ranges import metric_range
 
 EXAMPLES = sorted((REPO_ROOT / "configs" / "examples").glob("*.yaml"))
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -76,8 +76,8 @@ from typing import TYPE_CHECKING, Any, Iterable, Optional
 import numpy as np
 
 from pfx.analysis.compare_versus import VERSUS, metrics_as_rows
-from pfx.analysis.metrics import ANY_VALUE, ValueRange
 from pfx.analysis.summary import NON_METRIC_COLUMNS
+from pfx.analysis.value_ranges import ANY_VALUE, ValueRange
 from pfx.errors import ConfigError
 from pfx.registry import closest_name
 
@@ -295,7 +295,7 @@ def relative_change_interval(base: np.ndarray, value: np.ndarray, level: float =
     :math:`\pm\, t_{(1+\text{level})/2,\,n-1}\, s_e / (\sqrt n\, |\bar b|)`. Unlike dividing the
     interval of the mean difference by :math:`|\bar b|`, it accounts for the uncertainty of the
     baseline mean too. Pairs with a missing or infinite value are left out. For a nonnegative
-    metric (``value_range``, :data:`pfx.analysis.metrics.METRIC_RANGES`) the ratio of means is
+    metric (``value_range``, :data:`pfx.analysis.value_ranges.METRIC_RANGES`) the ratio of means is
     at least 0, so the change is at least -100%: the interval is cut there, which never removes
     the true change (as summary.csv's intervals are cut, :mod:`pfx.analysis.summary`).
     Returns (estimate, low, high); NaN where there are fewer than 2 pairs or :math:`\bar b = 0`.

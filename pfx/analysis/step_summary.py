@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.analysis.metrics import ANY_VALUE, NONNEGATIVE, ValueRange
 from pfx.analysis.summary import MINIMUM_VALUES, cut_to_range
+from pfx.analysis.value_ranges import ANY_VALUE, NONNEGATIVE, ValueRange
 
 QUANTITIES = ("error_distance", "ess", "nees", "nis")
 # quantities of any sign, summarised like the others but after the rms_error_* columns (a

@@ -5,7 +5,7 @@ step. For every metric: ``n``, ``mean``, ``std`` (with n - 1), ``sem``, the 95% 
 mean ``ci95_low``/``ci95_high``, and ``median``.
 
 **The interval** respects the range of values the metric can take, which its column declares
-(:data:`pfx.analysis.metrics.METRIC_RANGES`: RMSE, error distances, NEES, ESS, counts and run
+(:data:`pfx.analysis.value_ranges.METRIC_RANGES`: RMSE, error distances, NEES, ESS, counts and run
 times are nonnegative; ``converged`` is a share):
 
 * a metric of any sign, or one whose t-interval lies inside its range: the **t-interval**
@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pfx.analysis.metrics import ANY_VALUE, ValueRange, metric_range
+from pfx.analysis.value_ranges import ANY_VALUE, ValueRange, metric_range
 
 if TYPE_CHECKING:          # pandas is imported where a table is read
     import pandas as pd

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.analysis.compare import diverged, relative_change_interval
-from pfx.analysis.metrics import metric_range
+from pfx.analysis.value_ranges import metric_range
 from pfx.figures.layout import (
     cell_labels,
     legend_columns_of,

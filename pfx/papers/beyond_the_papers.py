@@ -38,7 +38,7 @@ from scipy import stats
 
 from pfx.analysis.compare import paired_comparison, relative_change_interval
 from pfx.analysis.estimator_spread import variance_ratio_interval, within_dataset_spread
-from pfx.analysis.metrics import metric_range
+from pfx.analysis.value_ranges import metric_range
 from pfx.papers.base import (
     REPORTS,
     Figure,

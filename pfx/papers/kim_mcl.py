@@ -45,7 +45,7 @@ import pandas as pd
 from scipy import stats
 
 from pfx.analysis.compare import paired_comparison, relative_change_interval
-from pfx.analysis.metrics import metric_range
+from pfx.analysis.value_ranges import metric_range
 from pfx.errors import ConfigError
 from pfx.papers.base import (
     REPORTS,

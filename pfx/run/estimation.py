@@ -44,10 +44,10 @@ from pfx.estimation.posterior_forecasts import posterior_forecasts
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
+from pfx.folder_state import FolderState, inspect_folder
 from pfx.result_folder import (
     ESTIMATION_TABLES,
     MANIFEST,
-    FolderState,
     clear_outputs,
     write_bytes,
     write_csv,
@@ -104,8 +104,6 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
                    manifest_of: Callable, write_config: Callable, now: Callable) -> Path:
     """Run (or resume, or extend) every cell's estimation into ``out``; tables and figures
     (module docstring: everything that may be refused is refused before anything is written)."""
-    from pfx.result_folder import inspect_folder
-
     state = inspect_folder(plan, out, fresh)      # refuse a folder of other results, early
     work = _prepare(plan, out, state, {})         # and damaged progress, dropped iterations, bad starts
     with folder_lock(out, remove_if_unused=True):

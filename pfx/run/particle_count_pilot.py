@@ -25,8 +25,9 @@ from pfx.estimation.likelihood_spread import log_likelihood_spread
 from pfx.estimation.particle_count import ParticleChoice, choose_particle_count
 from pfx.estimation.pmmh import Chains
 from pfx.estimation.target import EstimationTarget
+from pfx.folder_state import FolderState
 from pfx.numerics.seeding import restart_seed
-from pfx.result_folder import FolderState, write_csv
+from pfx.result_folder import write_csv
 from pfx.run.estimation_progress import damaged, pilot_file, read_pilot
 
 

@@ -40,15 +40,14 @@ from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.folder_lock import folder_lock
+from pfx.folder_state import FolderState, inspect_folder
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
     CELLS,
     FIGURES_PENDING,
     MANIFEST,
-    FolderState,
     ResultFolder,
     clear_outputs,
-    inspect_folder,
     read_table,
     write_csv,
     write_manifest,
@@ -70,7 +69,7 @@ ROW_TABLES = ("trials", "steps", "particles", "genealogy", "forecasts")
 
 def check_folder(plan: Plan | StudyPlan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
     """Refuse, without touching anything, a result folder this run may not write to
-    (:func:`pfx.result_folder.inspect_folder`); return what it holds. ``locked``: this process
+    (:func:`pfx.folder_state.inspect_folder`); return what it holds. ``locked``: this process
     holds the folder's lock (what it holds is settled)."""
     if not fresh:
         _check_plugin_code(plan, Path(out))
