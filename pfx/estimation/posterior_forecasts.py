@@ -32,6 +32,7 @@ from pfx.filters.particle.forecasting import ForecastRequest, pooled, summaries
 from pfx.numerics.seeding import TrialStreams, posterior_forecast_seed
 
 POOLED = "pooled"
+PLACE_COLUMNS = ("row", "origin", "horizon", "step")      # forecast_table's columns that place a row
 
 
 def posterior_draws(chains: pd.DataFrame, columns: list[str], count: int) -> pd.DataFrame:
@@ -62,14 +63,16 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
         random = TrialStreams.from_seeds([posterior_forecast_seed(root_seed, cell_key, index)])
         try:
             planned = FILTERS[settings.kind].plan(model, settings, prior)
-            planned.run(model, target.measurements[None], random, settings=settings, prior=prior, forecast=request)
+            summarised = planned.run(model, target.measurements[None], random, settings=settings, prior=prior,
+                                     forecast=request).forecasts     # one row per sample, in their order
         except ModelNumericalError:
             continue
-        for sample in request.samples:
+        for position, sample in enumerate(request.samples):
             by_place.setdefault((sample.origin, sample.horizon), []).append(sample)
             frames.append({"draw": str(index), "chain": int(draw["chain"]), "iteration": int(draw["iteration"]),
-                           **{name: float(draw[name]) for name in columns},
-                           **_place(sample), **_first(summaries(model, sample, forecasts.quantiles))})
+                           **{name: float(draw[name]) for name in columns}, **_place(sample),
+                           **{name: float(values[position]) for name, values in summarised.items()
+                              if name not in PLACE_COLUMNS}})
     names = target.cell.filter_model          # the mixture's column names: every draw's model has them
     for samples in by_place.values():
         mixture = pooled(samples)
