@@ -118,6 +118,8 @@ class ParticleMarginalMetropolisHastings:
         chains.history.append(chains.values.copy())
         return accepted
 
+    block_size = 1          # iterations the runner hands over at once (the jax backend's are compiled blocks)
+
     def run(self, chains: Chains, first: int, last: int, report: Callable[[int, np.ndarray], None]) -> Chains:
         """Iterations first..last; ``report(iteration, accepted)`` after each."""
         for iteration in range(first, last + 1):

@@ -14,7 +14,9 @@ each row's :math:`\log \hat p_\theta(z_{1:T})`:
   whose parameters are arrays (R, 1, 1), each row's initial particles drawn from its own model's
   prior;
 * **row by row** otherwise (any filter kind, any model): the same numbers, one filter call per
-  row.
+  row;
+* **compiled**, on the jax backend (which needs the batched case): the parameters are arguments
+  of one compiled program (:mod:`pfx.estimation.compiled_filter`).
 
 Either way row r's numbers depend only on its parameters and its seed.
 """
@@ -74,8 +76,18 @@ class EstimationTarget:
         self.recorded_times = model._recorded_times
         settings = self.cell.filter
         declared = type(model).vectorised_parameters
+        self._compiled = None
         self.batched = (settings.kind in ("particle", "sis") and settings.bootstrap_stages
                         and all(path[len("model."):] in declared for path in self.paths))
+
+    @property
+    def compiled_filter(self):
+        """The filter as a compiled function of the parameters (backend: jax), made once."""
+        if self._compiled is None:
+            from pfx.estimation.compiled_filter import CompiledFilter
+
+            self._compiled = CompiledFilter(self)
+        return self._compiled
 
     @property
     def dimension(self) -> int:
@@ -186,6 +198,8 @@ class EstimationTarget:
     def log_likelihoods(self, values: np.ndarray, seeds: list[int]) -> np.ndarray:
         """log p_hat(z_1:T | theta_r) for each row r of ``values`` (R, p), with filter seed
         ``seeds[r]``; -inf for a row whose parameters the model refuses."""
+        if self.cell.filter.backend == "jax":       # one compiled program (pfx.estimation.compiled_filter)
+            return self.compiled_filter.log_likelihoods(values, seeds)
         models = [self.model_at(row) for row in values]
         result = np.full(len(values), -np.inf)
         valid = [r for r, model in enumerate(models) if model is not None]

@@ -270,15 +270,18 @@ class Noise(BaseModel):
         variance this way (:meth:`pfx.models.base.Model.with_parameter_arrays`); only
         :meth:`sample` and :meth:`log_density` are defined for it (no covariance matrix, so no
         compiled step and no Kalman filter reads it)."""
-        variance = np.asarray(variance, dtype=float)
         if self._scale is None:
             raise ValueError("a noise with a covariance matrix cannot take a variance per row")
-        if np.any(variance <= 0):
-            raise ValueError("@variance: variances must be > 0")
+        xp = namespace(variance)
+        if xp is np:
+            variance = np.asarray(variance, dtype=float)
+            if np.any(variance <= 0):
+                raise ValueError("@variance: variances must be > 0")
+        # (JAX arrays are traced values inside a compiled estimation, checked on the host before)
         copy = self.model_copy()
-        scale = np.sqrt(variance) * np.ones(self.dimension)
+        scale = xp.sqrt(variance) * xp.ones(self.dimension)
         copy.__pydantic_private__ = {**self.__pydantic_private__, "_scale": scale,
-                                     "_log_det_factor": np.sum(np.log(scale), axis=-1),
+                                     "_log_det_factor": xp.sum(xp.log(scale), axis=-1),
                                      "_covariance": None, "_factor": None, "_row_scale": True,
                                      "_zero": False, "_definite": True}
         return copy

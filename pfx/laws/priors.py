@@ -21,6 +21,8 @@ takes the one its prior's support asks for.
 
 The laws are scipy.stats distributions (log-densities and quantiles); draws come from an
 explicit :class:`numpy.random.Generator` (a chain's own stream), never a global one.
+:meth:`Transform.to_natural` also takes JAX arrays: IF2 on the jax backend maps every
+particle's parameters to the natural scale inside its compiled pass (:mod:`pfx.estimation.compiled`).
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, model_validator
 from scipy import stats
 from scipy.special import expit, logit
+
+from pfx.numerics.arrays import is_jax_array, namespace, special_functions
 
 
 class _Prior(BaseModel):
@@ -187,7 +191,7 @@ class Transform:
         return np.asarray(value, dtype=float)
 
     def to_natural(self, value):
-        return np.asarray(value, dtype=float)
+        return value if is_jax_array(value) else np.asarray(value, dtype=float)
 
     def log_jacobian(self, value):
         """log |d theta / d u| at u = ``value``."""
@@ -202,7 +206,7 @@ class LogTransform(Transform):
             return np.log(np.asarray(value, dtype=float) - self.lower)
 
     def to_natural(self, value):
-        return self.lower + np.exp(value)
+        return self.lower + namespace(value).exp(value)
 
     def log_jacobian(self, value):
         return np.asarray(value, dtype=float)
@@ -216,7 +220,7 @@ class LogitTransform(Transform):
             return logit((np.asarray(value, dtype=float) - self.lower) / (self.upper - self.lower))
 
     def to_natural(self, value):
-        return self.lower + (self.upper - self.lower) * expit(value)
+        return self.lower + (self.upper - self.lower) * special_functions(namespace(value)).expit(value)
 
     def log_jacobian(self, value):
         share = expit(np.asarray(value, dtype=float))

@@ -37,6 +37,7 @@ from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
+from pfx.estimation.compiled_pmmh import CompiledChains
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
@@ -285,8 +286,10 @@ def _resumed_if2(plan: Plan, target: EstimationTarget, out: Path) -> CellWork | 
     return CellWork(target.cell, target, rows, swarm, first, started=False, note=note)
 
 
-def _sampler(plan: Plan, target: EstimationTarget) -> ParticleMarginalMetropolisHastings:
-    return ParticleMarginalMetropolisHastings(target, plan.experiment.seed, target.cell.stream_key)
+def _sampler(plan: Plan, target: EstimationTarget) -> ParticleMarginalMetropolisHastings | CompiledChains:
+    """The cell's PMMH: iteration by iteration on numpy, compiled blocks of iterations on jax."""
+    sampler = ParticleMarginalMetropolisHastings(target, plan.experiment.seed, target.cell.stream_key)
+    return CompiledChains(sampler) if target.cell.filter.backend == "jax" else sampler
 
 
 def _iterated_filtering(plan: Plan, target: EstimationTarget) -> IteratedFiltering:
@@ -301,19 +304,28 @@ def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], Non
     estimation, target, chains = plan.experiment.estimation, item.target, item.state
     sampler = _sampler(plan, target)
     frames, unsaved, saved = [item.rows], item.started, time.perf_counter()
+
+    def record(iteration: int, accepted: np.ndarray) -> None:
+        nonlocal frames, unsaved, saved
+        frames.append(_chain_rows(chains, iteration, accepted, target))
+        unsaved = True
+        if time.perf_counter() - saved > CHECKPOINT_SECONDS:
+            frames = [pd.concat(frames, ignore_index=True)]
+            write_csv(frames[0], progress_file(out, item.cell))
+            unsaved, saved = False, time.perf_counter()
+        raise_if_requested()           # a stop whose exception a finaliser swallowed
+
     try:
-        for iteration in range(item.first, estimation.iterations + 1):
+        iteration = item.first
+        while iteration <= estimation.iterations:
             if iteration == estimation.warm_up + 1 and after_warm_up_applies(plan, item):
                 item.target = measure_after_warm_up(plan, item, chains, out, report)
                 sampler = _sampler(plan, item.target)
-            accepted = sampler.iterate(chains, iteration)
-            frames.append(_chain_rows(chains, iteration, accepted, target))
-            unsaved = True
-            if time.perf_counter() - saved > CHECKPOINT_SECONDS:
-                frames = [pd.concat(frames, ignore_index=True)]
-                write_csv(frames[0], progress_file(out, item.cell))
-                unsaved, saved = False, time.perf_counter()
-            raise_if_requested()           # a stop whose exception a finaliser swallowed
+            # a block ends at the warm-up's end too (where `particles: auto` may measure again)
+            last = min(iteration + sampler.block_size - 1, estimation.iterations,
+                       estimation.warm_up if iteration <= estimation.warm_up else estimation.iterations)
+            sampler.run(chains, iteration, last, record)
+            iteration = last + 1
     finally:
         if unsaved:
             frames = [pd.concat(frames, ignore_index=True)]
