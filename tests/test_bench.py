@@ -220,18 +220,20 @@ def _pmmh_rows(lines):
 
 
 def test_quick_bench_prints_the_pmmh_table(quick_output):
-    """Both problems at the quick size: pfx with 1 chain and with 16 chains (and particles where
-    installed); per chain-iteration is per iteration over the chains; where a pfx iteration goes
+    """Both problems at the quick size: pfx with 1 chain and with 16 chains, on numpy and on jax
+    (and particles where installed), with jax's speed-up over numpy; per chain-iteration is per iteration over the chains; where a pfx iteration goes
     adds up to the iteration (the rest is what the clocked stages leave, never negative)."""
-    from pfx.bench.pmmh import CHAINS, PROBLEMS, QUICK_SIZES, STAGES
+    from pfx.bench.pmmh import CHAINS, PROBLEMS, QUICK_SIZES, STAGES, jax_installed
+    from pfx.bench.pmmh import implementations as bench_rows
 
     title, rows, notes = _pmmh_rows(quick_output.splitlines())
     assert "best of 1 rounds" in title and "load average" in title
     labels = [f"{make().label}, N={particles}" for make in PROBLEMS.values() for particles in QUICK_SIZES]
     assert list(rows) == labels
+    pfx_rows = bench_rows(with_particles=False)
     for label in labels:
         implementations = rows[label]
-        for name, chains in (("pfx, 1 chain", 1), (f"pfx, {CHAINS} chains", CHAINS)):
+        for name, chains in pfx_rows:
             milliseconds, per_chain, ratio, filters, accepted, rounds = implementations[name]
             assert float(milliseconds) > 0 and int(rounds) == 1, (label, name)
             assert abs(float(per_chain) * chains - float(milliseconds)) <= 0.0005 * chains + 0.005, (label, name)
@@ -243,7 +245,11 @@ def test_quick_bench_prints_the_pmmh_table(quick_output):
         else:
             assert any(note.startswith("particles: not installed") for note in notes)
     stage_lines = [note for note in notes if note.startswith("where a pfx iteration goes")]
-    assert len(stage_lines) == 2 * len(labels)
+    assert len(stage_lines) == len(pfx_rows) * len(labels)
+    speed_lines = [note for note in notes if note.startswith("jax over numpy, chain-iterations per second")]
+    assert len(speed_lines) == (len(labels) if jax_installed() else 0)
+    for note in speed_lines:        # the ratio of the rows' own numbers
+        assert "1 chain " in note and f"{CHAINS} chains " in note, note
     for note in stage_lines:
         parts = dict(part.rsplit(" ", 1) for part in note.split("(ms): ")[1].split(", "))
         assert list(parts) == list(STAGES) and all(float(value) >= 0 for value in parts.values()), note

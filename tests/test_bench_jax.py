@@ -96,7 +96,7 @@ def numpy_for_jax(monkeypatch):
 
 def test_harness_prints_every_row_on_a_tiny_case(numpy_for_jax):
     printed = []
-    rows = run_jax_bench(cases=[(50, 3)], repeats=1, bandwidth=1e11, echo=printed.append)
+    rows = run_jax_bench(cases=[(50, 3)], repeats=1, bandwidth=1e11, pmmh=False, echo=printed.append)
     lines = "\n".join(printed).splitlines()
     assert lines[0].startswith("pfx bench --backend jax: falling body")
     assert lines[1].startswith("machine: ") and "jax " in lines[1] and "cores" in lines[1]
@@ -161,3 +161,21 @@ def test_command_line_refuses_an_unknown_backend_and_a_missing_jax(pfx_in_proces
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.strip().splitlines() == [f"pfx: error: {jax_bench.MISSING_JAX}"]
     assert "pip install 'pfx[jax]'" in result.stderr
+
+
+def test_the_pmmh_goal_line_divides_the_rows_own_rates():
+    """pfx jax with 16 chains over pfx numpy with 1 chain, in chain-iterations per second, and
+    whether it reaches the 20 x goal; a case without both rows says it was not measured."""
+    from pfx.bench.pmmh import CHAINS, PROBLEMS, PmmhTiming
+    from pfx.bench.report import format_pmmh_goal
+
+    problem = PROBLEMS["sv"]()
+
+    def row(name, chains, seconds):
+        return PmmhTiming(problem, 1000, name, chains, seconds=seconds, rounds=2, chain_iterations=100)
+
+    line = format_pmmh_goal([row("pfx, 1 chain", 1, 0.012), row(f"pfx jax, {CHAINS} chains", CHAINS, 0.008)], "gpu")
+    assert "2000 chain-iterations/s = 24.0 x" in line and "(83/s)" in line and ": met (gpu)" in line
+    slow = format_pmmh_goal([row("pfx, 1 chain", 1, 0.012), row(f"pfx jax, {CHAINS} chains", CHAINS, 0.096)], "cpu")
+    assert "= 2.0 x" in slow and "not met" in slow
+    assert "not measured" in format_pmmh_goal([row("pfx, 1 chain", 1, 0.012)], "cpu")

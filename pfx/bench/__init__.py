@@ -132,11 +132,13 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
 
 def run_jax_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, bandwidth: Optional[float] = None,
                   cases: Optional[list[tuple[int, int]]] = None,
-                  implementations: Optional[list] = None, echo: Callable[[str], None] = print,
+                  implementations: Optional[list] = None, pmmh: bool = True, echo: Callable[[str], None] = print,
                   progress: Callable[[str], None] = lambda message: None) -> list:
     """``pfx bench --backend jax`` (:mod:`pfx.bench.jax_bench`): the cases (``cases``, (N, trials)
     pairs, else its CASES or QUICK_CASES) and the implementations (default: all five rows), the
-    machine line, the table and the goals printed; returns the rows."""
+    machine line, the table and the goals printed; then (``pmmh``) PMMH on the stochastic-volatility
+    model, N = 1000, numpy against jax, with the chain-iterations goal; returns the rows."""
+    from pfx.bench import report
     from pfx.bench.jax_bench import CASES, IMPLEMENTATIONS, QUICK_CASES, time_jax_case
     from pfx.bench.jax_device import jax_device, machine_line
     from pfx.bench.jax_report import format_jax_goals, format_jax_table
@@ -160,4 +162,14 @@ def run_jax_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0
     echo(format_jax_goals(rows, device))
     echo(f"Wall times, best of up to {repeats} runs after an untimed first call (JAX rows), interleaved; on a "
          "machine shared with other work they vary from run to run.")
+    if pmmh:
+        from pfx.bench import pmmh as pmmh_case
+
+        if pmmh_case.examples_found():       # PMMH's chains compiled on the device, against numpy on one core
+            echo("")
+            progress("pmmh: the stochastic-volatility problem, numpy and jax")
+            timings = pmmh_case.time_pmmh(quick=quick, repeats=repeats, peers=False, progress=progress,
+                                          problems=("sv",), sizes=pmmh_case.QUICK_SIZES if quick else (1_000,))
+            echo(report.format_pmmh(timings))
+            echo(report.format_pmmh_goal(timings, machine_line(device)))
     return rows

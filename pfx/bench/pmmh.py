@@ -30,8 +30,10 @@ resampling when the ESS falls below N/2 (``particles``' default inside its PMMH)
 
 Implementations, in this one process, interleaved (the order rotates from round to round), best
 of several rounds: pfx's sampler with 1 chain, and with 16 chains advancing as one batch of the
-engine (:mod:`pfx.estimation.target`), both with a fixed random walk (``adapt: false``); and
-``particles``' ``mcmc.PMMH`` (one chain; ``adaptive=False``). Each first runs 10 iterations
+engine (:mod:`pfx.estimation.target`), both with a fixed random walk (``adapt: false``), on the
+numpy backend and (where JAX is installed) on the jax backend, whose blocks of iterations are
+one compiled program (:mod:`pfx.estimation.compiled_pmmh`; an untimed round compiles them
+first); and ``particles``' ``mcmc.PMMH`` (one chain; ``adaptive=False``). Each first runs 10 iterations
 that are not timed (first use of compiled code, caches); then each round times a block of 50
 iterations (short blocks, many rounds: on a shared machine the best round is the one least
 disturbed; ``--quick``: 1 and 3). pfx walks on its transformed scale (logit for :math:`\phi` and the Nile variances,
@@ -138,13 +140,14 @@ def examples_found() -> bool:
     return (EXAMPLES / "data" / "nile.csv").is_file() and (EXAMPLES / "plugins" / "stochastic_volatility.py").is_file()
 
 
-def build_target(problem: PmmhProblem, particles: int, chains: int, iterations: int, filter_kind: str = "particle"):
+def build_target(problem: PmmhProblem, particles: int, chains: int, iterations: int, filter_kind: str = "particle",
+                 backend: str = "numpy"):
     """pfx's estimation target for the problem's one cell (its dataset, its filter, the priors)."""
     from pfx.config.plan import build_plan
     from pfx.estimation.target import EstimationTarget, dataset
 
     raw = copy.deepcopy(problem.config)
-    raw["filter"].update(particles=particles)
+    raw["filter"].update(particles=particles, backend=backend)
     if filter_kind != "particle":
         raw["filter"] = {"kind": filter_kind}
     raw["estimation"].update(chains=chains, iterations=iterations)
@@ -239,33 +242,45 @@ class PmmhTiming:
 
 
 class PfxRunner:
-    """pfx's PMMH sampler on the problem (C chains as rows of one batch)."""
+    """pfx's PMMH sampler on the problem (C chains as rows of one batch), on either backend: on
+    jax, blocks of iterations compiled (:mod:`pfx.estimation.compiled_pmmh`), every chain's filter
+    computed at every iteration (a proposal the prior refuses is masked, not skipped)."""
 
-    def __init__(self, problem: PmmhProblem, particles: int, chains: int, total: int):
+    def __init__(self, problem: PmmhProblem, particles: int, chains: int, total: int, backend: str = "numpy"):
+        from pfx.estimation.compiled_pmmh import CompiledChains
         from pfx.estimation.pmmh import ParticleMarginalMetropolisHastings
 
-        self.target, cell = build_target(problem, particles, chains, total)
-        self.sampler = ParticleMarginalMetropolisHastings(self.target, problem.seed, cell.stream_key)
+        self.backend = backend
+        self.target, cell = build_target(problem, particles, chains, total, backend=backend)
+        sampler = ParticleMarginalMetropolisHastings(self.target, problem.seed, cell.stream_key)
+        self.sampler = CompiledChains(sampler) if backend == "jax" else sampler
         self.clock = StageClock()
         self.clock.attach(self.target)
         self.chains = self.sampler.start()
         self.start_log_likelihoods = self.chains.log_likelihood.copy()
-        self.iteration = 0
+        self.iteration, self.compiled_filters = 0, 0
 
     @property
     def filters(self) -> int:
-        return self.clock.filters
+        return self.compiled_filters if self.backend == "jax" else self.clock.filters
 
     def snapshot(self) -> Optional[dict]:
-        return self.clock.snapshot()
+        return {**self.clock.snapshot(), "backend": self.backend}
 
     def advance(self, count: int) -> int:
         """``count`` more iterations of every chain; returns the accepted moves."""
-        accepted = 0
-        for _ in range(count):
-            self.iteration += 1
-            accepted += int(self.sampler.iterate(self.chains, self.iteration).sum())
-        return accepted
+        accepted = []
+        self.sampler.run(self.chains, self.iteration + 1, self.iteration + count,
+                         lambda iteration, moved: accepted.append(int(moved.sum())))
+        self.iteration += count
+        self.compiled_filters += count * len(self.chains.values)
+        return sum(accepted)
+
+
+def jax_installed() -> bool:
+    from importlib.util import find_spec
+
+    return find_spec("jax") is not None
 
 
 def _peer_problem(problem: PmmhProblem, target) -> dict:
@@ -362,7 +377,8 @@ def exact_start_log_likelihood(problem: PmmhProblem) -> Optional[float]:
 
 
 def time_pmmh(*, quick: bool = False, repeats: int = 3, peers: bool = True,
-              progress: Callable[[str], None] = lambda message: None) -> list[PmmhTiming]:
+              progress: Callable[[str], None] = lambda message: None, problems: Optional[tuple[str, ...]] = None,
+              sizes: Optional[tuple[int, ...]] = None) -> list[PmmhTiming]:
     """Best seconds per iteration of each implementation on each problem and N (module docstring)."""
     import warnings
 
@@ -373,22 +389,26 @@ def time_pmmh(*, quick: bool = False, repeats: int = 3, peers: bool = True,
     with_particles = peers and peer_version("particles") is not None
     timings = []
     for name, make in PROBLEMS.items():
+        if problems is not None and name not in problems:
+            continue
         problem = make()
-        for particles in (QUICK_SIZES if quick else SIZES):
+        for particles in sizes or (QUICK_SIZES if quick else SIZES):
             rows, runners = {}, {}
-            for implementation, chains in (("pfx, 1 chain", 1), (f"pfx, {CHAINS} chains", CHAINS)) + (
-                    (("particles, 1 chain", 1),) if with_particles else ()):
+            for implementation, chains in implementations(with_particles):
                 row = rows[implementation] = PmmhTiming(problem, particles, implementation, chains)
                 progress(f"pmmh, {row.label}: {implementation} (start, {warm_up} untimed iterations)")
                 try:
                     with np.errstate(all="ignore"), warnings.catch_warnings():
                         warnings.simplefilter("ignore")
                         if implementation.startswith("pfx"):
-                            runner = PfxRunner(problem, particles, chains, total)
+                            backend = "jax" if implementation.startswith("pfx jax") else "numpy"
+                            runner = PfxRunner(problem, particles, chains, total + iterations, backend)
                         else:
                             target = runners["pfx, 1 chain"].target
                             runner = ParticlesRunner(problem, particles, total, target, problem.seed)
                         runner.advance(warm_up)
+                        if implementation.startswith("pfx jax"):
+                            runner.advance(iterations)      # compiles the timed rounds' blocks, untimed
                 except Exception as error:         # a peer that breaks is reported, not fatal
                     row.error = f"{type(error).__name__}: {error}".splitlines()[0][:80]
                     if implementation.startswith("pfx"):
@@ -419,9 +439,24 @@ def time_pmmh(*, quick: bool = False, repeats: int = 3, peers: bool = True,
     return timings
 
 
+def implementations(with_particles: bool) -> tuple[tuple[str, int], ...]:
+    """The rows of each case: pfx on numpy and (where JAX is installed) on jax, 1 and
+    :data:`CHAINS` chains; particles' one chain."""
+    backends = ("pfx", "pfx jax") if jax_installed() else ("pfx",)
+    rows = tuple((f"{name}, {label}", chains) for name in backends
+                 for label, chains in (("1 chain", 1), (f"{CHAINS} chains", CHAINS)))
+    return rows + ((("particles, 1 chain", 1),) if with_particles else ())
+
+
 def _stages(before: dict, after: dict, seconds: float, iterations: int) -> dict:
-    """Seconds per iteration of each stage (:data:`STAGES`) from two clock snapshots."""
-    spent = {name: (after[name] - before[name]) / iterations for name in before if name != "filters"}
+    """Seconds per iteration of each stage (:data:`STAGES`) from two clock snapshots. On jax the
+    host's stages are those of the callback, and "filter" is the compiled rest (the filter, the
+    proposals and the accept step, one program): "rest" is 0."""
+    spent = {name: (after[name] - before[name]) / iterations for name in before if name not in ("filters", "backend")}
+    if before.get("backend") == "jax":
+        host = spent["model_at"] + spent["prior_of"] + spent["log_prior"]
+        return {"filter": max(seconds - host, 0.0), "model validation": spent["model_at"],
+                "initial laws": spent["prior_of"], "prior density": spent["log_prior"], "rest": 0.0}
     return {"filter": spent["log_likelihoods"] - spent["model_at"] - spent["prior_of"],
             "model validation": spent["model_at"], "initial laws": spent["prior_of"],
             "prior density": spent["log_prior"],

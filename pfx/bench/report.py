@@ -238,6 +238,14 @@ def format_pmmh(timings: list, exact: Optional[dict] = None, load: Optional[tupl
                          f"{row.filters_per_chain_iteration:>12.2f} {row.acceptance:>8.2f} {row.rounds:>6}")
         if peer is None:
             lines.append(f"{'':<{PMMH_CASE_WIDTH}} particles: not installed or not run (--no-peers)")
+        by_name = {row.implementation: row for row in rows if row.rounds and not row.error}
+        speeds = [f"{label} {by_name['pfx, ' + label].per_chain_iteration / by_name['pfx jax, ' + label].per_chain_iteration:.2f}x"
+                  for label in ("1 chain", f"{CHAINS} chains")
+                  if f"pfx, {label}" in by_name and f"pfx jax, {label}" in by_name]
+        if speeds:
+            per_second = ", ".join(f"{row.implementation} {1.0 / row.per_chain_iteration:.0f}"
+                                   for row in by_name.values() if row.implementation.startswith("pfx"))
+            lines.append(f"  jax over numpy, chain-iterations per second: {', '.join(speeds)} ({per_second})")
         estimates = [(row.implementation.split(",")[0], row.start_log_likelihoods) for row in rows
                      if row.start_log_likelihoods is not None and len(row.start_log_likelihoods) == START_RUNS]
         if estimates:
@@ -253,3 +261,28 @@ def format_pmmh(timings: list, exact: Optional[dict] = None, load: Optional[tupl
     lines.append(f"(particles' PMMH runs one chain per sampler: {CHAINS} of its chains cost {CHAINS} times one chain's "
                  "time; particles/pfx divides its ms per chain-iteration by the row's)")
     return "\n".join(lines)
+
+
+PMMH_GOAL = 20.0        # issue: 16 chains x N = 1000 on a GPU, 20 x numpy's chain-iterations per second on one core
+
+
+def format_pmmh_goal(timings: list, machine: str) -> str:
+    """The compiled chains' goal: pfx jax with 16 chains over pfx numpy with 1 chain (one core),
+    in chain-iterations per second, for each case the table holds."""
+    from pfx.bench.pmmh import CHAINS
+
+    lines = []
+    groups: dict[str, dict] = {}
+    for row in timings:
+        if row.rounds and not row.error:
+            groups.setdefault(row.label, {})[row.implementation] = row
+    for label, rows in groups.items():
+        numpy_row, jax_row = rows.get("pfx, 1 chain"), rows.get(f"pfx jax, {CHAINS} chains")
+        if numpy_row is None or jax_row is None:
+            continue
+        ratio = numpy_row.per_chain_iteration / jax_row.per_chain_iteration
+        lines.append(f"goal, PMMH {label}: pfx jax with {CHAINS} chains {1 / jax_row.per_chain_iteration:.0f} "
+                     f"chain-iterations/s = {ratio:.1f} x pfx numpy with 1 chain on one core "
+                     f"({1 / numpy_row.per_chain_iteration:.0f}/s); goal {PMMH_GOAL:.0f} x on a GPU: "
+                     f"{'met' if ratio >= PMMH_GOAL else 'not met'} ({machine})")
+    return "\n".join(lines) if lines else "goal, PMMH: not measured (a row failed or JAX is missing)"

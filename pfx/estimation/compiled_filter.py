@@ -34,7 +34,6 @@ import numpy as np
 
 from pfx.errors import ModelNumericalError
 from pfx.filters.particle.bound import bind_particle_filter
-from pfx.laws.initial import GaussianLaw, PointLaw
 
 
 class RowGaussians:
@@ -74,8 +73,6 @@ def initial_law_follows_parameters(model, settings) -> bool:
 
 class CompiledFilter:
     """One estimation target's filter as a compiled function of the parameters (module docstring)."""
-
-    NO_DIAGNOSTICS = None
 
     def __init__(self, target):
         from pfx.filters.particle.jax_engine import _Flags

@@ -29,6 +29,8 @@ log of the mean likelihood, and its standard error by the delta method.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from pfx.errors import ConfigError
@@ -178,6 +180,16 @@ class IteratedFiltering:
             parameters = parameters.copy()
             parameters[uneven] = np.take_along_axis(parameters[uneven], indices[..., None], axis=1)
         return parameters, trace.log_likelihood
+
+    block_size = 1          # passes the runner hands over at once (the jax backend's are compiled blocks)
+
+    def run(self, swarm: np.ndarray, first: int, last: int,
+            report: Callable[[int, np.ndarray, np.ndarray], None]) -> np.ndarray:
+        """Passes first..last; ``report(iteration, swarm, log_likelihood)`` after each."""
+        for iteration in range(first, last + 1):
+            swarm, log_likelihood = self.iterate(swarm, iteration)
+            report(iteration, swarm, log_likelihood)
+        return swarm
 
     def evaluate(self, estimates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         r"""log-likelihood at each replicate's estimate (R, p) by ``evaluations`` runs of the

@@ -40,6 +40,7 @@ from pfx.laws.priors import make_transform
 from pfx.models import MODELS
 from pfx.models.base import bind_law
 from pfx.models.simulation import simulate_truth
+from pfx.numerics.arrays import namespace
 from pfx.numerics.seeding import TrialStreams, chain_seeds, truth_seed
 
 
@@ -109,7 +110,8 @@ class EstimationTarget:
         return np.stack([t.to_unconstrained(values[..., j]) for j, t in enumerate(self.transforms)], axis=-1)
 
     def to_natural(self, values: np.ndarray) -> np.ndarray:
-        return np.stack([t.to_natural(values[..., j]) for j, t in enumerate(self.transforms)], axis=-1)
+        """theta = g^-1(u), NumPy or JAX (IF2's compiled pass maps its particles' parameters)."""
+        return namespace(values).stack([t.to_natural(values[..., j]) for j, t in enumerate(self.transforms)], axis=-1)
 
     def log_jacobian(self, unconstrained: np.ndarray) -> np.ndarray:
         """log |d theta / d u| summed over the parameters: (R,) from (R, p)."""

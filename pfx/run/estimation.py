@@ -3,7 +3,8 @@
 Every cell runs the method (:mod:`pfx.estimation.pmmh`, :mod:`pfx.estimation.if2`) on its
 dataset. Progress is kept as it goes, in ``estimation/<cell>.csv`` (every chain's rows, or
 every IF2 iteration's estimates, with ``estimation/<cell>.swarm.npy``, IF2's particle swarm;
-:mod:`pfx.run.estimation_progress`): an interrupted run resumes from them, and a finished one
+:mod:`pfx.run.estimation_progress`; on the jax backend the iterations run in compiled blocks,
+:mod:`pfx.estimation.compiled_pmmh` and :mod:`pfx.estimation.compiled_if2`): an interrupted run resumes from them, and a finished one
 asked for more ``iterations`` extends its chains (each iteration's random numbers depend only on
 its chain and its index, so either way the numbers are those of one uninterrupted run). Then the
 tables: chains.csv, posterior.csv, priors.csv, and likelihood_spread.csv where a flagged cell's
@@ -37,6 +38,7 @@ from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
+from pfx.estimation.compiled_if2 import CompiledSwarm
 from pfx.estimation.compiled_pmmh import CompiledChains
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
@@ -346,15 +348,20 @@ def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, target: Es
 def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None]) -> pd.DataFrame:
     """The cell's remaining passes, each saved as it ends: the table, then the swarm (a run
     stopped between the two leaves the table a pass ahead, which the next run computes again)."""
-    estimation, target, swarm, rows = plan.experiment.estimation, item.target, item.state, item.rows
+    estimation, target, rows = plan.experiment.estimation, item.target, item.rows
     method = _iterated_filtering(plan, target)
-    for iteration in range(item.first, estimation.iterations + 1):
-        swarm, log_likelihood = method.iterate(swarm, iteration)
+
+    def record(iteration: int, swarm: np.ndarray, log_likelihood: np.ndarray) -> None:
+        nonlocal rows
         rows = pd.concat([rows, _if2_rows(method.estimates(swarm), iteration, log_likelihood, target)],
                          ignore_index=True)
         write_csv(rows, progress_file(out, item.cell))
         save_swarm(swarm, swarm_file(out, item.cell))
         raise_if_requested()
+
+    # pass by pass on numpy; compiled blocks of passes on jax
+    runner = CompiledSwarm(method) if target.cell.filter.backend == "jax" else method
+    runner.run(item.state, item.first, estimation.iterations, record)
     return rows
 
 

@@ -279,12 +279,13 @@ class JaxParticleFilter:
                         ancestors=ancestors)
         return carried, outputs
 
-    def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams):
+    def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, model=None):
         r"""x_k ~ p(x_k | x_{k-1}, u_k): the accumulators reset, then the model's substeps
         (:meth:`pfx.models.base.Model.sample_substep`, by default propagate with fresh process
         noise), scanned when there are several, each substep's draws from keys of its own. A
-        particle that left the model's domain (NaN or inf) is parked at 0 with weight zero."""
-        model, state = self.model, cloud.particles
+        particle that left the model's domain (NaN or inf) is parked at 0 with weight zero.
+        ``model``: the filter's model unless given (IF2 gives the one at each particle's parameters)."""
+        model, state = self.model if model is None else model, cloud.particles
         control = None if inputs.control is None else inputs.control.astype(self.dtype)
         substeps = inputs.times.shape[0]
         if _overrides(model, "sample_transition"):          # a transition that is not a sequence of substeps
