@@ -52,6 +52,8 @@ class ChainState(NamedTuple):
 class CompiledChains:
     """The chains of one PMMH cell on the jax backend (module docstring)."""
 
+    block_size = BLOCK        # iterations the runner hands over at once
+
     def __init__(self, sampler: ParticleMarginalMetropolisHastings):
         self.sampler, self.target = sampler, sampler.target
         self.filter = self.target.compiled_filter
@@ -61,8 +63,6 @@ class CompiledChains:
         self._programs: dict[int, object] = {}
 
     # -- on the host --------------------------------------------------------------------------------
-
-    block_size = BLOCK
 
     def start(self) -> Chains:
         """Iteration 0, as on numpy (its filters run by the compiled filter)."""
