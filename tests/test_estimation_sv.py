@@ -9,7 +9,10 @@ N-choice theory it compares with, and its report on small synthetic result folde
 * the report's verdicts follow the numbers: posterior means within 3 combined Monte Carlo errors
   of particles' agree (and a shifted one does not), the published posterior and the other data
   are "not comparable", and the N-choice verdict is reproduced when the cheapest N has sd of
-  log L_hat in [0.92, 1.68] and not when it lies outside; the figure draws the curve.
+  log L_hat in [0.92, 1.68] and not when it lies outside; the figure draws the curve;
+* the repository leaves n-choice's chains out: the table `pfx reproduce` keeps of them gives the
+  same section, to the digit, as the chains, and a folder with neither says its results are
+  missing instead of dropping the verdict.
 """
 
 from __future__ import annotations
@@ -32,7 +35,15 @@ from pfx.analysis.autocorrelation import (
 )
 from pfx.figures.pmmh_efficiency import inefficiency_vs_particles
 from pfx.papers.base import REPORTS, VERDICTS, PaperResults
-from pfx.papers.estimation_sv import inefficiency_perfect, noise_acceptance, relative_inefficiency_slow, work
+from pfx.papers.estimation_sv import (
+    REPRODUCE,
+    WORK_TABLE,
+    inefficiency_perfect,
+    noise_acceptance,
+    relative_inefficiency_slow,
+    work,
+)
+from pfx.papers.reproduce import write_kept_tables
 from pfx.result_folder import ResultFolder
 
 PAPER = REPO_ROOT / "configs" / "benchmarks" / "estimation-sv" / "paper.yaml"
@@ -245,3 +256,39 @@ def test_the_figure_draws_the_work_per_effective_draw_against_n(tmp_path):
     assert figure is not None
     plt.close(figure)
     assert inefficiency_vs_particles(ResultFolder(results.path / "posterior")) is None     # no sweep over N
+
+
+# -- the numbers kept where the chains are not ------------------------------------------------------
+
+def n_choice_verdict(section):
+    claim = yaml.safe_load(PAPER.read_text())["claims"]["n_choice"]
+    return next(verdict for verdict in section.verdicts if verdict.claim == claim)
+
+
+def test_the_kept_table_gives_the_same_n_choice_section_as_the_chains(tmp_path):
+    results = benchmark(tmp_path)
+    folder = results.path / "n-choice"
+    from_chains = REPORTS["estimation-sv"](results)
+    for experiment in ("posterior", "exact-posterior", "spread", "n-choice"):
+        write_kept_tables("estimation-sv", experiment, results.path / experiment)
+    # only n-choice's draws are left out of the repository, so only its folder gets a table
+    assert [path.parent.name for path in results.path.rglob(WORK_TABLE)] == ["n-choice"]
+    (folder / "chains.csv").unlink()
+    from_table = REPORTS["estimation-sv"](results)
+    verdict = n_choice_verdict(from_table)
+    assert verdict.verdict == "reproduced" and "resamples of the chains" in verdict.evidence
+    # every verdict, table and text the same, to the last character
+    assert from_table.verdicts == from_chains.verdicts
+    assert from_table.items == from_chains.items
+
+
+def test_a_n_choice_folder_with_neither_chains_nor_kept_table_says_its_results_are_missing(tmp_path):
+    results = benchmark(tmp_path)
+    (results.path / "n-choice" / "chains.csv").unlink()
+    section = REPORTS["estimation-sv"](results)
+    verdict = n_choice_verdict(section)
+    assert verdict.verdict == "not reproduced"
+    assert verdict.evidence.startswith("missing:") and WORK_TABLE in verdict.evidence and REPRODUCE in verdict.evidence
+    assert not any(getattr(item, "title", "").startswith("The N-choice curve") for item in section.items)
+    # the other claims are untouched
+    assert verdicts_of(results)["posterior"] == "reproduced"

@@ -18,6 +18,12 @@ that a partial ``pfx reproduce`` still gives a gallery::
         items, verdicts = assemble(results, PARTS)
         return Section(PAPER, TITLE, summary, items, verdicts)
 
+A report that computes its numbers from a file the repository leaves out (``.gitignore``: a
+run's draws too large to commit) registers in :data:`KEPT_TABLES` what to keep of them instead:
+``pfx reproduce`` writes those small tables into the folder, and the report reads them back
+where the large file is absent, or says the results are missing -- never a verdict silently
+dropped.
+
 A part may itself be an assembly of parts (``prob_robotics_motion.motion_sections``). Turning
 sections into Markdown is :mod:`pfx.papers.gallery`'s job: this module imports neither it nor
 the reports, so the reports depend on this module only.
@@ -166,6 +172,14 @@ class PaperResults:
 # Paper short name -> its report. Importing pfx.papers registers all five; the gallery's order
 # is pfx.papers.GALLERY_ORDER, not the order of registration.
 REPORTS: Registry[Callable[[PaperResults], Section]] = Registry("paper report")
+
+# Paper short name -> what its report keeps of files the repository leaves out (.gitignore): a
+# function (experiment name, freshly computed result folder) that writes into the folder the small
+# tables the report would otherwise compute from those files, or nothing for an experiment that
+# needs none. `pfx reproduce` calls it before the folder is compared with the committed one
+# (pfx.papers.record), so the tables are committed, compared and kept like any other, and the
+# report gives the same verdict from a checkout that lacks the large files.
+KEPT_TABLES: Registry[Callable[[str, Path], None]] = Registry("kept tables")
 
 
 # -- numbers as the gallery writes them --------------------------------------------------------

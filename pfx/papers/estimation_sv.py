@@ -41,11 +41,17 @@ on the 201 daily returns of sv-gbp-usd, with Chopin & Papaspiliopoulos' priors
   report scales each to the measured points (one factor, by least squares on the log scale).
   Verdict: reproduced when the N with the smallest :math:`\tau \times N` has
   :math:`\sigma` in [0.92, 1.68] by both estimators, partly when by one.
+
+  The repository leaves n-choice's draws out (chains.csv, 83 MB; ``.gitignore``) and keeps
+  what the report computes from them, :data:`WORK_TABLE` (:func:`work_per_draw_table`, written
+  by ``pfx reproduce`` through :data:`~pfx.papers.base.KEPT_TABLES`): the report reads it where
+  chains.csv is absent, to the same verdict, and says the results are missing where both are.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -54,6 +60,7 @@ from scipy import stats
 from pfx.analysis.autocorrelation import mean_over_parameters
 from pfx.figures.pmmh_efficiency import particle_count_table
 from pfx.papers.base import (
+    KEPT_TABLES,
     REPORTS,
     Figure,
     PaperResults,
@@ -68,11 +75,14 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.result_folder import ResultFolder, read_table, write_csv
 
 BENCHMARK = "estimation-sv"
 POSTERIOR, EXACT, SPREAD, N_CHOICE = "posterior", "exact-posterior", "spread", "n-choice"
 Z_LIMIT = 3.0                      # combined Monte Carlo errors within which two posterior means agree
 REFERENCE_NAMES = {"phi": "rho"}   # pfx's parameter -> particles' name for it
+WORK_TABLE = "work_per_effective_draw.csv"     # n-choice's numbers for the report, kept where chains.csv is not
+REPRODUCE = "pfx reproduce estimation-sv --configs configs/benchmarks --out results/benchmarks"
 HERMITE_NODES, HERMITE_WEIGHTS = np.polynomial.hermite_e.hermegauss(200)     # E f(X), X ~ N(0, 1)
 
 
@@ -141,6 +151,49 @@ def spread_table(results: PaperResults) -> pd.DataFrame:
         rows.append({"n_particles": int(n), "runs": len(values), "mean": float(values.mean()), "sd": sd,
                      "sd_se": sd / math.sqrt(2 * (len(values) - 1)), "delta": int(n) * sd**2})
     return pd.DataFrame(rows)
+
+
+def work_per_draw_table(folder: ResultFolder) -> pd.DataFrame | None:
+    r"""n-choice's work per effective draw, from its chains.csv: one row per N and estimator of
+    the autocorrelation time (:func:`~pfx.figures.pmmh_efficiency.particle_count_table`, whose
+    cells differ in N only) averaged over the parameters, ``tau`` and ``cost`` =
+    :math:`\tau \times N`, ``cost_se`` from resampling whole chains, and, of those ``resamples``,
+    in how many this N has the smallest cost (``cheapest_in_resamples``). None without chains."""
+    tables = particle_count_table(folder)
+    if tables is None:
+        return None
+    table, resampled = tables
+    mean = mean_over_parameters(table, resampled, ["n_particles"])
+    replicate_costs = (resampled.assign(cost=resampled["tau"] * resampled["n_particles"])
+                       .groupby(["estimator", "replicate", "n_particles"])["cost"].mean())
+    cheapest = replicate_costs.groupby(["estimator", "replicate"]).idxmin().map(lambda key: key[2])
+    counts = cheapest.groupby(level="estimator").value_counts()
+    resamples = resampled.groupby("estimator")["replicate"].nunique()
+    return mean.assign(
+        resamples=mean["estimator"].map(resamples),
+        cheapest_in_resamples=[int(counts.get((estimator, n), 0))
+                               for estimator, n in zip(mean["estimator"], mean["n_particles"])],
+    )[["n_particles", "estimator", "tau", "cost", "cost_se", "resamples", "cheapest_in_resamples"]]
+
+
+def n_choice_work(results: PaperResults) -> pd.DataFrame | None:
+    """n-choice's work per effective draw (:func:`work_per_draw_table`): computed from chains.csv
+    where the folder has it, else read from :data:`WORK_TABLE`; None without either."""
+    folder = results.folder(N_CHOICE)
+    table = work_per_draw_table(folder)
+    if table is None and (folder.path / WORK_TABLE).exists():
+        table = read_table(folder.path / WORK_TABLE)
+    return table
+
+
+@KEPT_TABLES.register(BENCHMARK)
+def keep_tables(experiment: str, folder: Path) -> None:
+    """n-choice's :data:`WORK_TABLE`, from its chains.csv (nothing for the other experiments,
+    whose files are all kept, nor for a folder without chains)."""
+    if experiment == N_CHOICE:
+        table = work_per_draw_table(ResultFolder(folder))
+        if table is not None:
+            write_csv(table, Path(folder) / WORK_TABLE)
 
 
 # -- the parts -----------------------------------------------------------------------------------
@@ -290,21 +343,19 @@ def n_choice_part(results: PaperResults) -> Part:
     numbers = results.numbers
     rule = numbers.get("n_choice", {})
     low, high = rule.get("range", [0.92, 1.68])
+    claim = numbers.get("claims", {}).get("n_choice", "the N-choice rule")
+    work_table = n_choice_work(results)
+    if work_table is None:
+        return Part((), [Verdict(claim, "not reproduced",
+                                 f"missing: n-choice has neither its chains (chains.csv) nor {WORK_TABLE}, the "
+                                 f"numbers kept of them; run `{REPRODUCE}`.")])
     spread = spread_table(results).set_index("n_particles")
-    tables = particle_count_table(results.folder(N_CHOICE))
-    if tables is None:
-        return Part()
-    table, resampled = tables
-    table = table[table["n_particles"].isin(spread.index)]
-    resampled = resampled[resampled["n_particles"].isin(spread.index)]
-    sigma = spread["sd"]
-    # the work per effective draw of each N: the mean over the parameters, per estimator
-    mean = mean_over_parameters(table, resampled, ["panel", "n_particles"]).set_index(["estimator", "n_particles"])
+    # the work per effective draw of each N (the mean over the parameters), per estimator
+    mean = work_table[work_table["n_particles"].isin(spread.index)].set_index(["estimator", "n_particles"])
     costs, cost_se, tau_mean = mean["cost"], mean["cost_se"], mean["tau"]
-    replicate_costs = (resampled.assign(cost=resampled["tau"] * resampled["n_particles"])
-                       .groupby(["estimator", "replicate", "n_particles"])["cost"].mean())
+    sigma = spread["sd"]
     acceptance = results.folder(N_CHOICE).table("posterior").groupby("n_particles")["acceptance_rate"].first()
-    estimators = list(dict.fromkeys(table["estimator"]))
+    estimators = list(dict.fromkeys(work_table["estimator"]))
     ns = sorted(spread.index)
     sigmas = np.array([sigma[n] for n in ns])
     rows = []
@@ -325,14 +376,15 @@ def n_choice_part(results: PaperResults) -> Part:
         checks.append(inside)
         close = [n for n in ns if n != best and costs[(estimator, n)] - costs[(estimator, best)]
                  <= 2 * math.hypot(cost_se[(estimator, n)], cost_se[(estimator, best)])]
-        shares = replicate_costs[estimator].groupby("replicate").idxmin().map(lambda key: key[1])
-        share = float(np.mean([low <= sigma[n] <= high for n in shares]))
+        # the resamples in which the cheapest N has its sd in the range
+        resamples = int(mean.loc[estimator, "resamples"].iloc[0])
+        share = sum(int(count) for n, count in mean.loc[estimator, "cheapest_in_resamples"].items()
+                    if low <= sigma[n] <= high) / resamples
         evidence.append(
             f"{estimator}: smallest at N = {best} (sd {sigma[best]:.2f}), "
             + (f"within 2 se of it N = {', '.join(str(n) for n in close)} (sd "
                f"{', '.join(f'{sigma[n]:.2f}' for n in close)})" if close else "no other N within 2 se")
-            + f"; in {share:.0%} of {replicate_costs[estimator].index.get_level_values('replicate').nunique()} "
-              "resamples of the chains the smallest lies in the range")
+            + f"; in {share:.0%} of {resamples} resamples of the chains the smallest lies in the range")
         scales[estimator] = {limit: scale_to(values, sigmas, limit) for limit in THEORY}
     # the theory's two limits, each scaled to the first estimator's points
     for limit in THEORY:
@@ -362,7 +414,7 @@ def n_choice_part(results: PaperResults) -> Part:
                           f"{spread.loc[posterior_n, 'sd_se']:.2f} at the posterior mean (the rule asks for about "
                           f"{rule.get('recommended', 1.2)})."))
     fits = {limit: misfit(np.array([costs[(estimators[0], n)] for n in ns]), sigmas, limit) for limit in THEORY}
-    verdict = Verdict(numbers.get("claims", {}).get("n_choice", "the N-choice rule"), verdict_from_checks(checks),
+    verdict = Verdict(claim, verdict_from_checks(checks),
                       f"the smallest τ × N should have its sd of log L̂ in [{low:g}, {high:g}]: "
                       + "; ".join(evidence) + ". Neither limit of the theory describes this chain alone: scaled to "
                       f"the {estimators[0]} points, the perfect limit misses them by {fits['perfect']:.2f} and the "

@@ -8,7 +8,9 @@ beside the results, and rewriting the gallery ``results/README.md`` (:mod:`pfx.p
 ``results/`` is committed, so a fresh reproduction is computed beside a finished folder and
 compared with it (:mod:`pfx.papers.record`): where the numbers agree, the committed tables and
 manifest stay as they are, and a fresh clone's ``make reproduce-papers`` leaves ``git status``
-clean; where they differ, the new results replace the old and the report says what moved.
+clean; where they differ, the new results replace the old and the report says what moved. Before
+that comparison, a report that keeps small tables of files the repository leaves out
+(:data:`pfx.papers.base.KEPT_TABLES`) writes them into the new folder, so they are part of the record.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import yaml
 
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
+from pfx.papers.base import KEPT_TABLES
 from pfx.papers.gallery import write_gallery
 from pfx.papers.record import settle, staging_folder
 from pfx.registry import closest_name
@@ -86,7 +89,7 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name
-        outcome = _reproduce(plan, target, fresh=fresh, report=report, progress=progress)
+        outcome = _reproduce(paper, plan, target, fresh=fresh, report=report, progress=progress)
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}{outcome}")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
@@ -99,16 +102,26 @@ def finished_manifest_or_none(folder: Path):
     return manifest if manifest and manifest.get("complete") else None
 
 
-def _reproduce(plan, target: Path, *, fresh: bool, report: Callable[[str], None], progress: bool) -> str:
-    """Run one experiment into ``target``; a fresh run over a finished folder goes through a
-    staging folder and keeps the committed record where the numbers agree. Returns what
+def write_kept_tables(paper: str, experiment: str, folder: Path) -> None:
+    """Write the small tables ``paper``'s report keeps of ``experiment``'s folder (its
+    :data:`~pfx.papers.base.KEPT_TABLES` entry; nothing for a paper that has none)."""
+    if paper in KEPT_TABLES:
+        KEPT_TABLES[paper](experiment, folder)
+
+
+def _reproduce(paper: str, plan, target: Path, *, fresh: bool, report: Callable[[str], None],
+               progress: bool) -> str:
+    """Run one experiment of ``paper`` into ``target``; a fresh run over a finished folder goes
+    through a staging folder and keeps the committed record where the numbers agree. Returns what
     happened to the record, in words (empty when there was none to compare with)."""
     if not (fresh and finished_manifest_or_none(target)):
         run_plan(plan, target, fresh=fresh, report=report, progress=progress)
+        write_kept_tables(paper, plan.experiment.name, target)
         return ""
     staging = staging_folder(target)
     shutil.rmtree(staging, ignore_errors=True)      # a reproduction stopped before it settled
     run_plan(plan, staging, fresh=True, report=report, progress=progress)
+    write_kept_tables(paper, plan.experiment.name, staging)
     difference = settle(target, staging)
     if difference is None:
         return " (the same numbers as the folder held: its tables and manifest kept)"

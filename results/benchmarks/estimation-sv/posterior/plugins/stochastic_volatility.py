@@ -72,6 +72,10 @@ return rules out. :math:`g_2 \approx -\tfrac12 m - \tfrac14 r e^{-m}` falls as t
 The default look-ahead (``point``) is pfx's own, :math:`\ell(m)`, the likelihood at the point
 prediction.
 
+The model is written once for both of pfx's backends (docs/plugins.md, "Writing a model for
+both backends"): every method takes NumPy or JAX arrays and asks them for their array module,
+``xp = namespace(state)`` (:mod:`pfx.numerics.arrays`).
+
 Run it: ``pfx run examples/plugins/stochastic-volatility.yaml``; the GBP/USD benchmark
 (docs/benchmarks/sv-gbp-usd.md) runs the three filters on recorded returns.
 """
@@ -82,6 +86,9 @@ import numpy as np
 from pydantic import Field
 
 import pfx
+from pfx import namespace
+
+LOG_TWO_PI = float(np.log(2.0 * np.pi))     # a Python float: it keeps a float32 computation float32
 
 
 @pfx.register_model
@@ -130,15 +137,16 @@ class StochasticVolatility(pfx.Model):
         return np.full(state.shape[:-1] + (1, 1), self.sigma)
 
     def measurement_mean(self, state):
-        return np.zeros(state.shape[:-1] + (1,))
+        return namespace(state).zeros_like(state[..., :1])
 
     def simulate_measurement(self, state, random):
         noise = self.measurement_noise.sample(random, state.shape[1:-1])     # (trials, ..., 1)
-        return np.exp(state / 2.0) * noise
+        return namespace(state).exp(state / 2.0) * noise
 
     def log_likelihood(self, measurement, state):
+        xp = namespace(measurement, state)
         variance = self.return_variance()
-        terms = np.log(2.0 * np.pi) + state + np.log(variance) + measurement**2 / (variance * np.exp(state))
+        terms = LOG_TWO_PI + state + float(np.log(variance)) + measurement**2 / (variance * xp.exp(state))
         return -0.5 * terms[..., 0]
 
     def return_variance(self) -> float:
@@ -154,14 +162,15 @@ class StochasticVolatility(pfx.Model):
         Gaussian it makes with the prior: (l(m), l'(m), mean, variance) of
         :math:`q = N(m + v \ell'(m), v)`, each shaped like ``prior_mean``; ``measurement`` (R, 1, 1)
         or broadcastable. ``order`` 2: :math:`1/v = 1/\sigma^2 - \ell''(m)`; 1: :math:`v = \sigma^2`."""
-        ratio = measurement[..., 0] ** 2 / self.return_variance() * np.exp(-prior_mean)     # r e^{-m}
+        xp = namespace(prior_mean, measurement)
+        ratio = measurement[..., 0] ** 2 / self.return_variance() * xp.exp(-prior_mean)     # r e^{-m}
         value = self.log_likelihood(measurement, prior_mean[..., None])
         slope = 0.5 * (ratio - 1.0)
         prior_variance = self.sigma**2
         if order == 2:
             variance = 1.0 / (1.0 / prior_variance + 0.5 * ratio)
         else:
-            variance = np.full_like(ratio, prior_variance)
+            variance = xp.full_like(ratio, prior_variance)
         return value, slope, prior_mean + variance * slope, variance
 
     def look_ahead_log_weight(self, previous, step, measurement):
@@ -172,7 +181,7 @@ class StochasticVolatility(pfx.Model):
             return super().look_ahead_log_weight(previous, step, measurement)
         order = 2 if self.look_ahead == "second_order" else 1
         value, slope, _, variance = self.expansion(self.prior_mean(previous), measurement, order)
-        return value + 0.5 * np.log(variance / self.sigma**2) + 0.5 * slope**2 * variance
+        return value + 0.5 * namespace(variance).log(variance / self.sigma**2) + 0.5 * slope**2 * variance
 
 
 @pfx.register_proposal
@@ -192,18 +201,19 @@ class StochasticVolatilityTaylor(pfx.Proposal):
     def propose(self, model, previous, step, measurement, observed, random):
         r"""Draw :math:`x_k \sim q = N(m + v \ell'(m), v)` for every particle (module docstring) and
         return it with :math:`\log p(x_k \mid x_{k-1}) - \log q(x_k \mid x_{k-1}, y_k)`, (R, N)."""
+        xp = namespace(previous, measurement)
         prior_mean = model.prior_mean(previous)                             # (R, N)
         returns = measurement[:, None, :]                                   # (R, 1, 1)
         if observed is not None:                  # a missing return: any finite stand-in, then the prior
-            returns = np.where(observed[:, None, None], returns, 0.0)
+            returns = xp.where(observed[:, None, None], returns, 0.0)
         _, _, mean, variance = model.expansion(prior_mean, returns, self.order)
         if observed is not None:
-            mean = np.where(observed[:, None], mean, prior_mean)
-            variance = np.where(observed[:, None], variance, model.sigma**2)
+            mean = xp.where(observed[:, None], mean, prior_mean)
+            variance = xp.where(observed[:, None], variance, model.sigma**2)
         standard = random.standard_normal(prior_mean.shape[1:])            # (R, N)
-        state = (mean + np.sqrt(variance) * standard)[..., None]
-        log_proposal = -0.5 * (np.log(2.0 * np.pi * variance) + standard**2)
+        state = (mean + xp.sqrt(variance) * standard)[..., None]
+        log_proposal = -0.5 * (xp.log(2.0 * np.pi * variance) + standard**2)
         adjustment = model.transition_log_density(state, previous, step) - log_proposal
         if observed is not None:
-            adjustment = np.where(observed[:, None], adjustment, 0.0)
+            adjustment = xp.where(observed[:, None], adjustment, 0.0)
         return state, adjustment
