@@ -19,6 +19,7 @@ from pfx.estimation.pmmh import ParticleMarginalMetropolisHastings
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.laws.priors import make_transform
 from pfx.numerics.seeding import TrialStreams
+from pfx.papers.estimation_nile_exact import local_level_log_likelihood
 
 ROOT = Path(__file__).resolve().parents[1]
 NILE = str(ROOT / "examples" / "data" / "nile.csv")
@@ -210,7 +211,11 @@ def test_pmmh_recovers_the_posterior_of_the_exact_likelihood():
     # The grid: log-spaced, so each point stands for a cell of area proportional to theta_1 theta_2.
     first, second = np.meshgrid(np.geomspace(2000.0, 80000.0, 48), np.geomspace(5.0, 60000.0, 48), indexing="ij")
     points = np.column_stack([first.ravel(), second.ravel()])
-    log_posterior = exact_log_likelihoods(points) + np.log(points).sum(axis=1)
+    # the Kalman filter's exact likelihood, its recursion vectorised over the grid (the two are
+    # equal: tests/test_estimation_nile.py)
+    flows = pd.read_csv(NILE)["z1"].to_numpy(dtype=float)
+    exact = local_level_log_likelihood(flows, points[:, 0], points[:, 1], 0.0, 1.0e7)
+    log_posterior = exact + np.log(points).sum(axis=1)
     weights = np.exp(log_posterior - log_posterior.max())
     weights /= weights.sum()
     exact_means = weights @ points
