@@ -32,7 +32,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from pfx.errors import ModelNumericalError
 from pfx.filters.particle.bound import bind_particle_filter
 
 
@@ -162,14 +161,3 @@ def double_precision_everywhere():
         yield
     finally:
         jax.config.update("jax_enable_x64", before)
-
-
-def first_failure(model, failures: np.ndarray) -> ModelNumericalError:
-    """The error the NumPy engine would have raised for a run's failure bits (T, R)."""
-    from pfx.filters.particle.jax_engine import _raise_first_failure
-
-    try:
-        _raise_first_failure(model, failures)
-    except ModelNumericalError as error:
-        return error
-    raise AssertionError("no failure bit is set")

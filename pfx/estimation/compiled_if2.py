@@ -31,9 +31,9 @@ from typing import Callable
 
 import numpy as np
 
-from pfx.estimation.compiled_filter import RowGaussians, double_precision_everywhere, first_failure
+from pfx.estimation.compiled_filter import RowGaussians, double_precision_everywhere
 from pfx.estimation.if2 import COOLING_HORIZON, IteratedFiltering, PerturbedParameters
-from pfx.filters.particle.jax_engine import JaxParticleFilter
+from pfx.filters.particle.jax_engine import JaxParticleFilter, first_failure
 from pfx.numerics.key_streams import KeyStreams, threefry_keys
 
 BLOCK = 5         # passes per compiled call: a run saves its swarm (and can stop) between blocks
@@ -131,17 +131,12 @@ class CompiledSwarm:
             swarms, log_likelihoods, failures, valid = (np.asarray(value) for value in jax.device_get(outputs))
         for index, iteration in enumerate(iterations):
             if not valid[index].all():
-                self._refuse_estimate(swarm, int(np.argmin(valid[index])))
+                raise self.method.outside_the_domain(self.method.estimates(swarm), int(np.argmin(valid[index])))
             if failures[index].any():
                 self._raise_failure(swarms[index], int(iteration), failures[index])
             swarm = swarms[index].astype(float)
             report(int(iteration), swarm, log_likelihoods[index].astype(float))
         return swarm
-
-    def _refuse_estimate(self, swarm: np.ndarray, replicate: int) -> None:
-        estimates = self.method.estimates(swarm)
-        raise ValueError(f"IF2 replicate {replicate}'s estimate {dict(zip(self.target.columns, estimates[replicate]))} "
-                         "is outside the model's domain")
 
     def _raise_failure(self, swarm: np.ndarray, iteration: int, failures: np.ndarray) -> None:
         """The pass's failure as the NumPy backend names it: the random walk's parameter the

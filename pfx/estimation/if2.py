@@ -154,15 +154,18 @@ class IteratedFiltering:
         """Each replicate's estimate: the swarm's mean on the natural scale, (R, p)."""
         return self.target.to_natural(swarm).mean(axis=1)
 
+    def outside_the_domain(self, estimates: np.ndarray, replicate: int) -> ValueError:
+        """The error of a pass whose replicate's estimate (the swarm's mean) the model refuses."""
+        return ValueError(f"IF2 replicate {replicate}'s estimate {dict(zip(self.target.columns, estimates[replicate]))} "
+                          "is outside the model's domain")
+
     def iterate(self, swarm: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray]:
         """One pass (module docstring): the new swarm and each replicate's log-likelihood estimate."""
         target = self.target
         estimates = self.estimates(swarm)
         models = [target.model_at(row) for row in estimates]
         if any(model is None for model in models):
-            bad = next(r for r, model in enumerate(models) if model is None)
-            raise ValueError(f"IF2 replicate {bad}'s estimate {dict(zip(target.columns, estimates[bad]))} is outside "
-                             "the model's domain")
+            raise self.outside_the_domain(estimates, next(r for r, model in enumerate(models) if model is None))
         perturbed = PerturbedParameters(target, models[0], iteration, RowPriors([target.prior_of(m) for m in models]),
                                         estimates)
         bound = bind_particle_filter("particle", perturbed, target.cell.filter, SwarmPrior(perturbed, swarm))

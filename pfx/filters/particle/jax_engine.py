@@ -447,17 +447,25 @@ def _check_shape(model, source: str, value, expected: tuple) -> None:
 
 def _raise_first_failure(model, failures: np.ndarray) -> None:
     """Raise the first step's failure as the NumPy engine would have raised it mid-run."""
+    error = first_failure(model, failures)
+    if error is not None:
+        raise error
+
+
+def first_failure(model, failures: np.ndarray) -> Optional[ModelNumericalError]:
+    """The error the NumPy engine would have raised for a run's failure bits (T, R), at the
+    first step with one; None when no bit is set."""
     flagged = np.argwhere(failures != 0)        # (step, trial) pairs, in step order
     if flagged.size == 0:
-        return
+        return None
     index = int(flagged[0, 0])
     bits = int(np.bitwise_or.reduce(failures[index]))
     step = index + 1
     if bits & EVERY_PARTICLE_LOST:
-        raise ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
-                                  f"{step} of the filter (check the prior and the noise)")
+        return ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
+                                   f"{step} of the filter (check the prior and the noise)")
     if bits & BAD_LIKELIHOOD:
-        raise ModelNumericalError(f"model {model.kind} gave NaN or an infinite log-likelihood at step {step} of "
-                                  "the filter (did particles leave the model's domain? check the prior and the noise)")
-    raise ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {step} of the filter "
-                              "(check the prior and the noise)")
+        return ModelNumericalError(f"model {model.kind} gave NaN or an infinite log-likelihood at step {step} of "
+                                   "the filter (did particles leave the model's domain? check the prior and the noise)")
+    return ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {step} of the filter "
+                               "(check the prior and the noise)")
