@@ -108,9 +108,9 @@ def exact_moments(model, time):
     }
 
 
-def one_substep(model, backend, time, seed):
-    state = np.broadcast_to(START, (TRIALS, PARTICLES, 6))
-    seeds = range(seed, seed + TRIALS)
+def one_substep(model, backend, time, seed, trials=TRIALS, particles=PARTICLES):
+    state = np.broadcast_to(START, (trials, particles, 6))
+    seeds = range(seed, seed + trials)
     if backend == "numpy":
         return model.sample_substep(state.copy(), None, time, TrialStreams.from_seeds(seeds))
     jax = pytest.importorskip("jax")
@@ -261,3 +261,101 @@ def test_the_report_compares_pfx_with_pypomps_reference_run(tmp_path):
     spread = spread / spread.std(ddof=1)
     assert report_on(tmp_path / "near", -3803.048 + 0.7 + spread).verdicts[1].verdict == "reproduced"
     assert report_on(tmp_path / "far", -3803.048 + 0.9 + spread).verdicts[1].verdict == "not reproduced"
+
+
+# -- per-particle parameters (vectorised_parameters): what PMMH's chains and IF2's particles use ---
+
+ESTIMATED = ("R0", "sigma", "gamma", "iota", "rho", "sigmaSE", "psi", "cohort", "amplitude", "alpha")
+
+
+def test_the_estimated_parameters_are_its_vectorised_parameters_and_mu_stays_a_number():
+    assert set(type(measles()).vectorised_parameters) == set(ESTIMATED)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+def test_parameters_given_per_particle_at_one_value_draw_what_the_numbers_draw(backend):
+    """(R, N, 1) arrays all holding the model's values: the same draws from the same streams,
+    bit for bit, as the model with numbers, at school entry (the cohort's day) and in term."""
+    model = measles()
+    trials, particles = 20, 50
+    arrays = model.with_parameter_arrays({name: np.full((trials, particles, 1), getattr(model, name))
+                                          for name in ESTIMATED})
+    for time, seed in ((SCHOOL_ENTRY, 3), (IN_TERM, 5)):
+        expected = one_substep(model, backend, time, seed, trials, particles)
+        moved = one_substep(arrays, backend, time, seed, trials, particles)
+        np.testing.assert_array_equal(moved, expected)
+
+
+def test_each_particle_moves_and_is_weighted_under_its_own_parameters():
+    """Five particles, each with its own parameters (R, N, 1): the substep's mean (propagate) and
+    the report's log-likelihood equal, particle by particle, those of a model holding that
+    particle's values as numbers."""
+    model = measles()
+    generator = np.random.default_rng(4)
+    particles = 5
+    values = {name: getattr(model, name) * generator.uniform(0.8, 1.2, size=(1, particles, 1)) for name in ESTIMATED}
+    values["rho"] = np.minimum(values["rho"], 0.99)
+    arrays = model.with_parameter_arrays(values)
+    state = np.broadcast_to(START, (1, particles, 6)) * generator.uniform(0.9, 1.1, size=(1, particles, 6))
+    state[..., 5] = np.round(state[..., 5]) + 300.0
+    reports = np.full((1, 1, 1), 180.0)
+    moved, weights = arrays.propagate(state, None, None, IN_TERM), arrays.log_likelihood(reports, state)
+    for particle in range(particles):
+        alone = model.model_copy(update={name: float(value[0, particle, 0]) for name, value in values.items()})
+        own = state[:, particle:particle + 1]
+        np.testing.assert_allclose(moved[:, particle], alone.propagate(own, None, None, IN_TERM)[:, 0], rtol=1e-13)
+        np.testing.assert_allclose(weights[:, particle], alone.log_likelihood(reports, own)[:, 0], rtol=1e-13)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+def test_if2_estimates_its_parameters_per_particle_on_both_backends(tmp_path, backend):
+    """IF2 on the first ten weeks: every particle carries its own R0, rho and sigmaSE through the
+    substeps; the passes run and their estimates stay in the parameters' ranges."""
+    if backend == "jax":
+        pytest.importorskip("jax")
+    measurements = tmp_path / "weeks.csv"
+    pd.read_csv(CORRECTED).head(10).to_csv(measurements, index=False)
+    positive = {"prior": {"law": "flat", "lower": 0}, "transform": "log", "random_walk_sd": 0.05}
+    config = {"name": "measles-if2", "seed": 3, "plugins": [str(PLUGIN)], "model": {"kind": "he10_measles"},
+              "data": {"measurements": str(measurements), "covariates": str(COVARIATES)},
+              "filter": {"kind": "particle", "particles": 60, "resampler": "systematic", "ess_threshold": 1.0,
+                         "backend": backend},
+              "estimation": {"method": "if2", "chains": 2, "iterations": 2, "evaluations": 2, "parameters": {
+                  "model.R0": {**positive, "start": [30.0, 50.0]},
+                  "model.sigmaSE": {**positive, "start": [0.05, 0.09]},
+                  "model.rho": {"prior": {"law": "flat", "lower": 0, "upper": 1}, "transform": "logit",
+                                "random_walk_sd": 0.05, "start": [0.3, 0.6]}}},
+              "outputs": {"figures": []}}
+    estimates = pfx.run(config, out=tmp_path / "if2").tables["maximum_likelihood"]
+    assert len(estimates) == 2 and np.isfinite(estimates["log_likelihood"]).all()
+    assert (estimates["R0"] > 0).all() and (estimates["sigmaSE"] > 0).all()
+    assert ((estimates["rho"] > 0) & (estimates["rho"] < 1)).all()
+    assert not np.allclose(estimates["R0"], [30.0, 50.0])          # the swarm moved
+
+
+def search_report_on(tmp_path, log_likelihoods, standard_error):
+    """The benchmark's report on a copy of the committed IF2 folder whose replicates end at
+    ``log_likelihoods`` with ``standard_error`` each."""
+    from pfx.papers import REPORTS
+    from pfx.papers.base import PaperResults
+
+    folder = tmp_path / "measles-london"
+    shutil.copytree(REPOSITORY / "results" / "benchmarks" / "measles-london" / "if2", folder / "if2")
+    shutil.copy(PAPER, folder / "paper.yaml")
+    table = pd.read_csv(folder / "if2" / "maximum_likelihood.csv")
+    table.assign(log_likelihood=log_likelihoods, log_likelihood_se=standard_error).to_csv(
+        folder / "if2" / "maximum_likelihood.csv", index=False)
+    return REPORTS["measles-london"](PaperResults(folder))
+
+
+def test_the_search_is_judged_by_the_likelihood_ratio_depth_of_its_ten_parameters(tmp_path):
+    """The best replicate reaches -3804.9 within ½ χ²_10(0.95) = 9.15 plus 3 standard errors of
+    the difference, 3 sqrt(0.5² + 0.16²) = 1.57: 10.4 below passes, 11.0 below does not."""
+    tolerance = 0.5 * stats.chi2.ppf(0.95, 10) + 3.0 * math.hypot(0.5, 0.16)
+    assert tolerance == pytest.approx(10.72, abs=0.01)
+    for gap, verdict in ((10.4, "reproduced"), (11.0, "not reproduced")):
+        ends = -3804.9 - gap - 5.0 * np.arange(8)
+        section = search_report_on(tmp_path / str(gap), ends[::-1], 0.5)
+        [judged] = [entry for entry in section.verdicts if "IF2" in entry.claim]
+        assert judged.verdict == verdict, (gap, judged.evidence)
+        assert f"{gap:.2f} below the published" in judged.evidence

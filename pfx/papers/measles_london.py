@@ -19,7 +19,8 @@ beside pypomp's own filter run on this machine (``reference_run`` in paper.yaml)
   standard errors of the difference (independent runs: the standard errors add in quadrature).
 
 The per-week log-likelihood increments (steps_summary.csv) name the weeks the model explains
-worst: the figure and :data:`WORST_WEEKS` of them in a table.
+worst: the figure and :data:`WORST_WEEKS` of them in a table. The search for the maximum by IF2
+from a box of starting points (``if2``) is :mod:`pfx.papers.measles_search`'s part.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from pfx.papers.base import (
     verdict_from_checks,
 )
 from pfx.papers.likelihood_runs import estimate_numbers
+from pfx.papers.measles_search import search_part
 
 BENCHMARK = "measles-london"
 EXPERIMENT = "measles"
@@ -174,7 +176,7 @@ def weeks_part(results: PaperResults) -> Part:
     return Part(items, [])
 
 
-PARTS = (likelihood_part, weeks_part)
+PARTS = (likelihood_part, weeks_part, search_part)
 
 
 @REPORTS.register(BENCHMARK)

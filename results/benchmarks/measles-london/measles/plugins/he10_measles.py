@@ -64,6 +64,10 @@ whole number (pomp's ``nearbyint``), :math:`W = C = 0`.
 
 **The parameters** default to He et al.'s maximum-likelihood estimate for London (their Table 2;
 pypomp's ``AK_mles.csv``), under pomp's names; at them He et al. report log L = -3804.9.
+The ten that He et al. estimate besides the initial fractions (all but ``mu``, which they fix)
+are ``vectorised_parameters``: PMMH's chains and IF2's particles may carry their own values,
+(R, 1, 1) or (R, N, 1) arrays, which every method reads through :meth:`He10Measles.parameter` as
+(R, 1) or (R, N), beside the state's components (R, N).
 
 **Where it differs from pomp's and pypomp's code.** The term rule is evaluated on the substep's
 start time. In 1950, 1954, 1958 and 1962 the daily substeps start on whole days of the year, and
@@ -145,6 +149,9 @@ class He10Measles(pfx.Model):
 
     integrates_substeps: ClassVar[bool] = True
     time_unit = "year"
+    # He et al.'s estimated parameters, other than the initial fractions (read once, at t0)
+    vectorised_parameters: ClassVar[tuple[str, ...]] = ("R0", "sigma", "gamma", "iota", "rho", "sigmaSE", "psi",
+                                                        "cohort", "amplitude", "alpha")
 
     def presets(self):
         presets = {"steps": 730, "dt": 7.0 / DAYS_PER_YEAR,
@@ -188,18 +195,26 @@ class He10Measles(pfx.Model):
         population = self.covariates_at(self.initial_time)[POP]
         return np.concatenate([np.rint(population * fractions / fractions.sum()), [0.0, 0.0]])
 
+    def parameter(self, name: str):
+        """A parameter as the methods below read it: a number, or, when the estimation gives one
+        value per chain or per particle ((R, 1, 1) or (R, N, 1), ``vectorised_parameters``), an
+        (R, 1) or (R, N) array that broadcasts with a state component (R, N)."""
+        value = getattr(self, name)
+        return value[..., 0] if getattr(value, "ndim", 0) == 3 else value
+
     # -- the substep ------------------------------------------------------------------------
 
     def seasonal_rates(self, time):
         """(b, beta, P) at the substep starting at ``time``: the births per year with the cohort
         effect, the term-time transmission rate and the population (module docstring)."""
         step = self.substep_duration
+        cohort, amplitude, r0, gamma = (self.parameter(name) for name in ("cohort", "amplitude", "R0", "gamma"))
         covariates = self.covariates_at(time)             # NumPy, or JAX when the time is traced
-        tx = pfx.namespace(covariates, time)
+        tx = pfx.namespace(covariates, time, cohort, gamma)
         population, births = covariates[POP], covariates[BIRTHRATE]
         year_fraction = time - tx.floor(time)
         entering = tx.abs(year_fraction - SCHOOL_ENTRY) < 0.5 * step
-        birth_rate = (1.0 - self.cohort) * births + tx.where(entering, self.cohort * births / step, 0.0)
+        birth_rate = (1.0 - cohort) * births + tx.where(entering, cohort * births / step, 0.0)
         # In 1950, 1954, 1958 and 1962 the daily substeps start on whole days of the year, so 32 of
         # them start exactly on a term's first or last day, where the time's last bits (1e-11 of
         # a day) would decide the comparison: the day is rounded to DAY_RESOLUTION first, so that
@@ -208,24 +223,28 @@ class He10Measles(pfx.Model):
         in_term = False
         for first, last in TERMS:
             in_term = in_term | ((day >= first) & (day <= last))
-        seasonality = tx.where(in_term, 1.0 + self.amplitude * (1.0 - TERM_SHARE) / TERM_SHARE, 1.0 - self.amplitude)
-        beta = self.R0 * seasonality * -math.expm1(-(self.gamma + self.mu) * step) / step
+        seasonality = tx.where(in_term, 1.0 + amplitude * (1.0 - TERM_SHARE) / TERM_SHARE, 1.0 - amplitude)
+        exponent = -(gamma + self.mu) * step
+        leaving = -(math.expm1(exponent) if isinstance(exponent, float) else tx.expm1(exponent))
+        beta = r0 * seasonality * leaving / step
         return birth_rate, beta, population
 
     def sample_substep(self, state, control, time, random):
         """One day: births, then whole individuals leave S, E and I by Euler-multinomial draws."""
         xp = pfx.namespace(state)
         step = self.substep_duration
+        iota, alpha, noise_sd, sigma, gamma = (self.parameter(name) for name in ("iota", "alpha", "sigmaSE",
+                                                                                 "sigma", "gamma"))
         birth_rate, beta, population = self.seasonal_rates(time)
         susceptible, exposed, infectious = state[..., SUSCEPTIBLE], state[..., EXPOSED], state[..., INFECTIOUS]
-        force = beta * (infectious + self.iota) ** self.alpha / population
-        noise = pfx.gamma_white_noise(random, self.sigmaSE, step, shape=susceptible.shape[1:])   # dW, (R, N)
+        force = beta * (infectious + iota) ** alpha / population
+        noise = pfx.gamma_white_noise(random, noise_sd, step, shape=susceptible.shape[1:])   # dW, (R, N)
         births = random.poisson(xp.full_like(susceptible, birth_rate * step))
         deaths = xp.full_like(susceptible, self.mu)
         leaving_s = pfx.euler_multinomial(random, susceptible, xp.stack([force * noise / step, deaths], axis=-1), step)
-        leaving_e = pfx.euler_multinomial(random, exposed, xp.stack([xp.full_like(deaths, self.sigma), deaths],
+        leaving_e = pfx.euler_multinomial(random, exposed, xp.stack([xp.full_like(deaths, sigma), deaths],
                                                                     axis=-1), step)
-        leaving_i = pfx.euler_multinomial(random, infectious, xp.stack([xp.full_like(deaths, self.gamma), deaths],
+        leaving_i = pfx.euler_multinomial(random, infectious, xp.stack([xp.full_like(deaths, gamma), deaths],
                                                                        axis=-1), step)
         infections, onsets, recoveries = leaving_s[..., 0], leaving_e[..., 0], leaving_i[..., 0]
         new_susceptible = susceptible + births - leaving_s.sum(axis=-1)
@@ -233,7 +252,7 @@ class He10Measles(pfx.Model):
         new_infectious = infectious + onsets - leaving_i.sum(axis=-1)
         return xp.stack([new_susceptible, new_exposed, new_infectious,
                          population - new_susceptible - new_exposed - new_infectious,
-                         state[..., NOISE] + (noise - step) / self.sigmaSE,
+                         state[..., NOISE] + (noise - step) / noise_sd,
                          state[..., CASES] + recoveries], axis=-1)
 
     def propagate(self, state, control, noise, time):
@@ -241,9 +260,10 @@ class He10Measles(pfx.Model):
         Gaussian filters; the particle filter draws with :meth:`sample_substep`."""
         xp = pfx.namespace(state)
         step = self.substep_duration
+        iota, alpha, sigma, gamma = (self.parameter(name) for name in ("iota", "alpha", "sigma", "gamma"))
         birth_rate, beta, population = self.seasonal_rates(time)
         susceptible, exposed, infectious = state[..., SUSCEPTIBLE], state[..., EXPOSED], state[..., INFECTIOUS]
-        force = beta * (infectious + self.iota) ** self.alpha / population
+        force = beta * (infectious + iota) ** alpha / population
 
         def exits(count, rate):          # expected leavers by the first exit (rate) and by death
             total = rate + self.mu
@@ -251,8 +271,8 @@ class He10Measles(pfx.Model):
             return leaving * rate / total, leaving * self.mu / total
 
         infections, deaths_s = exits(susceptible, force)
-        onsets, deaths_e = exits(exposed, self.sigma)
-        recoveries, deaths_i = exits(infectious, self.gamma)
+        onsets, deaths_e = exits(exposed, sigma)
+        recoveries, deaths_i = exits(infectious, gamma)
         new_susceptible = susceptible + birth_rate * step - infections - deaths_s
         new_exposed = exposed + infections - onsets - deaths_e
         new_infectious = infectious + onsets - recoveries - deaths_i
@@ -265,12 +285,13 @@ class He10Measles(pfx.Model):
     def reporting_moments(self, state):
         """(m, sd) of the week's reports given C: rho C and sqrt(m (1 - rho + psi^2 m)) + tol."""
         xp = pfx.namespace(state)
-        mean = self.rho * state[..., CASES]
-        variance = mean * (1.0 - self.rho + self.psi**2 * mean)
+        rho, psi = self.parameter("rho"), self.parameter("psi")
+        mean = rho * state[..., CASES]
+        variance = mean * (1.0 - rho + psi**2 * mean)
         return mean, xp.sqrt(xp.maximum(variance, 0.0)) + TOLERANCE
 
     def measurement_mean(self, state):
-        return self.rho * state[..., CASES:CASES + 1]
+        return (self.parameter("rho") * state[..., CASES])[..., None]
 
     def log_likelihood(self, measurement, state):
         """log p(y | C): the discretised normal plus pomp's floor (module docstring)."""
