@@ -172,6 +172,17 @@ def test_sigterm_stops_a_run_that_the_same_command_resumes(tmp_path, run_pfx):
     assert tables_of(out, "pmmh") == tables_of(whole.folder, "pmmh")
 
 
+@pytest.mark.parametrize("method", ["pmmh", "if2"])
+def test_running_a_finished_folder_again_is_up_to_date_and_touches_nothing(method, tmp_path, monkeypatch):
+    """The same config on its finished folder recomputes nothing (IF2's final evaluations
+    included: a search of an hour would otherwise spend minutes on them again) and rewrites no file."""
+    folder = pfx.run(estimation_config(method), out=tmp_path / "out").folder
+    before = snapshot(folder)
+    monkeypatch.setattr(SAMPLER[method], "__init__", lambda *arguments, **keywords: pytest.fail("recomputed"))
+    again = pfx.run(estimation_config(method), out=folder)
+    assert snapshot(folder) == before and again.manifest["complete"] is True
+
+
 # -- a refused run changes nothing -------------------------------------------------------------------------
 
 def test_asking_a_finished_folder_for_fewer_iterations_changes_nothing(tmp_path):

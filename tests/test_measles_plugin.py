@@ -275,12 +275,15 @@ def test_the_estimated_parameters_are_its_vectorised_parameters_and_mu_stays_a_n
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_parameters_given_per_particle_at_one_value_draw_what_the_numbers_draw(backend):
     """(R, N, 1) arrays all holding the model's values: the same draws from the same streams,
-    bit for bit, as the model with numbers, at school entry (the cohort's day) and in term."""
+    bit for bit, as the model with numbers, at school entry (the cohort's day, in the holidays)
+    and in term (on numpy; jax's compilations take the time, and school entry reads every
+    parameter)."""
     model = measles()
     trials, particles = 20, 50
     arrays = model.with_parameter_arrays({name: np.full((trials, particles, 1), getattr(model, name))
                                           for name in ESTIMATED})
-    for time, seed in ((SCHOOL_ENTRY, 3), (IN_TERM, 5)):
+    times = ((SCHOOL_ENTRY, 3), (IN_TERM, 5)) if backend == "numpy" else ((SCHOOL_ENTRY, 3),)
+    for time, seed in times:
         expected = one_substep(model, backend, time, seed, trials, particles)
         moved = one_substep(arrays, backend, time, seed, trials, particles)
         np.testing.assert_array_equal(moved, expected)

@@ -108,6 +108,10 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
     """Run (or resume, or extend) every cell's estimation into ``out``; tables and figures
     (module docstring: everything that may be refused is refused before anything is written)."""
     state = inspect_folder(plan, out, fresh)      # refuse a folder of other results, early
+    if state.complete and state.manifest.get("config_hash") == plan.config_hash:
+        # As a finished filter run: nothing to recompute (IF2's final evaluations included).
+        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        return out
     work = _prepare(plan, out, state, {})         # and damaged progress, dropped iterations, bad starts
     with folder_lock(out, remove_if_unused=True):
         # Read again: until this run held the lock, another one may have been writing the folder.
