@@ -18,8 +18,8 @@ interrupted (``cells/`` kept)          resumes the same run; another trial count
 =====================================  ==========================================================
 
 An estimation folder has iterations instead of trials (:func:`_estimation_contents`): a
-finished one with more iterations than asked is refused, an interrupted one is resumed (with
-more iterations than it holds, extended).
+finished one with more iterations than asked is refused, one with the same config is up to
+date, an interrupted one is resumed (with more iterations than it holds, extended).
 
 A folder with another results hash, or not made by pfx, is refused unless ``--fresh``; one
 this process could not write into, before anything is written
