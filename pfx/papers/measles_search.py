@@ -51,7 +51,8 @@ def search_part(results: PaperResults) -> Part:
     mle = facts.get("mle", {})
     config = results.config(SEARCH)
     estimation = EstimationConfig.model_validate(config["estimation"])
-    columns = [estimation.column(path) for path in estimation.parameters]
+    columns = estimation.columns
+    walk_sd = {settings.random_walk_sd for settings in estimation.parameters.values()}
     paths = results.folder(SEARCH).table("if2")
     finals = results.folder(SEARCH).table("maximum_likelihood").sort_values("log_likelihood", ascending=False)
     starts = paths[paths["iteration"] == 0].set_index("replicate")
@@ -70,16 +71,15 @@ def search_part(results: PaperResults) -> Part:
     gap = target - float(best["log_likelihood"])
     tolerance = depth + Z_LIMIT * math.hypot(float(best["log_likelihood_se"]), published_error)
     within = int(((target - finals["log_likelihood"]) <= tolerance).sum())
-    final_sd = estimation.parameters[next(iter(estimation.parameters))].random_walk_sd \
-        * estimation.cooling_fraction_50 ** (passes / 50)
+    cooled = estimation.cooling_fraction_50 ** (passes / 50)
     items = [
         Text("### IF2 from the twenty towns' box\n\n"
              f"IF2 estimated He et al.'s {dimension} parameters (`mu` and the initial fractions held at the published "
              f"values) from {len(finals)} starts drawn uniformly over the smallest box holding He et al.'s estimates "
              f"for their twenty towns: {passes} passes of the bootstrap filter with "
              f"{config['filter']['particles']:,} particles, every particle carrying its own parameters on a random "
-             f"walk of sd {estimation.parameters[next(iter(estimation.parameters))].random_walk_sd:g} a week (log "
-             f"scale; logit for the shares), cooled to {final_sd:.3g} by the last pass. Each replicate's "
+             f"walk of sd {' or '.join(f'{sd:g}' for sd in sorted(walk_sd))} a week (log "
+             f"scale; logit for the shares), cooled to {' or '.join(f'{sd * cooled:.3g}' for sd in sorted(walk_sd))} by the last pass. Each replicate's "
              f"log-likelihood: {estimation.evaluations} unperturbed runs at its estimate (maximum_likelihood.csv)."),
         Table(f"IF2's estimates after {passes} passes, best first (start in brackets), beside He et al.'s MLE",
               markdown_table(pd.DataFrame(rows)),
