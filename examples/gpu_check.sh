@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The GPU check: `pfx bench --backend jax` and the JAX backend's validity tests, in one prepared
-# run of under 5 minutes, on a borrowed GPU machine without network access, or on any machine.
+# run of under 9 minutes, on a borrowed GPU machine without network access, or on any machine.
 #
 #   make gpu-check                    # or: bash examples/gpu_check.sh
 #   bash examples/gpu_check.sh --download-wheels   # here, with a network: fetch the wheels the lent
@@ -19,13 +19,16 @@
 #    memory as it needs it); its progress lines go to bench.txt too (the table comes at the end).
 # 4. Runs the JAX backend's tests (PFX_GPU_TESTS: pytest arguments, default the files below; a
 #    named file that this tree lacks is left out, and said so).
+# 5. On a GPU, times pomp's two models (cholera at N = 1000 and 5000, measles at N = 2000) on the
+#    jax backend in batches of 64 and 192 runs: seconds per run and replicates per second once
+#    compiled (examples/benchmarks/pomp_speed_session.py; PFX_POMP_ARGS, PFX_POMP_TIMEOUT).
 # Everything goes to $OUT (the GPU machine's folder that comes back), else ./gpu-check-output:
-# gpu-check.txt (this script's own lines), bench.txt, tests.txt. Exit status: 0 when the bench and
-# the tests passed, else the first failure's.
+# gpu-check.txt (this script's own lines), bench.txt, tests.txt, pomp.txt. Exit status: 0 when the
+# bench, the tests and the pomp timings passed, else the first failure's.
 #
 # Variables: PFX_PYTHON (default .venv/bin/python where it exists, else python3), PFX_WHEELS,
-# PFX_BENCH_ARGS, PFX_GPU_TESTS, PFX_BENCH_TIMEOUT and PFX_TESTS_TIMEOUT (seconds, default 170 and
-# 110: the whole check stays under 5 minutes).
+# PFX_BENCH_ARGS, PFX_GPU_TESTS, PFX_POMP_ARGS, PFX_BENCH_TIMEOUT, PFX_TESTS_TIMEOUT and PFX_POMP_TIMEOUT
+# (seconds, default 170, 110 and 200: the whole check stays under 9 minutes).
 
 set -u
 cd "$(dirname "$0")/.." || exit 2
@@ -112,5 +115,23 @@ if [ ${#tests[@]} -gt 0 ]; then
 else
     say "no test to run"
 fi
+
+# pomp's models on the jax backend: seconds per run and replicates per second once compiled
+# (examples/benchmarks/pomp_speed_session.py without pypomp); on a GPU only, unless PFX_POMP_ARGS
+# is given (on a CPU the measles model alone takes minutes: the session script's table has it).
+pomp_status=0
+if [ "$gpu" = yes ] || [ -n "${PFX_POMP_ARGS:-}" ]; then
+    pomp_args=${PFX_POMP_ARGS:-"--no-numpy --models cholera measles --jax cholera measles --trials 64"}
+    limit=${PFX_POMP_TIMEOUT:-200}
+    say "pomp_speed_session.py $pomp_args (at most $limit s) > $out/pomp.txt"
+    started=$SECONDS
+    # shellcheck disable=SC2086  # the arguments are words
+    timeout "$limit" "$python" examples/benchmarks/pomp_speed_session.py $pomp_args >"$out/pomp.txt" 2>&1
+    pomp_status=$?
+    say "pomp models: exit $pomp_status after $((SECONDS - started)) s (rows finished: $(grep -c '^{' "$out/pomp.txt"))"
+else
+    say "pomp models: left out without a GPU (PFX_POMP_ARGS runs them anyway)"
+fi
 [ "$bench_status" -ne 0 ] && exit "$bench_status"
-exit "$test_status"
+[ "$test_status" -ne 0 ] && exit "$test_status"
+exit "$pomp_status"

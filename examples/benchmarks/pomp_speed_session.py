@@ -12,13 +12,21 @@ after the other, in one command:
 2. ``pfx run`` on the benchmarks' configs (numpy backend) with ``--trials`` runs in one batch
    (pfx's usual way: a cell's trials are rows of one batch, and the time per run is the batch's
    wall time divided by the runs) and with one run alone;
-3. for the models named after ``--jax``, the batch on pfx's jax backend too (one ``pfx run``:
-   the compilation included, shared by the batch's runs).
+3. for the models named after ``--jax``, pfx's jax backend too, in the precision of
+   ``--jax-precision`` (float32 by default, the precision pypomp computes in), timed two ways:
+   the batch of ``--trials`` runs with its compilation included (shared by the batch's runs, as
+   a ``pfx run`` pays it), and the time a run adds to a batch once compiled, comparable to
+   pypomp's time, which leaves its compilation out: the difference between a batch of
+   3 x ``--trials`` runs and one of ``--trials``, divided by the 2 x ``--trials`` runs between them.
 
-It prints one Markdown table, seconds per run and the ratio to pypomp, with the machine's load
-average before and after. From the repository's root:
+It prints one Markdown table, seconds per run and the ratio to pypomp (and, for the jax
+backend, replicates per second once compiled: one over a run's added time), with the machine
+(CPUs, load average, JAX's devices) before and after. From the repository's root:
 
-    python examples/benchmarks/pomp_speed_session.py --pypomp-python /path/to/pypomp-env/bin/python
+    python examples/benchmarks/pomp_speed_session.py --pypomp-python /path/to/pypomp-env/bin/python --jax cholera
+
+Without ``--pypomp-python`` it times pfx alone; ``make gpu-check`` runs it that way on a GPU
+(``--no-numpy --jax cholera measles --trials 64``), for the replicates per second there.
 """
 
 from __future__ import annotations
@@ -52,45 +60,79 @@ def pypomp_seconds(python: str, script: str, particles: list[int], replicates: i
     return {row["particles"]: row["seconds_per_run_median"] for row in rows if "particles" in row}
 
 
-def pfx_seconds(config: Path, particles: int, trials: int, backend: str) -> float:
+def pfx_seconds(config: Path, particles: int, trials: int, backend: str, precision: str = "float64") -> float:
     """pfx's wall seconds per run: ``trials`` runs at N = ``particles`` in one batch (trials.csv's
     ``run_time_s``, each run's share of its batch)."""
     with tempfile.TemporaryDirectory() as folder:
         command = [sys.executable, "-m", "pfx", "run", str(config), "--trials", str(trials), "--out", folder,
                    "--set", f"filter.particles={particles}", "--set", f"filter.backend={backend}",
+                   "--set", f"filter.precision={precision}",
                    "--set", "outputs.figures=[]", "--quiet"]     # the particle count replaces a sweep's
         subprocess.run(command, check=True, capture_output=True, text=True)
         trials_csv = next(Path(folder).rglob("trials.csv"))
         return float(pd.read_csv(trials_csv)["run_time_s"].mean())
 
 
+def jax_timings(config: Path, particles: int, trials: int, precision: str) -> dict[str, float]:
+    """pfx's jax backend: seconds per run in a batch of ``trials`` with its compilation, and the
+    seconds a run adds to a compiled batch (a batch of 3 x ``trials`` against one of ``trials``)."""
+    batch = pfx_seconds(config, particles, trials, "jax", precision)
+    larger = pfx_seconds(config, particles, 3 * trials, "jax", precision)
+    return {f"pfx jax {precision}, {trials} runs in a batch": batch,
+            f"pfx jax {precision}, a run added once compiled": (3 * trials * larger - trials * batch) / (2 * trials)}
+
+
+def machine_line() -> str:
+    """The CPUs, the load average and the devices JAX sees (when it imports)."""
+    try:
+        import jax
+
+        devices = f"; jax {jax.__version__} on {', '.join(str(device) for device in jax.devices())}"
+    except Exception:          # JAX absent or broken: the numpy timings still stand
+        devices = ""
+    return f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}{devices}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--pypomp-python", required=True, help="the python of an environment with pypomp 1.1.0")
+    parser.add_argument("--pypomp-python", help="the python of an environment with pypomp 1.1.0 (without it: pfx only)")
     parser.add_argument("--replicates", type=int, default=10, help="pypomp's timed runs after its warm-up")
     parser.add_argument("--trials", type=int, default=8, help="pfx's runs in one batch")
+    parser.add_argument("--models", nargs="+", default=sorted(CASES), choices=sorted(CASES), help="the models timed")
+    parser.add_argument("--particles", nargs="+", type=int,
+                        help="particle counts instead of the benchmarks' (measles 2000, cholera 1000 and 5000)")
+    parser.add_argument("--no-numpy", action="store_true", help="leave out pfx's numpy backend (the GPU check)")
     parser.add_argument("--jax", nargs="*", default=[], choices=sorted(CASES),
-                        help="models also timed on pfx's jax backend (compilation included)")
+                        help="models also timed on pfx's jax backend (with and without its compilation)")
+    parser.add_argument("--jax-precision", default="float32", choices=["float32", "float64"],
+                        help="the jax backend's precision (pypomp's is float32)")
     arguments = parser.parse_args()
-    load_before = os.getloadavg()
+    print(f"before: {machine_line()}", flush=True)
     rows = []
-    for model, (script, config, counts) in CASES.items():
-        theirs = pypomp_seconds(arguments.pypomp_python, script, counts, arguments.replicates)
+    for model in arguments.models:
+        script, config, counts = CASES[model]
+        counts = arguments.particles or counts
+        theirs = (pypomp_seconds(arguments.pypomp_python, script, counts, arguments.replicates)
+                  if arguments.pypomp_python else {})
         for particles in counts:
-            timings = {f"pfx numpy, {arguments.trials} runs in a batch":
-                       pfx_seconds(config, particles, arguments.trials, "numpy"),
-                       "pfx numpy, one run": pfx_seconds(config, particles, 1, "numpy")}
+            timings = {}
+            if not arguments.no_numpy:
+                timings[f"pfx numpy, {arguments.trials} runs in a batch"] = pfx_seconds(
+                    config, particles, arguments.trials, "numpy")
+                timings["pfx numpy, one run"] = pfx_seconds(config, particles, 1, "numpy")
             if model in arguments.jax:
-                timings[f"pfx jax, {arguments.trials} runs in a batch"] = pfx_seconds(
-                    config, particles, arguments.trials, "jax")
-            row = {"model": model, "N": particles, "pypomp": theirs[particles]}
+                timings.update(jax_timings(config, particles, arguments.trials, arguments.jax_precision))
+            row = {"model": model, "N": particles}
+            if theirs:
+                row["pypomp"] = theirs[particles]
             for label, seconds in timings.items():
-                row[label] = f"{seconds:.2f} ({seconds / theirs[particles]:.2f}x)"
+                row[label] = f"{seconds:.3g}" + (f" ({seconds / theirs[particles]:.2f}x)" if theirs else "")
+                if label.endswith("once compiled"):
+                    row["jax replicates per second, once compiled"] = f"{1.0 / seconds:.3g}"
             rows.append(row)
             print(json.dumps(row), flush=True)
-    load_after = os.getloadavg()
-    print(f"\nSeconds per run (ratio to pypomp's); load average {load_before[0]:.1f} before, {load_after[0]:.1f} after, "
-          f"{os.cpu_count()} CPUs\n")
+    print(f"after: {machine_line()}")
+    print("\nSeconds per run" + (" (ratio to pypomp's)" if arguments.pypomp_python else "") + "\n")
     print(markdown_table(pd.DataFrame(rows)))
 
 
