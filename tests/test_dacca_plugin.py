@@ -241,3 +241,30 @@ def test_standalone_bootstrap_filter_lands_on_pomps_log_likelihood():
     assert abs(log_mean_exp(estimates) - PUBLISHED_LOG_LIKELIHOOD) < PYPOMP_TOLERANCE
     difference_error = math.hypot(standard_error, PYPOMP_STANDARD_ERROR_J1000)
     assert abs(mean - PYPOMP_MEAN_J1000) < 3.0 * difference_error
+
+
+@pytest.mark.parametrize("shift, agree", [(0.0, True), (-20.0, False)])
+def test_the_jax_runs_are_judged_against_the_numpy_runs_and_the_published_value(tmp_path, shift, agree):
+    """The report's backends part (pfx.papers.dacca_backends) on copies of the committed numpy
+    folder: jax runs equal to the numpy runs agree (z = 0) and pass pypomp's test exactly when
+    the numpy runs do; shifted 20 down (far beyond 3 standard errors and 2.5) they fail both."""
+    import shutil
+
+    from pfx.papers import REPORTS
+    from pfx.papers.base import PaperResults
+    from pfx.papers.dacca_backends import JAX, NUMPY
+
+    committed = REPO_ROOT / "results" / "benchmarks" / "dacca-cholera"
+    folder = tmp_path / "dacca-cholera"
+    shutil.copytree(committed / NUMPY, folder / NUMPY)
+    shutil.copytree(committed / NUMPY, folder / JAX)
+    shutil.copy(committed / "paper.yaml", folder / "paper.yaml")
+    trials = pd.read_csv(folder / JAX / "trials.csv")
+    trials.assign(log_likelihood=trials["log_likelihood"] + shift).to_csv(folder / JAX / "trials.csv", index=False)
+    section = REPORTS["dacca-cholera"](PaperResults(folder))
+    [backends] = [entry for entry in section.verdicts if "agrees with the numpy backend" in entry.claim]
+    [published] = [entry for entry in section.verdicts if "jax backend in 32-bit floats" in entry.claim]
+    [numpy_published] = [entry for entry in section.verdicts if "King et al. 2008" in entry.claim]
+    assert (backends.verdict == "reproduced") == agree, backends.evidence
+    assert "z = 0.0" in backends.evidence if agree else "z = -" in backends.evidence
+    assert published.verdict == (numpy_published.verdict if agree else "not reproduced"), published.evidence

@@ -362,3 +362,36 @@ def test_the_search_is_judged_by_the_likelihood_ratio_depth_of_its_ten_parameter
         [judged] = [entry for entry in section.verdicts if "IF2" in entry.claim]
         assert judged.verdict == verdict, (gap, judged.evidence)
         assert f"{gap:.2f} below the published" in judged.evidence
+
+
+def test_the_search_is_judged_on_its_local_stage_which_must_start_at_the_global_best(tmp_path):
+    """With a local stage present, the verdict reads its best replicate, and the report says
+    whether its replicates start at the global stage's best estimate (4 significant digits)."""
+    from pfx.papers import REPORTS
+    from pfx.papers.base import PaperResults
+    from pfx.papers.measles_search import START_DIGITS
+
+    global_folder = REPOSITORY / "results" / "benchmarks" / "measles-london" / "if2"
+    global_ends = pd.read_csv(global_folder / "maximum_likelihood.csv")
+    best = global_ends.loc[global_ends["log_likelihood"].idxmax()]
+    columns = ["R0", "sigma", "gamma", "iota", "rho", "sigmaSE", "psi", "cohort", "amplitude", "alpha"]
+    for starts_at_best in (True, False):
+        folder = tmp_path / str(starts_at_best) / "measles-london"
+        shutil.copytree(global_folder, folder / "if2")
+        shutil.copytree(global_folder, folder / "if2-local")
+        shutil.copy(PAPER, folder / "paper.yaml")
+        paths = pd.read_csv(folder / "if2-local" / "if2.csv")
+        if starts_at_best:
+            first = paths["iteration"] == 0
+            for column in columns:
+                paths.loc[first, column] = float(f"{best[column]:.{START_DIGITS}g}")
+            paths.to_csv(folder / "if2-local" / "if2.csv", index=False)
+        local_ends = pd.read_csv(folder / "if2-local" / "maximum_likelihood.csv")
+        local_ends.assign(log_likelihood=-3804.9 - 4.0 - np.arange(len(local_ends)), log_likelihood_se=0.5).to_csv(
+            folder / "if2-local" / "maximum_likelihood.csv", index=False)
+        section = REPORTS["measles-london"](PaperResults(folder))
+        [judged] = [entry for entry in section.verdicts if "IF2" in entry.claim]
+        assert judged.verdict == "reproduced", judged.evidence
+        assert "the local stage's best replicate" in judged.evidence and "4.00 below the published" in judged.evidence
+        warned = "does not start at the global stage's best estimate" in str(section)   # the section's texts
+        assert warned != starts_at_best

@@ -18,7 +18,8 @@ beside pypomp's own filter run on this machine (``reference_run`` in paper.yaml)
   in quadrature).
 
 The per-month log-likelihood increments (steps_summary.csv) name the months where the model
-and the deaths disagree most: the figure and :data:`WORST_MONTHS` of them in a table.
+and the deaths disagree most: the figure and :data:`WORST_MONTHS` of them in a table. The same
+filter on the jax backend (``dacca-jax``) is :mod:`pfx.papers.dacca_backends`'s part.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
+from pfx.papers.dacca_backends import backends_part
 from pfx.papers.likelihood_runs import estimate_numbers
 from pfx.papers.score_tables import score_part
 
@@ -171,7 +173,7 @@ def scores_part(results: PaperResults) -> Part:
                       cell_name=lambda row: f"N = {int(row['n_particles']):,}")
 
 
-PARTS = (likelihood_part, months_part, scores_part)
+PARTS = (likelihood_part, backends_part, months_part, scores_part)
 
 
 @REPORTS.register(BENCHMARK)
