@@ -112,8 +112,9 @@ def local_start_text(first: Stage, local: Stage) -> str:
     """Whether the local stage starts at the global stage's best estimate (to START_DIGITS digits)."""
     best = first.best
     starts = local.paths[local.paths["iteration"] == 0]
+    # the starts come back through the parameter's transform (exp of its log): compare them rounded too
     differing = [column for column in local.estimation.columns
-                 if not (starts[column] == _rounded(float(best[column]))).all()]
+                 if any(_rounded(float(value)) != _rounded(float(best[column])) for value in starts[column])]
     if not differing:
         return (f"All {len(local.finals)} replicates start at the global stage's best estimate (its replicate "
                 f"{int(best['replicate'])}, log L̂ = {best['log_likelihood']:.1f}), to {START_DIGITS} significant "
@@ -170,8 +171,9 @@ def search_part(results: PaperResults) -> Part:
                 f"{len(last.finals)} replicates end within the tolerance, the worst "
                 f"{target - float(last.finals['log_likelihood'].min()):.1f} below")
     if local is not None:
-        evidence += (f"; the global stage's best was {target - float(first.best['log_likelihood']):.2f} below, "
-                     f"so the local stage gained {float(best['log_likelihood'] - first.best['log_likelihood']):.2f}")
+        change = float(best["log_likelihood"] - first.best["log_likelihood"])
+        evidence += (f"; the global stage's best was {target - float(first.best['log_likelihood']):.2f} below, so the "
+                     f"local stage ended {abs(change):.2f} {'higher' if change > 0 else 'lower'}")
     if results.has(LIKELIHOOD):
         own = estimate_numbers(results.folder(LIKELIHOOD).trials)
         largest = own.index.max()
