@@ -53,6 +53,11 @@ class FolderState:
         return bool(self.manifest and self.manifest.get("complete"))
 
 
+def up_to_date_note(out: Path, config_hash: str) -> str:
+    """What a run says of a finished folder that already holds its config's results."""
+    return f"{out}: up to date (same config hash {config_hash}); nothing to do (--fresh recomputes)"
+
+
 def inspect_folder(plan, out: Path, fresh: bool, *, locked: bool = False) -> FolderState:
     """What ``out`` holds for this plan; refuse, without touching anything, a folder it may not
     write to (see the module docstring) or could not write to (:func:`check_writable`).

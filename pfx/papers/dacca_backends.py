@@ -10,8 +10,8 @@ Verdicts:
 * the published -3748.6 by pypomp's own test, as for numpy (:mod:`pfx.papers.dacca_cholera`):
   the jax runs' log-mean-exp at N = 1000 within ``published.tolerance`` (2.5) of it;
 * the two backends: at every N both ran, the difference of their mean log-likelihood
-  estimates within :data:`Z_LIMIT` standard errors of the difference (independent runs: the
-  standard errors add in quadrature).
+  estimates within :data:`~pfx.papers.likelihood_runs.Z_LIMIT` standard errors of the difference
+  (independent runs: the standard errors add in quadrature).
 """
 
 from __future__ import annotations
@@ -21,10 +21,9 @@ import math
 import pandas as pd
 
 from pfx.papers.base import PaperResults, Part, Table, Text, Verdict, format_number, markdown_table, verdict_from_checks
-from pfx.papers.likelihood_runs import estimate_numbers
+from pfx.papers.likelihood_runs import agreement_verdict, estimate_numbers
 
 NUMPY, JAX = "dacca", "dacca-jax"
-Z_LIMIT = 3.0
 GATED_PARTICLES = 1000       # pypomp's test reads the runs at N = 1000
 
 
@@ -64,16 +63,10 @@ def backends_part(results: PaperResults) -> Part:
             f"the jax runs' log-mean-exp over {int(compiled.loc[GATED_PARTICLES, 'runs'])} runs at N = "
             f"{GATED_PARTICLES} is {format_number(compiled.loc[GATED_PARTICLES, 'log_mean_exp'], 6)}, "
             f"{format_number(gap, 2)} from the published value."))
-    common = [] if numpy_runs is None else [particles for particles in compiled.index if particles in numpy_runs.index]
-    if common:
-        checks, evidence = [], []
-        for particles in common:
-            difference = compiled.loc[particles, "mean"] - numpy_runs.loc[particles, "mean"]
-            error = math.hypot(compiled.loc[particles, "se"], numpy_runs.loc[particles, "se"])
-            checks.append(abs(difference) <= Z_LIMIT * error)
-            evidence.append(f"N = {particles}: jax - numpy = {format_number(difference, 2)} "
-                            f"(standard error {format_number(error, 2)}, z = {difference / error:.1f})")
-        verdicts.append(Verdict("the jax backend (32-bit floats) agrees with the numpy backend on the same model, "
-                                "data and parameters", verdict_from_checks(checks),
-                                "; ".join(evidence) + f" (|z| <= {Z_LIMIT:g} asked)."))
+    pairs = {} if numpy_runs is None else {
+        particles: (compiled.loc[particles, "mean"], compiled.loc[particles, "se"], numpy_runs.loc[particles, "mean"],
+                    numpy_runs.loc[particles, "se"]) for particles in compiled.index if particles in numpy_runs.index}
+    if pairs:
+        verdicts.append(agreement_verdict("the jax backend (32-bit floats) agrees with the numpy backend on the same "
+                                          "model, data and parameters", "jax - numpy", pairs))
     return Part(items, verdicts)

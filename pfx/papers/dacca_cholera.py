@@ -14,8 +14,8 @@ beside pypomp's own filter run on this machine (``reference_run`` in paper.yaml)
 * the published -3748.6, by pypomp's own test: the log-mean-exp of the runs at N = 1000 within
   ``published.tolerance`` (2.5) of it;
 * the reference implementation: at every N both ran, the difference of the two means within
-  :data:`Z_LIMIT` standard errors of the difference (independent runs: the standard errors add
-  in quadrature).
+  :data:`~pfx.papers.likelihood_runs.Z_LIMIT` standard errors of the difference (independent
+  runs: the standard errors add in quadrature).
 
 The per-month log-likelihood increments (steps_summary.csv) name the months where the model
 and the deaths disagree most: the figure and :data:`WORST_MONTHS` of them in a table. The same
@@ -45,12 +45,11 @@ from pfx.papers.base import (
     verdict_from_checks,
 )
 from pfx.papers.dacca_backends import backends_part
-from pfx.papers.likelihood_runs import estimate_numbers
+from pfx.papers.likelihood_runs import agreement_verdict, estimate_numbers
 from pfx.papers.score_tables import score_part
 
 BENCHMARK = "dacca-cholera"
 EXPERIMENT = "dacca"
-Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
 WORST_MONTHS = 5
 
 
@@ -124,19 +123,12 @@ def likelihood_part(results: PaperResults) -> Part:
             f"{format_number(ours.loc[1000, 'log_mean_exp'], 6)}, {format_number(gap, 2)} from the published value; "
             f"at N = {int(ours.index.max())} the mean is {ours['mean'].iloc[-1]:.2f} "
             f"{_interval(ours['low'].iloc[-1], ours['high'].iloc[-1])}."))
-    common = [particles for particles in ours.index if particles in reference]
-    if common:
-        checks, evidence = [], []
-        for particles in common:
-            theirs = reference[particles]
-            difference = ours.loc[particles, "mean"] - theirs["mean"]
-            error = math.hypot(ours.loc[particles, "se"], theirs["standard_error"])
-            checks.append(abs(difference) <= Z_LIMIT * error)
-            evidence.append(f"N = {particles}: pfx - pypomp = {format_number(difference, 2)} "
-                            f"(standard error {format_number(error, 2)}, z = {difference / error:.1f})")
-        verdicts.append(Verdict(
+    pairs = {particles: (ours.loc[particles, "mean"], ours.loc[particles, "se"], reference[particles]["mean"],
+                         reference[particles]["standard_error"]) for particles in ours.index if particles in reference}
+    if pairs:
+        verdicts.append(agreement_verdict(
             "pfx's filter agrees with pypomp's on the same model, data and parameters (reference implementation)",
-            verdict_from_checks(checks), "; ".join(evidence) + f" (|z| <= {Z_LIMIT:g} asked)."))
+            "pfx - pypomp", pairs))
     return Part(items, verdicts)
 
 

@@ -6,7 +6,9 @@ For the runs :math:`\hat\ell_1..\hat\ell_R` of one N: their mean with its 95% t-
 standard deviation and the mean's standard error, and the log-mean-exp
 :math:`\log \frac1R \sum_r e^{\hat\ell_r}`, the log of the average of the unbiased estimates of
 :math:`L` (pomp's own summary of replicates, computed in the log domain); and the mean wall time
-per run.
+per run. Two sets of independent runs agree (:func:`agreement_verdict`) when, at every N both
+ran, the difference of their means lies within :data:`Z_LIMIT` standard errors of the
+difference, the two standard errors added in quadrature.
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ import pandas as pd
 from scipy.special import logsumexp
 
 from pfx.analysis.summary import describe
+from pfx.papers.base import Verdict, format_number, verdict_from_checks
+
+Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
 
 
 def log_mean_exp(values: np.ndarray) -> float:
@@ -38,3 +43,17 @@ def estimate_numbers(trials: pd.DataFrame) -> pd.DataFrame:
                      "se": sd / math.sqrt(len(values)), "log_mean_exp": log_mean_exp(values),
                      "seconds": float(group["run_time_s"].mean())})
     return pd.DataFrame(rows).set_index("N")
+
+
+def agreement_verdict(claim: str, label: str, pairs: dict[int, tuple[float, float, float, float]]) -> Verdict:
+    """Whether two sets of independent runs agree at every N (module docstring): ``pairs`` maps N
+    to (first mean, its standard error, second mean, its standard error); ``label`` names the
+    difference in the evidence ("pfx - pypomp")."""
+    checks, evidence = [], []
+    for particles, (first, first_error, second, second_error) in pairs.items():
+        difference = first - second
+        error = math.hypot(first_error, second_error)
+        checks.append(abs(difference) <= Z_LIMIT * error)
+        evidence.append(f"N = {particles}: {label} = {format_number(difference, 2)} "
+                        f"(standard error {format_number(error, 2)}, z = {difference / error:.1f})")
+    return Verdict(claim, verdict_from_checks(checks), "; ".join(evidence) + f" (|z| <= {Z_LIMIT:g} asked).")

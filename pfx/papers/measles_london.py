@@ -15,8 +15,9 @@ beside pypomp's own filter run on this machine (``reference_run`` in paper.yaml)
   likelihood-ratio allowance of paper.yaml (half the 95% point of chi-squared with one degree
   of freedom, 1.92: the scale of He et al.'s own confidence intervals) plus three standard errors
   of the difference of the two Monte Carlo estimates;
-* the reference implementation: the difference of the two means within :data:`Z_LIMIT`
-  standard errors of the difference (independent runs: the standard errors add in quadrature).
+* the reference implementation: the difference of the two means within
+  :data:`~pfx.papers.likelihood_runs.Z_LIMIT` standard errors of the difference (independent
+  runs: the standard errors add in quadrature).
 
 The per-week log-likelihood increments (steps_summary.csv) name the weeks the model explains
 worst: the figure and :data:`WORST_WEEKS` of them in a table. The search for the maximum by IF2
@@ -46,12 +47,11 @@ from pfx.papers.base import (
     markdown_table,
     verdict_from_checks,
 )
-from pfx.papers.likelihood_runs import estimate_numbers
+from pfx.papers.likelihood_runs import Z_LIMIT, agreement_verdict, estimate_numbers
 from pfx.papers.measles_search import search_part
 
 BENCHMARK = "measles-london"
 EXPERIMENT = "measles"
-Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
 WORST_WEEKS = 5
 ORIGIN, DAYS_PER_YEAR = 1950.0, 365.25       # pomp's time: 1950 + days since 1950-01-01 / 365.25
 
@@ -60,8 +60,8 @@ def published_tolerance(published: dict, standard_error: float) -> float:
     """How far pfx's log-mean-exp may lie from the published log-likelihood (paper.yaml's
     ``published``): the likelihood-ratio allowance (what two implementations may build
     differently from the same records, on the scale of the paper's own confidence intervals)
-    plus :data:`Z_LIMIT` standard errors of the difference of two Monte Carlo estimates (the
-    published one's and ours, ``standard_error``, in quadrature)."""
+    plus :data:`~pfx.papers.likelihood_runs.Z_LIMIT` standard errors of the difference of two
+    Monte Carlo estimates (the published one's and ours, ``standard_error``, in quadrature)."""
     return float(published.get("likelihood_ratio_allowance", math.nan)) + Z_LIMIT * math.hypot(
         float(published.get("standard_error", math.nan)), standard_error)
 
@@ -134,19 +134,12 @@ def likelihood_part(results: PaperResults) -> Part:
             f"{format_number(row['log_mean_exp'], 6)}, {format_number(gap, 2)} from the published value "
             f"(standard errors {format_number(row['se'], 2)} and {format_number(published_error, 2)}); "
             f"the mean is {row['mean']:.2f} {_interval(row['low'], row['high'])}."))
-    common = [particles for particles in ours.index if particles in reference]
-    if common:
-        checks, evidence = [], []
-        for particles in common:
-            theirs = reference[particles]
-            difference = ours.loc[particles, "mean"] - theirs["mean"]
-            error = math.hypot(ours.loc[particles, "se"], theirs["standard_error"])
-            checks.append(abs(difference) <= Z_LIMIT * error)
-            evidence.append(f"N = {particles}: pfx - pypomp = {format_number(difference, 2)} "
-                            f"(standard error {format_number(error, 2)}, z = {difference / error:.1f})")
-        verdicts.append(Verdict(
+    pairs = {particles: (ours.loc[particles, "mean"], ours.loc[particles, "se"], reference[particles]["mean"],
+                         reference[particles]["standard_error"]) for particles in ours.index if particles in reference}
+    if pairs:
+        verdicts.append(agreement_verdict(
             "pfx's filter agrees with pypomp's on the same model, data and parameters (reference implementation)",
-            verdict_from_checks(checks), "; ".join(evidence) + f" (|z| <= {Z_LIMIT:g} asked)."))
+            "pfx - pypomp", pairs))
     return Part(items, verdicts)
 
 

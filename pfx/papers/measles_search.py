@@ -24,9 +24,9 @@ The verdict, on the best replicate of the last stage run: it reaches the publish
 the depth of the maximum-likelihood estimate's own 95% likelihood-ratio confidence region in the
 p = 10 estimated parameters (an estimate less than this below the maximum is statistically
 indistinguishable from it; :func:`pfx.analysis.estimation_flags.likelihood_ratio_tolerance`),
-plus :data:`Z_LIMIT` standard errors of the difference of the two Monte Carlo estimates. The
-report also sets the best replicate beside pfx's own log-likelihood at the published parameters
-(the ``measles`` experiment) and says how the replicates spread.
+plus :data:`~pfx.papers.likelihood_runs.Z_LIMIT` standard errors of the difference of the two
+Monte Carlo estimates. The report also sets the best replicate beside pfx's own log-likelihood at
+the published parameters (the ``measles`` experiment) and says how the replicates spread.
 """
 
 from __future__ import annotations
@@ -39,11 +39,10 @@ import pandas as pd
 from pfx.analysis.estimation_flags import likelihood_ratio_tolerance
 from pfx.config.estimation import EstimationConfig
 from pfx.papers.base import Figure, PaperResults, Part, Table, Text, Verdict, markdown_table, verdict_from_checks
-from pfx.papers.likelihood_runs import estimate_numbers
+from pfx.papers.likelihood_runs import Z_LIMIT, estimate_numbers
 
 GLOBAL, LOCAL = "if2", "if2-local"
 LIKELIHOOD = "measles"          # the filter at the published parameters
-Z_LIMIT = 3.0
 START_DIGITS = 4                # the local stage's config holds the global best to 4 significant digits
 
 

@@ -47,7 +47,7 @@ from pfx.estimation.posterior_forecasts import posterior_forecasts
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
-from pfx.folder_state import FolderState, inspect_folder
+from pfx.folder_state import FolderState, inspect_folder, up_to_date_note
 from pfx.result_folder import (
     ESTIMATION_TABLES,
     MANIFEST,
@@ -110,7 +110,7 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
     state = inspect_folder(plan, out, fresh)      # refuse a folder of other results, early
     if state.complete and state.manifest.get("config_hash") == plan.config_hash:
         # As a finished filter run: nothing to recompute (IF2's final evaluations included).
-        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        report(up_to_date_note(out, plan.config_hash))
         return out
     work = _prepare(plan, out, state, {})         # and damaged progress, dropped iterations, bad starts
     with folder_lock(out, remove_if_unused=True):

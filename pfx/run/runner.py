@@ -40,7 +40,7 @@ from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
 from pfx.folder_lock import folder_lock
-from pfx.folder_state import FolderState, inspect_folder
+from pfx.folder_state import FolderState, inspect_folder, up_to_date_note
 from pfx.numerics.seeding import study_generator
 from pfx.result_folder import (
     CELLS,
@@ -196,7 +196,7 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
     them when the run that finished it stopped while drawing them)."""
     pending = bool(manifest.get(FIGURES_PENDING))
     if manifest.get("config_hash") == plan.config_hash and not pending:
-        report(f"{out}: up to date (same config hash {plan.config_hash}); nothing to do (--fresh recomputes)")
+        report(up_to_date_note(out, plan.config_hash))
         return
     outputs = plan.experiment.outputs
     figures, formats = list(outputs.figures), list(outputs.formats)
