@@ -14,7 +14,7 @@ The rules are the config path's:
 
 * **measurements**: real numbers, (T, m) or (trials, T, m), at least one step; a row of NaN is
   a missing measurement (a predict-only step), and a row is either complete or all NaN, as in
-  a ``data:`` file (:mod:`pfx.config.data`); no infinity, no complex values, no text;
+  a ``data:`` file (:mod:`pfx.config.data_files`); no infinity, no complex values, no text;
 * **trials**, **seed** and **seeds**: integers in the ranges of a config's ``trials`` (1 to
   10,000,000) and ``seed`` (0 to 2**63 - 1), one of ``seeds`` and ``seed``;
 * a model is a model object, a prior an initial law (or a dict, read as a config's

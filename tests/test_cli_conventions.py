@@ -24,7 +24,8 @@ from conftest import tiny_config_dict, write_config_file
 from typer.testing import CliRunner
 
 import pfx
-from pfx.analysis.compare import format_table, output_name, paired_comparison, relative_change_interval
+from pfx.analysis.compare import format_table, output_name, paired_comparison
+from pfx.analysis.paired_statistics import relative_change_interval
 from pfx.cli import LISTABLE, _registries, app
 from pfx.errors import ConfigError
 from pfx.safe_yaml import parse_yaml

@@ -18,7 +18,8 @@ import pytest
 from conftest import tiny_config_dict, write_config_file
 from scipy import stats
 
-from pfx.analysis.compare import BOOTSTRAP_SEED, format_table, grouping_columns, output_name, paired_comparison
+from pfx.analysis.compare import format_table, grouping_columns, output_name, paired_comparison
+from pfx.analysis.paired_statistics import BOOTSTRAP_SEED
 from pfx.errors import ConfigError
 
 # -- the function, on hand-made tables ---------------------------------------------------------
@@ -393,7 +394,7 @@ def test_compare_errors_are_one_line_exit_2_and_write_nothing(cli, name):
 
 
 def test_holm_adjustment_is_the_step_down_rule():
-    from pfx.analysis.compare import holm_adjusted
+    from pfx.analysis.paired_statistics import holm_adjusted
 
     # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1, made non-decreasing; a missing value stays missing
     adjusted = holm_adjusted([0.01, 0.04, 0.03, float("nan"), 0.005])

@@ -6,8 +6,8 @@
   an unknown PCG64 layout fall back to NumPy's own methods.
 * pfx.filters.particle.resampling.inverse_cdf (one merged pass) equals the binary search it replaced,
   ``searchsorted(guarded cumsum, u, 'right')`` clipped to N - 1, index for index.
-* pfx.filters.particle.engine.resample_rows equals ``take_along_axis``, whatever the memory layout.
-* pfx.filters.particle.engine.normalise_weights: weights are exp(log-weights), rows sum to 1.
+* pfx.filters.particle.cloud.resample_rows equals ``take_along_axis``, whatever the memory layout.
+* pfx.numerics.log_weights.normalise_weights: weights are exp(log-weights), rows sum to 1.
 """
 
 from __future__ import annotations

@@ -20,14 +20,8 @@ import pandas as pd
 import pytest
 
 from pfx.figures import FIGURES, render_figures
-from pfx.figures.estimation_chains import (
-    MOST_POINTS_PER_CELL,
-    chain_traces,
-    evenly_thinned,
-    parameter_columns,
-    posterior_marginals,
-    posterior_pairs,
-)
+from pfx.figures.estimation_chains import chain_traces, parameter_columns, posterior_marginals
+from pfx.figures.estimation_pairs import MOST_POINTS_PER_CELL, evenly_thinned, posterior_pairs
 from pfx.figures.if2 import if2_convergence
 from pfx.result_folder import ResultFolder, write_csv
 

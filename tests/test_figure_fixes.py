@@ -26,7 +26,8 @@ import yaml
 from matplotlib.collections import PathCollection, PolyCollection
 from matplotlib.container import ErrorbarContainer
 
-from pfx.figures.estimation_chains import posterior_marginals, posterior_pairs, true_parameter_values
+from pfx.figures.estimation_chains import posterior_marginals, true_parameter_values
+from pfx.figures.estimation_pairs import posterior_pairs
 from pfx.figures.maps import shared_trial, trajectory_map
 from pfx.figures.smoothing import smoothing_error_over_time
 from pfx.figures.sweeps import (

@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from pfx.analysis.compare import relative_change_interval
+from pfx.analysis.paired_statistics import relative_change_interval
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import MINIMUM_VALUES, describe, summarize
 from pfx.analysis.value_ranges import ANY_VALUE, NONNEGATIVE, SHARE, metric_range

@@ -102,7 +102,7 @@ def test_a_header_of_other_columns_names_those_found_and_those_expected(tmp_path
     ({"measurements": "step,z1\n1,1.0\n2,1e999\n"}, "measurements.csv:3: column z1: '1e999' is not a finite number"),
 ])
 def test_inf_in_a_data_file_is_refused_at_its_row_and_column(tmp_path, files, where):
-    """Already so before issue 34 (pfx/config/data.py reads every cell as a finite number): kept."""
+    """Already so before issue 34 (pfx/config/data_files.py reads every cell as a finite number): kept."""
     files = dict(files)
     message = refusal(tmp_path, recorded(tmp_path, files.pop("measurements"), **files))
     assert where in message and "model" not in message.split(where)[0], message

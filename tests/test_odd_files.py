@@ -85,10 +85,10 @@ def test_a_symbolic_link_is_judged_by_the_file_it_names(run_pfx, tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="needs Linux's /proc")
 def test_the_size_limit_holds_for_a_file_that_reports_no_size(tmp_path, monkeypatch):
     """/proc files report a size of 0 and hold more: the limit counts the bytes read."""
-    import pfx.config.data
+    import pfx.config.data_files
 
     assert os.stat("/proc/self/status").st_size == 0
-    monkeypatch.setattr(pfx.config.data, "MAX_FILE_BYTES", 64)
+    monkeypatch.setattr(pfx.config.data_files, "MAX_FILE_BYTES", 64)
     path = data_config(tmp_path, "/proc/self/status")
     with pytest.raises(ConfigError) as caught:
         build_plan(yaml.safe_load(path.read_text()), str(path))

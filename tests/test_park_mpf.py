@@ -12,13 +12,13 @@ import pandas as pd
 import pytest
 import yaml
 
-from pfx.analysis.compare import diverged, relative_change_interval
+from pfx.analysis.paired_statistics import diverged, relative_change_interval
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.numerics.seeding import study_generator
 from pfx.papers.base import REPORTS, VERDICTS, PaperResults, Table
 from pfx.papers.gallery import write_gallery
-from pfx.papers.park_mpf import claim_verdict
+from pfx.papers.park_mpf_extended import claim_verdict
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 from pfx.studies.mahalanobis_distances import MahalanobisDistances, sample_moments

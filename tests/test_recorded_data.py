@@ -1,4 +1,4 @@
-"""Recorded data (``data:``, pfx/config/data.py, docs/recorded-data.md).
+"""Recorded data (``data:``, pfx/config/data.py and data_files.py, docs/recorded-data.md).
 
 * the Nile example: pfx's Kalman log-likelihood against statsmodels' (the same wide prior to
   rounding; the exact diffuse initialisation to what the finite prior variance allows), the

@@ -203,7 +203,7 @@ class MetricInputs:
     """Everything a metric may read: truth at steps 1..T, the filter trace, the model."""
 
     truth: Optional[np.ndarray]    # (trials, T, d); None: recorded data without the truth
-    trace: "object"                # pfx.filters.particle.engine.FilterTrace
+    trace: "object"                # pfx.filters.trace.FilterTrace
     model: "object"                # the truth model (names, position components)
     config: MetricsConfig
     observed: Optional[np.ndarray] = None   # (trials, T) False where the measurement is missing; None: all there

@@ -15,7 +15,7 @@ from pfx.models import MODELS
 
 def fill_covariates(model: dict, covariates, file: Optional[str]) -> None:
     """The model's ``covariates`` from the table ``covariates`` (a
-    :class:`pfx.config.data.DataTable`): ``time`` and one list per column (the model
+    :class:`pfx.config.data_files.DataTable`): ``time`` and one list per column (the model
     checks the names against its ``covariate_names`` when it is validated)."""
     if covariates.index_name != "time":
         raise ConfigError("the first column of a covariates file must be `time` (covariates are read by time, "

@@ -13,6 +13,7 @@ from pfx.figures import (
     concept,  # noqa: F401
     degeneracy,  # noqa: F401
     estimation_chains,  # noqa: F401
+    estimation_pairs,  # noqa: F401
     estimator_spread,  # noqa: F401
     forecasts,  # noqa: F401
     if2,  # noqa: F401

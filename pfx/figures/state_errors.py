@@ -8,10 +8,10 @@ r"""Figures of the error in every state component (park-mpf Figs. 4-6 and its ex
   wrapped into half a turn either side.
 * ``relative_change_by_state`` (trials.csv): for every state component, every arm's mean RMSE
   relative to the first arm's, paired by trial, with its 95% interval
-  (:func:`pfx.analysis.compare.relative_change_interval`); for experiments with one cell per arm.
+  (:func:`pfx.analysis.paired_statistics.relative_change_interval`); for experiments with one cell per arm.
 
 A filter that diverges (errors many orders of magnitude above the others'; see
-:func:`pfx.analysis.compare.diverged`) would flatten every other line to zero: over time, its line
+:func:`pfx.analysis.paired_statistics.diverged`) would flatten every other line to zero: over time, its line
 stops where it leaves the axes (a triangle marks the edge it crossed) and the panel names it
 with that time and its largest error (:func:`pfx.figures.layout.plot_within`); in the
 relative change, its count of diverged trials is written instead of an interval. The figure
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.analysis.compare import diverged, relative_change_interval
+from pfx.analysis.paired_statistics import diverged, relative_change_interval
 from pfx.analysis.value_ranges import metric_range
 from pfx.figures.layout import (
     cell_labels,

@@ -19,7 +19,7 @@ mean (steps_summary.csv, :mod:`pfx.analysis.step_summary`): where two bands do n
 differ by more than their trials' spread explains. With fewer than 6 trials there is no band,
 and the title says why. A folder written before steps_summary.csv
 existed draws the same statistics over its traced trials (steps.csv; see
-:attr:`pfx.figures.registry.ResultFolder.steps_summary`), and its title says "traced trials".
+:attr:`pfx.result_folder.ResultFolder.steps_summary`), and its title says "traced trials".
 
 Sweeps with many cells are drawn as small multiples, legends sit below the panels, and a cell
 whose mean diverges (a filter that lost the target: errors of 1e20) stops at the edge of the

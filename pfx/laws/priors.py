@@ -22,7 +22,7 @@ takes the one its prior's support asks for.
 The laws are scipy.stats distributions (log-densities and quantiles); draws come from an
 explicit :class:`numpy.random.Generator` (a chain's own stream), never a global one.
 :meth:`Transform.to_natural` also takes JAX arrays: IF2 on the jax backend maps every
-particle's parameters to the natural scale inside its compiled pass (:mod:`pfx.estimation.compiled`).
+particle's parameters to the natural scale inside its compiled pass (:mod:`pfx.estimation.compiled_if2`).
 """
 
 from __future__ import annotations

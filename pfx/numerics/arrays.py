@@ -1,8 +1,9 @@
 """Array namespaces: one model code for NumPy arrays and JAX arrays.
 
 A model's ``propagate``, ``measurement_mean`` and ``log_likelihood`` are written once and run on
-both of pfx's backends (:mod:`pfx.filters.particle.kernel`): on the ``numpy`` backend they are
-given NumPy arrays, on the ``jax`` backend JAX arrays (traced inside a compiled scan). Both
+both of pfx's backends (:mod:`pfx.filters.particle.engine` and
+:mod:`pfx.filters.particle.jax_engine`): on the ``numpy`` backend they are given NumPy arrays,
+on the ``jax`` backend JAX arrays (traced inside a compiled scan). Both
 libraries implement the Python array API standard, whose entry point is the array's own
 ``__array_namespace__()``: the module of functions that works on it. A generic function asks
 its arguments for that module and calls its functions::

@@ -3,7 +3,7 @@
 A few steps of the engine are loops that NumPy cannot express without extra passes over the
 particles or a Python loop per trial: the merged walk of the inverse CDF
 (:func:`pfx.filters.particle.resampling.inverse_cdf`), the gather of resampled particles
-(:func:`pfx.filters.particle.engine.resample_rows`), each trial's PCG64 generator stepped in place
+(:func:`pfx.filters.particle.cloud.resample_rows`), each trial's PCG64 generator stepped in place
 (:mod:`pfx.numerics.pcg64`) and the ziggurat that turns its 64-bit words into normal draws
 (:mod:`pfx.numerics.ziggurat`). Each is an ordinary Python function decorated with
 :func:`compiled` (or :func:`compiled_now`); it stays next to the mathematics it implements.

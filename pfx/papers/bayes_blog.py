@@ -32,7 +32,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from pfx.analysis.compare import holm_adjusted, paired_comparison
+from pfx.analysis.compare import paired_comparison
+from pfx.analysis.paired_statistics import holm_adjusted
 from pfx.papers.base import (
     REPORTS,
     Figure,

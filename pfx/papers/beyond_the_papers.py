@@ -36,8 +36,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from pfx.analysis.compare import paired_comparison, relative_change_interval
+from pfx.analysis.compare import paired_comparison
 from pfx.analysis.estimator_spread import variance_ratio_interval, within_dataset_spread
+from pfx.analysis.paired_statistics import relative_change_interval
 from pfx.analysis.value_ranges import metric_range
 from pfx.papers.base import (
     REPORTS,

@@ -24,7 +24,7 @@ and each gets a verdict per filter sensor variance, from the extended runs:
    *not reproduced* at none (:func:`per_count_verdict`).
 3. *noisy is far more accurate*: the relative change of the mean error at convergence, noisy /
    noise-free - 1, over all N pooled (pairs: same N and trial;
-   :func:`pfx.analysis.compare.relative_change_interval`); "far" is read as at least halving it:
+   :func:`pfx.analysis.paired_statistics.relative_change_interval`); "far" is read as at least halving it:
    *reproduced* when the interval's upper end is below -50 %, *partly reproduced* when it is
    below 0 only, else *not reproduced* (:func:`accuracy_verdict`).
 4. *noisy improves with N*: the least-squares slope of the noisy arm's error at convergence
@@ -44,7 +44,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from pfx.analysis.compare import paired_comparison, relative_change_interval
+from pfx.analysis.compare import paired_comparison
+from pfx.analysis.paired_statistics import relative_change_interval
 from pfx.analysis.value_ranges import metric_range
 from pfx.errors import ConfigError
 from pfx.papers.base import (
