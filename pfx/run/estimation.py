@@ -38,8 +38,6 @@ from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
-from pfx.estimation.compiled_if2 import CompiledSwarm
-from pfx.estimation.compiled_pmmh import CompiledChains
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
@@ -292,10 +290,15 @@ def _resumed_if2(plan: Plan, target: EstimationTarget, out: Path) -> CellWork | 
     return CellWork(target.cell, target, rows, swarm, first, started=False, note=note)
 
 
-def _sampler(plan: Plan, target: EstimationTarget) -> ParticleMarginalMetropolisHastings | CompiledChains:
-    """The cell's PMMH: iteration by iteration on numpy, compiled blocks of iterations on jax."""
+def _sampler(plan: Plan, target: EstimationTarget):
+    """The cell's PMMH: iteration by iteration on numpy, compiled blocks of iterations on jax
+    (:class:`~pfx.estimation.compiled_pmmh.CompiledChains`, imported only then: it needs the jax extra)."""
     sampler = ParticleMarginalMetropolisHastings(target, plan.experiment.seed, target.cell.stream_key)
-    return CompiledChains(sampler) if target.cell.filter.backend == "jax" else sampler
+    if target.cell.filter.backend != "jax":
+        return sampler
+    from pfx.estimation.compiled_pmmh import CompiledChains
+
+    return CompiledChains(sampler)
 
 
 def _iterated_filtering(plan: Plan, target: EstimationTarget) -> IteratedFiltering:
@@ -363,8 +366,12 @@ def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None
         save_swarm(swarm, swarm_file(out, item.cell))
         raise_if_requested()
 
-    # pass by pass on numpy; compiled blocks of passes on jax
-    runner = CompiledSwarm(method) if target.cell.filter.backend == "jax" else method
+    # pass by pass on numpy; compiled blocks of passes on jax (imported only then: it needs the jax extra)
+    runner = method
+    if target.cell.filter.backend == "jax":
+        from pfx.estimation.compiled_if2 import CompiledSwarm
+
+        runner = CompiledSwarm(method)
     runner.run(item.state, item.first, estimation.iterations, record)
     return rows
 
