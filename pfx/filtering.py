@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from pfx import python_arguments as arguments
-from pfx.config.plan import check_plugin_model
+from pfx.config.plan_checks import check_plugin_model
 from pfx.config.plugin_faults import locate
 from pfx.config.plugins import LoadedPlugin, loaded_plugins, python_origins
 from pfx.config.plugins import load_plugin as load_plugin_entry

@@ -13,25 +13,16 @@ pfx's own components plus theirs. Their code's hashes join the config and result
 from __future__ import annotations
 
 import copy
-import inspect
 import itertools
 import json
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Iterable, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 from pfx.analysis.metrics import MetricsConfig
-from pfx.config.backend_labels import label_backends
-from pfx.config.covariate_files import check_covariate_spans
 from pfx.config.data import CellData, attach_recorded_data, prepare_recorded_data
 from pfx.config.dotted_paths import deep_merge, set_path
-from pfx.config.estimation import (
-    ESTIMATION_FIGURES,
-    check_auto_particles,
-    check_column_names,
-    check_estimated_paths,
-    check_figures_apply,
-)
-from pfx.config.forecasts import check_forecasts
+from pfx.config.estimation import ESTIMATION_FIGURES
+from pfx.config.plan_checks import check_cells, check_experiment, check_outputs_and_estimation, check_plugin_model
 from pfx.config.plugin_faults import locate as locate_plugin_fault
 from pfx.config.plugin_faults import plan_time_fault
 from pfx.config.plugin_record import check_copies
@@ -43,7 +34,6 @@ from pfx.errors import ConfigError, located_value_error
 from pfx.filters import FILTERS, FilterKind
 from pfx.models import MODELS
 from pfx.models.base import Model, bind_law
-from pfx.models.contract_checks import reproducibility_fault
 from pfx.numerics.hashing import canonical_hash
 
 if TYPE_CHECKING:       # the classes of the built-in components; a plan's own come from config_schema
@@ -292,42 +282,6 @@ def build_plan(raw: dict, file: str, *, trials: Optional[int] = None) -> Plan | 
     return plan
 
 
-def check_plugin_model(model: Model, plugins: Iterable[LoadedPlugin]) -> None:
-    """A plugin's model, checked before anything runs: called once on a tiny batch (its shapes,
-    dtypes and declared index lists: :meth:`Model.check_contract`), then probed for a global
-    random generator (the same inputs twice must give the same outputs:
-    :func:`~pfx.models.contract_checks.reproducibility_fault`). Its mistakes are one
-    :class:`ConfigError` line naming the plugin file (and the line, where known). A model whose
-    class none of ``plugins`` registered or defines (pfx's own) passes unchecked."""
-    model_class = type(model)
-    registered = model.kind in MODELS and MODELS[model.kind] is model_class
-    origin = MODELS.origin(model.kind) if registered else None     # the plugin that registered it, if one did
-    plugin = next((plugin for plugin in plugins
-                   if (origin is not None and plugin.origin == origin) or plugin.module == model_class.__module__),
-                  None)
-    if plugin is None:
-        return
-    from pfx.numerics.seeding import TrialStreams
-
-    try:
-        model.check_contract(TrialStreams.from_seeds([0, 1]))
-        fault = reproducibility_fault(model)
-        if fault is not None:
-            raise ValueError(fault)
-    except Exception as error:          # the plugin's own code: any exception is its mistake
-        located = locate_plugin_fault(error, [plugin])
-        if located is not None:         # raised in the plugin's code: its line
-            raise located.as_config_error() from error
-        # A result pfx's check refused: the line of the member's definition, where it has one.
-        reason = " ".join(str(error).split())
-        member = inspect.getattr_static(model_class, reason.split(" ", 1)[0], None)
-        function = member.fget if isinstance(member, property) else member
-        code = getattr(function, "__code__", None)
-        line = code.co_firstlineno if code is not None and code.co_filename in (plugin.path, plugin.code_file) \
-            else None
-        raise ConfigError(f"model {model.kind}: {reason}", file=plugin.path, line=line) from error
-
-
 def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
             plugins: tuple[LoadedPlugin, ...]) -> Plan | StudyPlan:
     """:func:`build_plan` once the plugins are loaded: validation against ``schema``, the cells."""
@@ -341,21 +295,11 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         raw["trials"] = trials
     data = prepare_recorded_data(raw, file)      # reads data: files; fills model.steps (dt, controls) from them
     experiment = validate(schema.Experiment, raw, file=file)
-    if experiment.estimation is not None:
-        for key in ("trials", "datasets"):
-            if key in raw:
-                raise ConfigError(f"an estimation config runs chains on one dataset, not trials; drop {key} (how many "
-                                  "chains: estimation.chains)", file=file, key=key)
-    check_auto_particles(experiment, file)
+    check_experiment(experiment, raw, file, recorded_data=data is not None)
     raw_arms = raw.get("arms") or {}
     arms: dict[str, Optional[dict]] = {name: raw_arms[name] for name in experiment.arms} or {DEFAULT_ARM: None}
     sweep = experiment.sweep
 
-    for dotted in sweep:
-        head = dotted.split(".")[0]
-        if head not in ("model", "filter", "metrics"):
-            raise ConfigError("sweep keys must start with model., filter. or metrics.", file=file,
-                              key=f"sweep.{dotted}")
     # Check each arm and each sweep value on its own first, so errors name their source.
     for name, arm_raw in arms.items():
         if arm_raw is not None:
@@ -375,17 +319,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
                                        prefix=where if (arm_raw is not None or keys) else "",
                                        schema=schema, plugins=plugins))
     attach_recorded_data(cells, data, file)
-    check_covariate_spans(cells, raw, file)
-    for cell in cells:                           # with the recorded data's times, if any
-        _check_burn_in(cell, file, swept="metrics.burn_in" in sweep)
-    seen: dict[str, int] = {}
-    for index, cell in enumerate(cells):
-        if cell.key in seen:
-            raise ConfigError(f"cells {seen[cell.key] + 1} and {index + 1} have identical settings; "
-                              "remove the repeated sweep value", file=file, key="sweep")
-        seen[cell.key] = index
-
-    label_backends(cells, experiment, arms, file)
+    check_cells(cells, experiment, arms, raw, file)
+    _label_backends(cells)
 
     if "figures" not in experiment.outputs.model_fields_set and experiment.estimation is not None:
         experiment.outputs.figures = list(ESTIMATION_FIGURES[experiment.estimation.method])
@@ -400,9 +335,6 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("data", None)     # the record of a config without data is unchanged
     elif data is None:
         resolved["data"] = files       # covariates only: the measurements are simulated
-    elif experiment.datasets is not None:
-        raise ConfigError("recorded data is one dataset: every trial filters it already; drop datasets",
-                          file=file, key="datasets")
     if experiment.datasets is None:
         resolved.pop("datasets", None)     # nor is that of a config without datasets
     if not experiment.outputs.genealogy:
@@ -411,52 +343,26 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved["metrics"].pop("scores", None)        # nor that of a config without scores
     if not experiment.outputs.forecasts.requested:
         resolved["outputs"].pop("forecasts", None)     # nor that of a config without forecasts.csv
-    check_forecasts(experiment, cells, file)
-    if "figures" in experiment.outputs.model_fields_set:
-        check_figures_apply(experiment.outputs.figures, experiment.estimation, file)
+    check_outputs_and_estimation(cells, experiment, file)
     if experiment.estimation is None:
         resolved.pop("estimation", None)     # nor that of a config without estimation
     else:
         resolved.pop("trials", None)         # it has none
         if experiment.estimation.particle_count is None:
             resolved["estimation"].pop("particle_count")     # the record of a config without it is unchanged
-        for cell in cells:
-            check_estimation(experiment.estimation, cell, file, len(cells) > 1)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
 
 
-def check_estimation(estimation, cell: Cell, file: str, several: bool) -> None:
-    """The estimated paths name numbers of the cell's filter model, and their columns are not the
-    cell's label columns (:mod:`pfx.config.estimation_tables`); IF2 perturbs every particle's
-    parameters, so it needs a bootstrap particle filter and a model that takes each of them as an
-    array (``vectorised_parameters``)."""
-    where = f" (cell {cell.labels})" if several else ""
-    check_estimated_paths(estimation, cell.filter_model, file, where)
-    check_column_names(estimation, list(cell.labels), file, where)
-    if estimation.method != "if2":
+def _label_backends(cells: list[Cell]) -> None:
+    """A config that runs any particle filter on the jax backend gets ``backend`` and
+    ``precision`` columns in its tables, for every cell (empty for the kinds without particles,
+    which run on numpy); a config on numpy alone keeps the tables it always had (docs/backends.md)."""
+    if not any(cell.filter.uses_particles and cell.filter.backend == "jax" for cell in cells):
         return
-    settings = cell.filter
-    if settings.kind != "particle" or not settings.bootstrap_stages:
-        raise ConfigError(f"IF2 runs the bootstrap particle filter (kind particle, the transition as proposal, the "
-                          f"likelihood as weight, no auxiliary stage, move, adaptive count or injection){where}",
-                          file=file, key="estimation.method")
-    declared = type(cell.filter_model).vectorised_parameters
-    for path in estimation.parameters:
-        if path[len("model."):] not in declared:
-            raise ConfigError(f"IF2 gives every particle its own {path}, and model {cell.filter_model.kind} does not "
-                              f"declare it among its vectorised_parameters ({', '.join(declared) or 'none'}; "
-                              "docs/estimation.md)", file=file, key=f"estimation.parameters.{path}")
-
-
-def _check_burn_in(cell: Cell, file: str, swept: bool) -> None:
-    """A burn-in (``metrics.burn_in``) must leave at least one step to score: a step at a time
-    after it (:mod:`pfx.analysis.metrics`)."""
-    burn_in = cell.metrics.burn_in
-    times = cell.truth_model.times()
-    if burn_in > 0 and not (times > burn_in).any():
-        raise ConfigError(f"{burn_in:g} leaves no step to score: the steps at times <= burn_in are not scored, "
-                          f"and the last step is at time {times[-1]:g}",
-                          file=file, key="sweep.metrics.burn_in" if swept else "metrics.burn_in")
+    for cell in cells:
+        particles = cell.filter.uses_particles
+        cell.labels["backend"] = cell.filter.backend if particles else None
+        cell.labels["precision"] = cell.filter.precision if particles else None
 
 
 def _sweeps_particle_count(sweep: dict) -> bool:
