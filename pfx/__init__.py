@@ -36,11 +36,11 @@ __version__ = "0.1.0"
 # are a public contract, and the decorators that register components under their names.
 _LAZY_NAMES = {
     "Model": "pfx.models.base",
-    "register_model": "pfx.config.plugins",
-    "register_resampler": "pfx.config.plugins",
-    "register_weighting": "pfx.config.plugins",
-    "register_filter_kind": "pfx.config.plugins",
-    "register_proposal": "pfx.config.plugins",
+    "register_model": "pfx.config.plugin_registration",
+    "register_resampler": "pfx.config.plugin_registration",
+    "register_weighting": "pfx.config.plugin_registration",
+    "register_filter_kind": "pfx.config.plugin_registration",
+    "register_proposal": "pfx.config.plugin_registration",
     # a plugin's proposal subclasses this (filter.proposal; docs/plugins.md)
     "Proposal": ("pfx.filters.particle.proposals", "ProposalBase"),
     # the laws a model's presets() and default_prior() return

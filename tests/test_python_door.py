@@ -289,13 +289,13 @@ def test_load_plugin_names_the_line_of_a_plugin_that_raises(tmp_path, monkeypatc
 def imported_by_hand():
     """Forget, after the test, what the modules it imports by hand registered (the registries
     outlive a test; a later test in this process should not find them)."""
-    from pfx.config import plugins
+    from pfx.config import plugin_registration
 
     yield
-    for module in list(plugins._IMPORTED_BY_HAND):
+    for module in list(plugin_registration.IMPORTED_BY_HAND):
         if module.startswith(("hand_radar", "later_radar")):
-            plugins._forget(module)
-            del plugins._IMPORTED_BY_HAND[module]
+            plugin_registration.forget(module)
+            del plugin_registration.IMPORTED_BY_HAND[module]
             sys.modules.pop(module, None)
 
 

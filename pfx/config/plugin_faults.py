@@ -31,7 +31,8 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import Iterable, Optional
 
-from pfx.config.plugins import LoadedPlugin, loaded_plugins, registries
+from pfx.config.plugin_registration import registries
+from pfx.config.plugins import LoadedPlugin, loaded_plugins
 from pfx.errors import STEP_NOTE_PREFIX, ConfigError, ModelContractError, PluginFault
 
 

@@ -1,9 +1,9 @@
-"""Plugins: components (models, resamplers, weightings, proposals, filter kinds) from outside pfx.
+"""Loading plugins: the code that brings components (models, resamplers, weightings, proposals,
+filter kinds) from outside pfx into a run.
 
 A plugin is Python code that registers components with the decorators of the public API
-(``pfx.register_model``, ``pfx.register_resampler``, ``pfx.register_weighting``,
-``pfx.register_proposal``, ``pfx.register_filter_kind``; docs/plugins.md). It reaches pfx in
-one of three ways:
+(``pfx.register_model`` and friends: :mod:`pfx.config.plugin_registration`, which also knows
+who owns each registration; docs/plugins.md). It reaches pfx in one of three ways:
 
 * a config's ``plugins:`` list names it: a Python file (its name ends in ``.py`` or holds a
   ``/``; relative to the config's folder), or an importable module, or the name of an entry
@@ -27,13 +27,8 @@ only the built-in components and those of its own plugins.
 A file plugin is executed from the very bytes that were hashed, as the module
 ``pfx_plugin_<stem>_<hash>``; worker processes (local or Dask) receive the bytes with each task
 and execute them the same way (:func:`ensure_loaded`), so no shared file system is needed.
-Module plugins must be installed on the workers, like pfx itself.
-
-Code may also register components without pfx loading it: a plugin module imported by hand
-(``import cv_radar`` in a notebook), a class defined in a notebook cell. What it registers
-belongs to its module (:func:`_owner`), never passes for pfx's own: ``pfx.model`` and the
-filters on arrays see it (:func:`python_origins`), a config does only by naming its file or
-module, and loading that file replaces the hand-imported registrations with the plugin's.
+Module plugins must be installed on the workers, like pfx itself. Loading the file of code that
+was imported by hand replaces the hand-imported registrations with the plugin's.
 
 Every failure is one :class:`~pfx.errors.ConfigError` line naming the plugin: a missing file or
 module, an exception while importing it (located at its last line in the plugin's own file,
@@ -49,29 +44,20 @@ import importlib.util
 import re
 import sys
 import types
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Optional
+from typing import Any, Iterable, Optional
 
+from pfx.config.plugin_registration import IMPORTED_BY_HAND, LOADED, PluginError, forget, registries
 from pfx.errors import ConfigError, ExecutorError, UsageError
 from pfx.numerics.compiled import keep_cache_apart
-from pfx.registry import RegistrationClash, registering_for, registering_origin
+from pfx.registry import RegistrationClash, registering_for
 from pfx.user_files import UnreadableFile, read_user_file
 
 ENTRY_POINT_GROUP = "pfx.plugins"
-PLUGIN_COPIES = "plugins"      # the folder of a result folder that holds its plugin files' code
+# the folder of a result folder that holds its plugin files' code; in a gallery, the store of them all
+PLUGIN_COPIES = "plugins"
 MAX_PLUGIN_BYTES = 10 * 1024 * 1024
-
-
-class PluginError(ValueError):
-    """A plugin breaks the contract of a decorator (reported as one line, without a type name);
-    ``line``: the line of the plugin the mistake is on, where the decorator knows it better than
-    the traceback (a method's ``def``, not the decorator above the class)."""
-
-    def __init__(self, message: str, line: Optional[int] = None):
-        super().__init__(message)
-        self.line = line
 
 
 @dataclass(frozen=True)
@@ -96,161 +82,19 @@ class LoadedPlugin:
         """A plugin file (its code travels with it and is copied into result folders), not a module."""
         return self.source is not None
 
-    def record(self, recorded_as: str) -> dict:
-        """What manifest.json says of it (``recorded_as``: :func:`pfx.config.plugin_record.recorded_names`)."""
+    def record(self, copy: Optional[str]) -> dict:
+        """What manifest.json says of it; ``copy``: a file plugin's copy, as the result folder's
+        config.yaml names it (:func:`pfx.config.plugin_record.copy_paths`)."""
         entry = {"name": self.name, "file": self.path, "sha256": self.sha256}
         if self.is_file:
-            entry["copy"] = f"{PLUGIN_COPIES}/{recorded_as}"
+            entry["copy"] = copy
         return entry
 
     def summary(self) -> str:
         return f"{self.name} ({', '.join(self.registered) or 'registered nothing'})"
 
 
-# -- the public decorators ------------------------------------------------------------------------
-
-
-def register_model(model_class):
-    """Class decorator: register a :class:`pfx.Model` subclass under its ``kind``.
-
-    Checks the contract where it can before anything runs: the class is a Model, has a
-    ``kind: Literal["<name>"] = "<name>"`` field, and defines ``state_names``,
-    ``measurement_dimension``, ``propagate`` and ``measurement_mean``. (The shapes and dtypes
-    its methods return are checked at plan time, on a tiny batch: :meth:`pfx.models.base.Model.check_contract`.)
-    """
-    from pfx.models.base import MODELS, Model
-    from pfx.models.contract_checks import methods_meant_as_properties, missing_methods
-
-    if not (isinstance(model_class, type) and issubclass(model_class, Model)):
-        raise PluginError(f"register_model: {getattr(model_class, '__name__', model_class)!r} "
-                          "is not a subclass of pfx.Model")
-    kind = _declared_kind(model_class, "register_model")
-    missing = missing_methods(model_class, Model)
-    if missing:
-        raise PluginError(f"model {kind} (class {model_class.__name__}) does not define "
-                          f"{', '.join(missing)}, which every model must (docs/plugins.md)")
-    for name, line in methods_meant_as_properties(model_class, Model):     # the most common slip
-        raise PluginError(f"model {kind} (class {model_class.__name__}): {name} is a method, and pfx reads it "
-                          f"as a property: write @property on the line above `def {name}`", line=line)
-    with _owner(MODELS, kind, model_class):
-        return MODELS.register_kind(model_class)
-
-
-def register_weighting(weighting_class):
-    """Class decorator: register a weighting (a pydantic class with a ``kind`` literal and
-    ``log_weights(model, measurement, particles, weights) -> (trials, N)``; docs/extending.md)."""
-    from pfx.filters.particle.weighting import WEIGHTINGS
-
-    kind = _declared_kind(weighting_class, "register_weighting")
-    if not callable(getattr(weighting_class, "log_weights", None)):
-        raise PluginError(f"weighting class {weighting_class.__name__} does not define log_weights")
-    if not callable(getattr(weighting_class, "label", None)):      # the tables' name for it
-        weighting_class.label = lambda self: self.kind
-    with _owner(WEIGHTINGS, kind, weighting_class):
-        return WEIGHTINGS.register_kind(weighting_class)
-
-
-def register_resampler(name: str, *, unbiased: bool, description: Optional[str] = None) -> Callable:
-    """Function decorator: register ``(weights (R, N), random) -> indices (R, N)`` as resampler
-    ``name``; ``unbiased`` says whether E[N_j] = N w_j (the tables flag biased ones)."""
-    from pfx.filters.particle.resampling import RESAMPLERS, Resampler
-
-    def decorate(function):
-        with _owner(RESAMPLERS, name, function):
-            RESAMPLERS.add(name, Resampler(function, unbiased=unbiased), description)
-        return function
-
-    return decorate
-
-
-def register_proposal(proposal_class):
-    """Class decorator: register a proposal (``filter.proposal: <kind>``): a subclass of
-    ``pfx.Proposal`` with a ``kind`` literal, its settings as fields, and
-    ``propose(model, previous, step, measurement, observed, random) -> (particles (R, N, d),
-    log p(x_k | x_k-1) - log q(x_k | x_k-1, z_k) (R, N))``; ``check(model)`` may refuse a model
-    (docs/plugins.md)."""
-    from pfx.filters.particle.proposals import PROPOSALS, ProposalBase
-
-    if not (isinstance(proposal_class, type) and issubclass(proposal_class, ProposalBase)):
-        raise PluginError(f"register_proposal: {getattr(proposal_class, '__name__', proposal_class)!r} "
-                          "is not a subclass of pfx.Proposal")
-    kind = _declared_kind(proposal_class, "register_proposal")
-    if proposal_class.propose is ProposalBase.propose and proposal_class.bind is ProposalBase.bind:
-        raise PluginError(f"proposal {kind} (class {proposal_class.__name__}) does not define propose(model, "
-                          "previous, step, measurement, observed, random)")
-    with _owner(PROPOSALS, kind, proposal_class):
-        return PROPOSALS.register_kind(proposal_class)
-
-
-def register_filter_kind(kind_class):
-    """Class decorator: register a :class:`pfx.filters.base.FilterKind` subclass under its ``kind``."""
-    from pfx.filters.base import FILTERS, FilterKind
-
-    if not (isinstance(kind_class, type) and issubclass(kind_class, FilterKind)):
-        raise PluginError(f"register_filter_kind: {getattr(kind_class, '__name__', kind_class)!r} "
-                          "is not a subclass of pfx.filters.base.FilterKind")
-    if not isinstance(getattr(kind_class, "kind", None), str):
-        raise PluginError(f"filter kind class {kind_class.__name__} needs a class attribute kind = '<name>'")
-    with _owner(FILTERS, kind_class.kind, kind_class):
-        return FILTERS.register_kind(kind_class)
-
-
-@contextmanager
-def _owner(registry, name: str, definition):
-    """Who owns a registration by the decorators above (the registries' *origin*).
-
-    While pfx loads a plugin (a config's ``plugins:``, :func:`pfx.load_plugin`, ``--plugin``),
-    that plugin does. Otherwise the code was imported by hand (``import cv_radar`` in a
-    notebook, a class defined in a notebook cell): its module owns what it registers, so that
-    nothing of it passes for a built-in component, and a config sees it only by naming it.
-    Importing by hand the code pfx loaded already (the same file, or the same module) takes its
-    place; importing a module again (``importlib.reload``, a cell run twice) replaces its
-    earlier definitions rather than clashing with them.
-    """
-    if registering_origin() is not None:
-        yield
-        return
-    module = getattr(definition, "__module__", None) or "__main__"
-    source = _source_file(module)
-    _IMPORTED_BY_HAND[module] = source
-    for loaded in {source, module} & _LOADED.keys():
-        _forget(loaded)
-        del _LOADED[loaded]
-    if name in registry and registry.origin(name) == module and \
-            _definition(registry[name]) == _definition(definition):
-        _forget(module)
-    with registering_for(module):
-        yield
-
-
-def _source_file(module: str) -> Optional[str]:
-    """The resolved path of a module's source file (None: none, a notebook's ``__main__``)."""
-    file = getattr(sys.modules.get(module), "__file__", None)
-    return str(Path(file).resolve()) if file else None
-
-
-def _definition(component) -> tuple:
-    """Where a component was defined: its module and qualified name (a resampler by its function)."""
-    component = getattr(component, "function", component)
-    return getattr(component, "__module__", None), getattr(component, "__qualname__", None)
-
-
-def _declared_kind(component_class, decorator: str) -> str:
-    fields = getattr(component_class, "model_fields", {})
-    kind = fields["kind"].default if "kind" in fields else None
-    if not isinstance(kind, str):
-        raise PluginError(f"{decorator}: class {getattr(component_class, '__name__', component_class)} needs "
-                          f'a field kind: Literal["<name>"] = "<name>"')
-    return kind
-
-
-# -- loading ---------------------------------------------------------------------------------------
-
 MODULE_PREFIX = "pfx_plugin_"                # a file plugin runs as the module pfx_plugin_<stem>_<hash>
-_LOADED: dict[str, LoadedPlugin] = {}        # origin -> the plugin as last loaded in this process
-# module -> its source file (resolved; None for a notebook's __main__): code imported by hand that
-# registered components (_owner)
-_IMPORTED_BY_HAND: dict[str, Optional[str]] = {}
 
 
 def load_config_plugins(raw: Any, config_file: str) -> list[LoadedPlugin]:
@@ -324,24 +168,24 @@ def _find_spec(module: str):
 def _load_file(name: str, path: Path, source: bytes) -> LoadedPlugin:
     digest = hashlib.sha256(source).hexdigest()
     origin = str(path.resolve())
-    earlier = _LOADED.get(origin)
+    earlier = LOADED.get(origin)
     if earlier is None or earlier.sha256 != digest:
         # The same code from another file (a result folder's copy of a plugin loaded already):
         # the same plugin, whose components are registered already.
-        earlier = next((plugin for plugin in _LOADED.values() if plugin.is_file and plugin.sha256 == digest), None)
+        earlier = next((plugin for plugin in LOADED.values() if plugin.is_file and plugin.sha256 == digest), None)
     if earlier is not None and earlier.sha256 == digest:
         return _renamed(earlier, name, str(path))
-    for module, file in list(_IMPORTED_BY_HAND.items()):     # this file imported by hand: pfx's load replaces it
+    for module, file in list(IMPORTED_BY_HAND.items()):     # this file imported by hand: pfx's load replaces it
         if file == origin:
-            _forget(module)
-            del _IMPORTED_BY_HAND[module]
+            forget(module)
+            del IMPORTED_BY_HAND[module]
     module = f"{MODULE_PREFIX}{re.sub(r'[^0-9A-Za-z_]', '_', path.stem)}_{digest[:12]}"
     plugin = LoadedPlugin(name=name, origin=origin, path=str(path), sha256=digest, module=module, source=source)
     return _remember(_execute(plugin))
 
 
 def _load_module(name: str, module: str) -> LoadedPlugin:
-    earlier = _LOADED.get(module)
+    earlier = LOADED.get(module)
     if earlier is not None:
         return _renamed(earlier, name, earlier.path)
     spec = _find_spec(module)
@@ -353,16 +197,16 @@ def _load_module(name: str, module: str) -> LoadedPlugin:
         try:
             importlib.import_module(module)      # imported by hand already: its registrations are the module's
         except Exception as error:
-            _forget(plugin.origin)
+            forget(plugin.origin)
             raise import_failure(error, plugin) from None
-    _IMPORTED_BY_HAND.pop(module, None)
+    IMPORTED_BY_HAND.pop(module, None)
     return _remember(plugin)
 
 
 def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
     """Run a file plugin's code (the hashed bytes) as its module, its registrations owned by it."""
     _prepare_registries()
-    _forget(plugin.origin)                   # an earlier version of the same file, in this process
+    forget(plugin.origin)                   # an earlier version of the same file, in this process
     if b"numba" in plugin.source:            # numba's cache, apart from the file imported by hand
         keep_cache_apart(MODULE_PREFIX)
     module = types.ModuleType(plugin.module)
@@ -373,7 +217,7 @@ def _execute(plugin: LoadedPlugin) -> LoadedPlugin:
             exec(compile(plugin.source, plugin.code_file, "exec"), module.__dict__)
         except (Exception, SystemExit) as error:
             del sys.modules[plugin.module]
-            _forget(plugin.origin)
+            forget(plugin.origin)
             raise import_failure(error, plugin) from None
     return plugin
 
@@ -382,7 +226,7 @@ def _remember(plugin: LoadedPlugin) -> LoadedPlugin:
     registered = tuple(f"{registry.what} {name}" for registry in registries() for name in registry
                        if registry.origin(name) == plugin.origin)
     plugin = LoadedPlugin(**{**plugin.__dict__, "registered": registered})
-    _LOADED[plugin.origin] = plugin
+    LOADED[plugin.origin] = plugin
     return plugin
 
 
@@ -411,13 +255,13 @@ def import_failure(error: BaseException, plugin: LoadedPlugin) -> ConfigError:
 
 def loaded_plugins() -> list[LoadedPlugin]:
     """Every plugin loaded in this process (its latest version)."""
-    return list(_LOADED.values())
+    return list(LOADED.values())
 
 
 def python_origins() -> list[str]:
     """The owners of the components the Python door sees (:mod:`pfx.filtering`): every plugin
     loaded in this process, and the code imported by hand that registered components."""
-    return [plugin.origin for plugin in _LOADED.values()] + list(_IMPORTED_BY_HAND)
+    return [plugin.origin for plugin in LOADED.values()] + list(IMPORTED_BY_HAND)
 
 
 def unload_plugin(plugin: LoadedPlugin) -> None:
@@ -426,16 +270,9 @@ def unload_plugin(plugin: LoadedPlugin) -> None:
     The test suite runs the command line in its own process and unloads what each command
     loaded, so that every command starts with the registries of a fresh process.
     """
-    _forget(plugin.origin)
-    _LOADED.pop(plugin.origin, None)
+    forget(plugin.origin)
+    LOADED.pop(plugin.origin, None)
     sys.modules.pop(plugin.module, None)
-
-
-def registries() -> list:
-    """Every registry a plugin may add to (:mod:`pfx.config.components`, the one list)."""
-    from pfx.config.components import all_registries
-
-    return list(all_registries().values())
 
 
 def _prepare_registries() -> None:
@@ -443,11 +280,6 @@ def _prepare_registries() -> None:
     (importing ``pfx.models.base`` from a plugin would otherwise register the built-in models
     while the plugin's name is the registries' current owner)."""
     registries()
-
-
-def _forget(origin: str) -> None:
-    for registry in registries():
-        registry.forget(origin)
 
 
 def ensure_loaded(plugins: Iterable[LoadedPlugin]) -> None:
@@ -476,7 +308,7 @@ def unknown_name_hint(plugins: list[LoadedPlugin], reason: str = "") -> str:
     that very name, which a config sees only by naming it."""
     hint = "; plugins loaded: " + ", ".join(plugin.summary() for plugin in plugins) if plugins else ""
     by_hand = []
-    for module, file in _IMPORTED_BY_HAND.items():
+    for module, file in IMPORTED_BY_HAND.items():
         names = [f"{registry.what} {name}" for registry in registries() for name in registry
                  if registry.origin(name) == module and repr(name) in reason]
         if names:

@@ -6,7 +6,7 @@ streams. A mistake in a plugin is refused here in one line that names the member
 as ``'int' object is not iterable`` or a broadcasting error deep in the engine. Four checks, from
 the cheapest:
 
-* **The class** (at ``pfx.register_model``, :mod:`pfx.config.plugins`):
+* **The class** (at ``pfx.register_model``, :mod:`pfx.config.plugin_registration`):
   :func:`missing_methods` names the required members (:data:`REQUIRED_METHODS`) a class leaves to
   the contract, and :func:`methods_meant_as_properties` the members written as plain methods that
   the contract declares as properties (``def state_names(self)`` without ``@property``). Both are

@@ -11,6 +11,11 @@ manifest stay as they are, and a fresh clone's ``make reproduce-papers`` leaves 
 clean; where they differ, the new results replace the old and the report says what moved. Before
 that comparison, a report that keeps small tables of files the repository leaves out
 (:data:`pfx.papers.base.KEPT_TABLES`) writes them into the new folder, so they are part of the record.
+
+The folders of a gallery keep their plugins' code in one store, ``<out>/plugins/``, once per
+content, rather than a copy in each folder (:mod:`pfx.config.plugin_record`): each folder a
+reproduction writes has its copies moved there (:func:`pfx.run.folder_record.store_plugin_copies`),
+and a stored file that no folder names any more is removed (:func:`prune_plugin_store`).
 """
 
 from __future__ import annotations
@@ -23,12 +28,14 @@ from typing import Callable
 import yaml
 
 from pfx.config.plan import build_plan
+from pfx.config.plugins import PLUGIN_COPIES
 from pfx.errors import ConfigError
 from pfx.papers.base import KEPT_TABLES
 from pfx.papers.gallery import write_gallery
 from pfx.papers.record import settle, staging_folder
 from pfx.registry import closest_name
-from pfx.result_folder import check_writable, read_manifest, write_text
+from pfx.result_folder import ResultFolder, check_writable, read_manifest, write_text
+from pfx.run.folder_record import store_plugin_copies
 from pfx.run.runner import check_folder, run_plan
 from pfx.safe_yaml import load_config_file
 
@@ -89,8 +96,12 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name
-        outcome = _reproduce(paper, plan, target, fresh=fresh, report=report, progress=progress)
+        outcome = _reproduce(paper, plan, target, out / PLUGIN_COPIES, fresh=fresh, report=report,
+                             progress=progress)
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}{outcome}")
+    removed = prune_plugin_store(out)
+    if removed:
+        report(f"{out / PLUGIN_COPIES}: removed {', '.join(removed)}, which no result folder names any more")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
     report(f"gallery: {write_gallery(out)}")
@@ -109,20 +120,42 @@ def write_kept_tables(paper: str, experiment: str, folder: Path) -> None:
         KEPT_TABLES[paper](experiment, folder)
 
 
-def _reproduce(paper: str, plan, target: Path, *, fresh: bool, report: Callable[[str], None],
+def _reproduce(paper: str, plan, target: Path, store: Path, *, fresh: bool, report: Callable[[str], None],
                progress: bool) -> str:
-    """Run one experiment of ``paper`` into ``target``; a fresh run over a finished folder goes
-    through a staging folder and keeps the committed record where the numbers agree. Returns what
-    happened to the record, in words (empty when there was none to compare with)."""
+    """Run one experiment of ``paper`` into ``target``, its plugins' code kept in the gallery's
+    ``store``; a fresh run over a finished folder goes through a staging folder (beside the target,
+    so that it names the store by the same relative path) and keeps the committed record where the
+    numbers agree. Returns what happened to the record, in words (empty when there was none to compare with)."""
     if not (fresh and finished_manifest_or_none(target)):
         run_plan(plan, target, fresh=fresh, report=report, progress=progress)
+        store_plugin_copies(target, store)
         write_kept_tables(paper, plan.experiment.name, target)
         return ""
     staging = staging_folder(target)
     shutil.rmtree(staging, ignore_errors=True)      # a reproduction stopped before it settled
     run_plan(plan, staging, fresh=True, report=report, progress=progress)
+    store_plugin_copies(staging, store)
     write_kept_tables(paper, plan.experiment.name, staging)
     difference = settle(target, staging)
     if difference is None:
         return " (the same numbers as the folder held: its tables and manifest kept)"
     return f" (new numbers: {difference})"
+
+
+def prune_plugin_store(root: Path) -> list[str]:
+    """Remove from the gallery's plugin store (``root/plugins/``) the files that no result
+    folder's ``config.yaml`` names any more (the code of results since recomputed with a changed
+    plugin), so that the store holds the code of the gallery's results and nothing else. Returns
+    the names removed."""
+    store = root / PLUGIN_COPIES
+    if not store.is_dir():
+        return []
+    named = set()
+    for config in root.glob("*/*/config.yaml"):
+        entries = ResultFolder(config.parent).config.get("plugins")
+        if isinstance(entries, list):
+            named.update((config.parent / entry).resolve() for entry in entries if isinstance(entry, str))
+    unused = sorted(path for path in store.glob("*.py") if path.resolve() not in named)
+    for path in unused:
+        path.unlink()
+    return [path.name for path in unused]

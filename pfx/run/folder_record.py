@@ -4,12 +4,16 @@ files named relative to the folder, its plugins' code copied beside it) and the 
 
 :mod:`pfx.run.runner` writes them for a filter run or a study, :mod:`pfx.run.estimation` for an
 estimation run (handed these functions), so every kind of folder records the same things.
+``pfx reproduce`` then moves the plugin copies of each folder it writes into its gallery's store
+(:func:`store_plugin_copies`; :mod:`pfx.config.plugin_record` says why and how they are named).
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import platform
+import shutil
 import subprocess
 import sys
 from datetime import datetime, timezone
@@ -21,9 +25,9 @@ import yaml
 
 import pfx
 from pfx.config.plan import Plan, StudyPlan
-from pfx.config.plugin_record import copied_entries, recorded_names
+from pfx.config.plugin_record import copied_entries, copy_paths, is_own_copy, stored_name
 from pfx.config.plugins import PLUGIN_COPIES
-from pfx.result_folder import write_bytes, write_text
+from pfx.result_folder import read_manifest, write_bytes, write_manifest, write_text
 
 
 def git_revision() -> Optional[str]:
@@ -48,12 +52,45 @@ def write_record_config(plan: Plan | StudyPlan, out: Path) -> None:
         resolved = {**resolved, "data": {key: path if path is None else _recorded_path(path, out)
                                          for key, path in resolved["data"].items()}}
     if plan.plugins:
-        for plugin, entry in zip(plan.plugins, copied_entries(plan.plugins)):
-            if plugin.is_file:
+        for plugin, copy in zip(plan.plugins, copy_paths(plan.plugins)):
+            if copy is not None:
                 (out / PLUGIN_COPIES).mkdir(exist_ok=True)
-                write_bytes(plugin.source, out / entry)
+                write_bytes(plugin.source, out / copy)
         resolved = {**resolved, "plugins": copied_entries(plan.plugins)}
     write_text(yaml.safe_dump(resolved, sort_keys=False), out / "config.yaml")
+
+
+def store_plugin_copies(folder: Path, store: Path) -> None:
+    """Move the copies a result folder keeps of its plugin files (``plugins/<name>``) into its
+    gallery's ``store``, once per content (``<stem>-<sha12>.py``), and name them there, relative to
+    the folder, in its ``config.yaml`` and its manifest's ``copy`` entries: what ``pfx reproduce``
+    does with each folder it writes. Only the paths change, never a hash
+    (:func:`pfx.config.plugin_record.recorded_names`); a folder without copies of its own is left as it is."""
+    folder = Path(folder)
+    config_file = folder / "config.yaml"
+    config = yaml.safe_load(config_file.read_text(encoding="utf-8")) if config_file.is_file() else None
+    entries = config.get("plugins") if isinstance(config, dict) else None
+    moved: dict[str, str] = {}
+    for entry in entries or []:
+        if not (isinstance(entry, str) and is_own_copy(entry)):
+            continue
+        source = (folder / entry).read_bytes()
+        stored = Path(store) / stored_name(Path(entry).name, hashlib.sha256(source).hexdigest())
+        if not (stored.is_file() and stored.read_bytes() == source):
+            stored.parent.mkdir(parents=True, exist_ok=True)
+            write_bytes(source, stored)
+        moved[entry] = Path(os.path.relpath(os.path.abspath(stored), os.path.abspath(folder))).as_posix()
+    if not moved:
+        return
+    manifest = read_manifest(folder)
+    write_text(yaml.safe_dump({**config, "plugins": [moved.get(entry, entry) for entry in entries]},
+                              sort_keys=False), config_file)
+    if manifest:
+        for record in manifest.get("plugins", []):
+            if isinstance(record, dict) and record.get("copy") in moved:
+                record["copy"] = moved[record["copy"]]
+        write_manifest(manifest, folder)
+    shutil.rmtree(folder / PLUGIN_COPIES)
 
 
 def _recorded_path(path: str, out: Path) -> str:
@@ -85,9 +122,16 @@ def provenance(plan: Plan | StudyPlan, started: str) -> dict:
         "complete": False,
         "figures": list(plan.experiment.outputs.figures),
         "formats": list(plan.experiment.outputs.formats),
-        **({"plugins": [plugin.record(name) for plugin, name in zip(plan.plugins, recorded_names(plan.plugins))]}
-           if plan.plugins else {}),
+        **plugins_record(plan),
     }
+
+
+def plugins_record(plan: Plan | StudyPlan) -> dict:
+    """The manifest's ``plugins`` (nothing for a config without plugins): each plugin's name as
+    written, its file, its code's sha256 and, for a file plugin, its copy as config.yaml names it."""
+    if not plan.plugins:
+        return {}
+    return {"plugins": [plugin.record(copy) for plugin, copy in zip(plan.plugins, copy_paths(plan.plugins))]}
 
 
 def run_manifest(plan: Plan, started: str) -> dict:

@@ -35,7 +35,7 @@ from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
 from pfx.config.plugin_faults import locate, run_time_fault
-from pfx.config.plugin_record import recorded_names
+from pfx.config.plugin_record import manifest_code, recorded_names
 from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded
 from pfx.errors import ConfigError, ModelNumericalError, PluginFault
 from pfx.figures import render_figures
@@ -55,7 +55,7 @@ from pfx.result_folder import (
 )
 from pfx.run.batch import BatchResult, run_batch
 from pfx.run.executors import Executor, make_executor
-from pfx.run.folder_record import now, provenance, run_manifest, write_record_config
+from pfx.run.folder_record import now, plugins_record, provenance, run_manifest, write_record_config
 from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 
@@ -84,8 +84,7 @@ def _check_plugin_code(plan: Plan | StudyPlan, out: Path) -> None:
     if not (out / MANIFEST).is_file():
         return
     # A plugin is known by its recorded name (its copy's name; in older folders, its name as written).
-    recorded = {Path(entry["copy"]).name if entry.get("copy") else entry.get("name"): entry.get("sha256")
-                for entry in (read_manifest(out) or {}).get("plugins", [])}
+    recorded = manifest_code(read_manifest(out))
     for plugin, name in zip(plan.plugins, recorded_names(plan.plugins)):
         if name in recorded and recorded[name] != plugin.sha256:
             raise ConfigError(f"plugin {plugin.name} has changed since these results were computed (sha256 "
@@ -207,7 +206,7 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
         if name in removed or (name in figures and extension not in formats and extension != "gif"):
             path.unlink()
     manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
-                    config_hash=plan.config_hash, figures=figures, formats=formats)
+                    config_hash=plan.config_hash, figures=figures, formats=formats, **plugins_record(plan))
     write_record_config(plan, out)
     redrawn = pending or formats != old_formats
     wanted = figures if redrawn else [name for name in figures if name not in old_figures]
