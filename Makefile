@@ -29,9 +29,10 @@ reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce
 
 # The field's published benchmarks (DAPPER's Lorenz tables, stochastic volatility on GBP/USD,
-# King et al.'s cholera): longer runs than the papers', in their own gallery.
+# King et al.'s cholera): longer runs than the papers', in their own gallery; their plugins' code
+# shares the papers' store, results/plugins/, so that results/ keeps each plugin once.
 reproduce-benchmarks: $(INSTALLED)
-	$(BIN)/pfx reproduce --configs configs/benchmarks --out results/benchmarks
+	$(BIN)/pfx reproduce --configs configs/benchmarks --out results/benchmarks --plugin-store results/plugins
 
 # The benchmark runs in its own environment: the peer libraries (`particles` needs numpy < 2)
 # would not fit the main one. pfx is installed editable, so `make bench` measures this tree;

@@ -326,6 +326,9 @@ def reproduce(
     out: Path = typer.Option(Path("results"), "--out", help="where results/<paper>/<experiment> go"),
     resume: bool = typer.Option(False, "--resume/--fresh", help="keep up-to-date results instead of recomputing"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+    plugin_store: Optional[Path] = typer.Option(None, "--plugin-store", show_default=False,
+                                                help="where the folders' plugin code is kept, once per content "
+                                                     "(default: <out>/plugins)"),
 ):
     """Regenerate the papers' tables and figures (what `make reproduce-papers` runs)."""
     from pfx.papers.reproduce import reproduce_papers
@@ -333,7 +336,7 @@ def reproduce(
 
     stop_on_signals()
     keep_freed_memory()
-    reproduce_papers(papers or [], configs_dir, out, fresh=not resume,
+    reproduce_papers(papers or [], configs_dir, out, fresh=not resume, plugin_store=plugin_store,
                      report=lambda message: typer.echo(message, err=True), progress=_show_progress(quiet))
 
 

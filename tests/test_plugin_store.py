@@ -62,12 +62,12 @@ def _project(tmp_path, experiments=("walk",), source=PLUGIN):
     return tmp_path / "configs"
 
 
-def _reproduce(configs, out) -> list[str]:
+def _reproduce(configs, out, plugin_store=None) -> list[str]:
     """``pfx reproduce``, in this process; what it says. The plugins it loaded are unloaded after
     it, as a process's end with it (a later command loads an edited plugin afresh)."""
     before = {plugin.origin for plugin in loaded_plugins()}
     messages: list[str] = []
-    reproduce_papers([], configs, out, fresh=True, report=messages.append, progress=False)
+    reproduce_papers([], configs, out, fresh=True, report=messages.append, progress=False, plugin_store=plugin_store)
     for plugin in loaded_plugins():
         if plugin.origin not in before:
             unload_plugin(plugin)
@@ -121,6 +121,23 @@ def test_two_folders_with_the_same_plugin_share_one_stored_file(tmp_path):
         assert yaml.safe_load((out / "toy" / name / "config.yaml").read_text())["plugins"] == \
             [f"../../plugins/{_stored()}"]
     assert not list(out.glob("*/*/plugins"))
+
+
+def test_a_gallery_inside_another_shares_its_store_and_keeps_its_files(tmp_path):
+    """As results/benchmarks/ shares results/plugins/ (``make reproduce-benchmarks`` passes
+    ``--plugin-store``): one stored file for both galleries, named from the inner one's folders
+    by their own relative path, and neither gallery's reproduction removes what the other names."""
+    out = tmp_path / "results"
+    configs = _project(tmp_path)
+    _reproduce(configs, out)
+    _reproduce(configs, out / "benchmarks", plugin_store=out / "plugins")
+    assert [path.name for path in (out / "plugins").iterdir()] == [_stored()]
+    assert not (out / "benchmarks" / "plugins").exists()
+    inner = out / "benchmarks" / "toy" / "walk"
+    assert yaml.safe_load((inner / "config.yaml").read_text())["plugins"] == [f"../../../plugins/{_stored()}"]
+    assert len(pfx.load(inner).trials) == 3
+    _reproduce(_project(tmp_path, source=CHANGED), out)       # the outer gallery moves to other code
+    assert sorted(path.name for path in (out / "plugins").iterdir()) == sorted([_stored(), _stored(CHANGED)])
 
 
 def test_a_run_outside_a_gallery_keeps_its_own_copy_under_the_plugins_name(tmp_path, pfx_in_process):

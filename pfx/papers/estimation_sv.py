@@ -82,7 +82,7 @@ POSTERIOR, EXACT, SPREAD, N_CHOICE = "posterior", "exact-posterior", "spread", "
 Z_LIMIT = 3.0                      # combined Monte Carlo errors within which two posterior means agree
 REFERENCE_NAMES = {"phi": "rho"}   # pfx's parameter -> particles' name for it
 WORK_TABLE = "work_per_effective_draw.csv"     # n-choice's numbers for the report, kept where chains.csv is not
-REPRODUCE = "pfx reproduce estimation-sv --configs configs/benchmarks --out results/benchmarks"
+REPRODUCE = "pfx reproduce estimation-sv --configs configs/benchmarks --out results/benchmarks --plugin-store results/plugins"
 HERMITE_NODES, HERMITE_WEIGHTS = np.polynomial.hermite_e.hermegauss(200)     # E f(X), X ~ N(0, 1)
 
 

@@ -12,10 +12,12 @@ clean; where they differ, the new results replace the old and the report says wh
 that comparison, a report that keeps small tables of files the repository leaves out
 (:data:`pfx.papers.base.KEPT_TABLES`) writes them into the new folder, so they are part of the record.
 
-The folders of a gallery keep their plugins' code in one store, ``<out>/plugins/``, once per
-content, rather than a copy in each folder (:mod:`pfx.config.plugin_record`): each folder a
-reproduction writes has its copies moved there (:func:`pfx.run.folder_record.store_plugin_copies`),
-and a stored file that no folder names any more is removed (:func:`prune_plugin_store`).
+The folders of a gallery keep their plugins' code in one store, ``<out>/plugins/`` unless
+``--plugin-store`` names another (``make reproduce-benchmarks`` names ``results/plugins/``, so
+that the papers' and the benchmarks' galleries share one), once per content, rather than a copy
+in each folder (:mod:`pfx.config.plugin_record`): each folder a reproduction writes has its
+copies moved there (:func:`pfx.run.folder_record.store_plugin_copies`), and a stored file that no
+folder below the store's parent names any more is removed (:func:`prune_plugin_store`).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from __future__ import annotations
 import shutil
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Optional
 
 import yaml
 
@@ -73,7 +75,8 @@ def _also_run(folder: Path) -> list[Path]:
 
 
 def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: bool,
-                     report: Callable[[str], None], progress: bool) -> None:
+                     report: Callable[[str], None], progress: bool, plugin_store: Optional[Path] = None) -> None:
+    store = plugin_store if plugin_store is not None else out / PLUGIN_COPIES
     available = paper_configs(configs_dir)
     for paper in papers:
         if paper not in available:
@@ -96,12 +99,11 @@ def reproduce_papers(papers: list[str], configs_dir: Path, out: Path, *, fresh: 
     for paper, plan in plans:
         started = time.perf_counter()
         target = out / paper / plan.experiment.name
-        outcome = _reproduce(paper, plan, target, out / PLUGIN_COPIES, fresh=fresh, report=report,
-                             progress=progress)
+        outcome = _reproduce(paper, plan, target, store, fresh=fresh, report=report, progress=progress)
         report(f"{paper}/{plan.experiment.name}: {time.perf_counter() - started:.1f} s -> {target}{outcome}")
-    removed = prune_plugin_store(out)
+    removed = prune_plugin_store(store)
     if removed:
-        report(f"{out / PLUGIN_COPIES}: removed {', '.join(removed)}, which no result folder names any more")
+        report(f"{store}: removed {', '.join(removed)}, which no result folder names any more")
     for paper, document in numbers.items():
         write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True), out / paper / PAPER_FILE)
     report(f"gallery: {write_gallery(out)}")
@@ -142,16 +144,15 @@ def _reproduce(paper: str, plan, target: Path, store: Path, *, fresh: bool, repo
     return f" (new numbers: {difference})"
 
 
-def prune_plugin_store(root: Path) -> list[str]:
-    """Remove from the gallery's plugin store (``root/plugins/``) the files that no result
-    folder's ``config.yaml`` names any more (the code of results since recomputed with a changed
-    plugin), so that the store holds the code of the gallery's results and nothing else. Returns
-    the names removed."""
-    store = root / PLUGIN_COPIES
+def prune_plugin_store(store: Path) -> list[str]:
+    """Remove from a plugin store the files that no result folder below the store's parent names
+    in its ``config.yaml`` any more (the code of results since recomputed with a changed plugin),
+    so that the store holds the code of the galleries' results and nothing else. Returns the
+    names removed."""
     if not store.is_dir():
         return []
     named = set()
-    for config in root.glob("*/*/config.yaml"):
+    for config in store.parent.rglob("config.yaml"):
         entries = ResultFolder(config.parent).config.get("plugins")
         if isinstance(entries, list):
             named.update((config.parent / entry).resolve() for entry in entries if isinstance(entry, str))
