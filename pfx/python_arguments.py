@@ -33,6 +33,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from pfx.config.schema import precision_refusal
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, split_location
 from pfx.models.base import Model, bind_law
@@ -78,6 +79,9 @@ def validate_settings(schema, kind: Any, settings: dict):
     """The filter's settings (a config's ``filter:`` keys, ``kind`` among them), validated as a
     config's ``filter:`` section is (``schema``: :func:`pfx.config.schema.config_schema`'s)."""
     validated = validate(schema.FilterConfig, {"kind": kind, **plain_numbers(settings)}, file=CALLER, prefix="filter")
+    refusal = precision_refusal(validated.backend, validated.precision)      # the rule a config is judged by
+    if refusal:
+        raise refuse(refusal, "filter.precision")
     if validated.particles == "auto":      # a config's PMMH pilot; from Python, pfx.choose_particles
         raise refuse("auto is a PMMH config's pilot; give a number (pfx.choose_particles chooses one from Python)",
                      "particles")

@@ -187,14 +187,16 @@ class EstimationConfig(BaseModel):
         return [self.column(path) for path in self.parameters]
 
 
-def check_figures_apply(figures: list[str], estimation: Optional[EstimationConfig], file: str) -> None:
+def check_figures_apply(figures: list[str], estimation: Optional[EstimationConfig], file: str,
+                        asked: frozenset = frozenset()) -> None:
     """ConfigError for a figure the config names (``outputs.figures``) that the folder it makes
     cannot draw: a filter run's figure in an estimation config, an estimation figure in a filter
-    run's (:func:`pfx.figures.registry.refusal_in_config`)."""
+    run's, a figure of a key the config does not ask for (``asked``: ``outputs.forecasts``,
+    ``metrics.scores``; :func:`pfx.figures.registry.refusal_in_config`)."""
     from pfx.figures.registry import refusal_in_config
 
     for index, name in enumerate(figures):
-        reason = refusal_in_config(name, estimation.method if estimation is not None else None)
+        reason = refusal_in_config(name, estimation.method if estimation is not None else None, asked)
         if reason:
             raise ConfigError(f"{reason}; `pfx list figures` says what each figure draws", file=file,
                               key=f"outputs.figures[{index}]")

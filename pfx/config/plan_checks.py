@@ -10,11 +10,15 @@ by its key. What is left needs more than one section, or the resolved cells:
 * per cell, while it is resolved: a plugin's model, called once on a tiny batch
   (:func:`check_plugin_model`);
 * over the cells: a burn-in that leaves no step, two cells with the same settings, what the jax
-  backend cannot run or record, forecasts that cannot be made (:mod:`pfx.config.forecasts`),
-  figures the folder cannot draw, estimated parameters the cells' filter cannot vary.
+  backend cannot run or record, scores no cell computes or that would come from another law than
+  the filter's (:mod:`pfx.config.scores`), forecasts that cannot be made
+  (:mod:`pfx.config.forecasts`), figures the folder cannot draw or that draw what the config does
+  not ask for, estimated parameters the cells' filter cannot vary.
 
 Each is one :class:`~pfx.errors.ConfigError` naming the file and the key (docs/configuration.md).
-:func:`pfx.config.plan.build_plan` calls them; nothing runs before they pass.
+:func:`pfx.config.plan.build_plan` calls them; nothing runs before they pass. What can be made
+in part is made, and :func:`plan_notes` says in one line each what the run leaves out (the
+runner prints them).
 """
 
 from __future__ import annotations
@@ -29,10 +33,12 @@ from pfx.config.estimation import (
     check_estimated_paths,
     check_figures_apply,
 )
-from pfx.config.forecasts import check_forecasts
+from pfx.config.forecasts import check_forecasts, forecast_notes
 from pfx.config.plugin_faults import locate as locate_plugin_fault
 from pfx.config.plugins import LoadedPlugin
+from pfx.config.scores import check_measurement_draws, check_scores, scores_notes
 from pfx.errors import ConfigError
+from pfx.filters.particle.jax_support import not_recorded
 from pfx.models import MODELS
 from pfx.models.base import Model
 from pfx.models.contract_checks import reproducibility_fault
@@ -74,14 +80,36 @@ def check_cells(cells: list, experiment, arms: dict, raw: dict, file: str) -> No
 
 
 def check_outputs_and_estimation(cells: list, experiment, file: str) -> None:
-    """The refusals of ``outputs`` and ``estimation`` over the cells: forecasts that cannot be
-    made, figures the folder cannot draw, estimated parameters the cells cannot vary."""
+    """The refusals of ``outputs`` and ``estimation`` over the cells: scores no cell computes or
+    that would come from another law (:mod:`pfx.config.scores`), forecasts that cannot be made,
+    figures the folder cannot draw (or that draw what the config does not ask for), estimated
+    parameters the cells cannot vary."""
+    check_scores(cells, experiment, file)
     check_forecasts(experiment, cells, file)
+    if experiment.outputs.forecasts.requested:       # its quantiles and scores come from the model's draws
+        check_measurement_draws([cell for cell in cells if cell.filter.uses_particles], file, "outputs.forecasts",
+                                "the forecasts' measurement quantiles, CRPS and PIT")
     if "figures" in experiment.outputs.model_fields_set:
-        check_figures_apply(experiment.outputs.figures, experiment.estimation, file)
+        check_figures_apply(experiment.outputs.figures, experiment.estimation, file, asked_outputs(cells, experiment))
     if experiment.estimation is not None:
         for cell in cells:
             check_estimation(experiment.estimation, cell, file, len(cells) > 1)
+
+
+def asked_outputs(cells: list, experiment) -> frozenset:
+    """The keys that write what some figures draw (:func:`pfx.figures.registry.asks_for`) which
+    this config asks for."""
+    asked = {"outputs.forecasts"} if experiment.outputs.forecasts.requested else set()
+    if any(cell.metrics.scores for cell in cells):
+        asked.add("metrics.scores")
+    return frozenset(asked)
+
+
+def plan_notes(plan) -> list[str]:
+    """What the plan's run will leave out of what its config asks, where leaving it out is the
+    honest answer (part of it can be made), one line each: the runner prints them, ``--quiet``
+    silences them. A config that asks for what cannot be made at all is refused instead."""
+    return forecast_notes(plan.experiment, plan.cells) + scores_notes(plan.cells)
 
 
 def check_backends(cells: list, experiment, arms: dict, file: str) -> None:
@@ -106,11 +134,11 @@ def check_backends(cells: list, experiment, arms: dict, file: str) -> None:
         for cell in on_jax:
             _check_compiled_estimation(experiment.estimation, cell, file)
     if any(cell.metrics.consistency for cell in on_jax):
-        raise ConfigError("the jax backend does not record the posterior covariances and NIS yet; drop "
-                          "metrics.consistency or set filter.backend: numpy", file=file, key="metrics.consistency")
+        raise ConfigError(not_recorded("consistency", "metrics.consistency", "filter.backend: numpy"), file=file,
+                          key="metrics.consistency")
     if experiment.outputs.particles is not None and experiment.outputs.particles.steps:
-        raise ConfigError("the jax backend does not keep particle clouds (particles.csv) yet; drop "
-                          "outputs.particles or set filter.backend: numpy", file=file, key="outputs.particles")
+        raise ConfigError(not_recorded("particles", "outputs.particles", "filter.backend: numpy"), file=file,
+                          key="outputs.particles")
 
 
 def check_estimation(estimation, cell, file: str, several: bool) -> None:

@@ -194,8 +194,6 @@ def _build(plugins: frozenset) -> ConfigSchema:
                 if getattr(self, key) is not None and self.kind not in self.KIND_SPECIFIC.get(key, ()):
                     raise ValueError(f"@{key}: the {self.kind} filter has no resampling stage to apply it to "
                                      f"(use kind particle)")
-            if self.backend == "numpy" and self.precision != "float64":
-                raise ValueError("@precision: the numpy backend computes in float64; float32 is for backend: jax")
             # smoothers run only after the kinds that run them: never silently left out
             if self.smoothers and self.kind not in self.KIND_SPECIFIC.get("smoothers", ()):
                 raise ValueError(f"@smoothers: no smoother runs after the {self.kind} filter (particle and sis "
@@ -294,6 +292,24 @@ def _build(plugins: frozenset) -> ConfigSchema:
             None, description="estimate model parameters from the data (PMMH or IF2, docs/estimation.md) instead "
                               "of running trials; default none")
 
+        @model_validator(mode="after")
+        def _precisions(self):
+            # An arm inherits the filter: section's keys, so its precision is judged with the
+            # backend it runs on (its own, else the section's), never on its own keys alone.
+            shared = self.filter
+            if precision_refusal(shared.backend, shared.precision):
+                raise ValueError(f"@filter.precision: {precision_refusal(shared.backend, shared.precision)}")
+            for name, arm in self.arms.items():
+                own = arm.model_fields_set
+                backend = arm.backend if "backend" in own else shared.backend
+                if "precision" in own and precision_refusal(backend, arm.precision):
+                    raise ValueError(f"@arms.{name}.precision: {precision_refusal(backend, arm.precision)}")
+                if "precision" not in own and precision_refusal(backend, shared.precision):
+                    raise ValueError(f"@arms.{name}.backend: {precision_refusal(backend, shared.precision)} (this "
+                                     f"arm inherits precision: {shared.precision} from filter:; set precision: float64 "
+                                     "in it)")
+            return self
+
     class StudyExperiment(ExperimentHeader):
         """A study: a computation that writes tables (not a filter run; see `pfx list studies`)."""
 
@@ -303,6 +319,15 @@ def _build(plugins: frozenset) -> ConfigSchema:
 
     return ConfigSchema(SharedFilterSettings, FilterConfig, FigureOutputs, OutputsConfig, Experiment,
                         StudyExperiment)
+
+
+def precision_refusal(backend: str, precision: str) -> str:
+    """Why ``precision`` cannot run on ``backend`` ('' when it can): the numpy backend computes in
+    float64, float32 is the jax backend's. A config's filter: section, each arm (with the keys it
+    inherits) and the Python door's settings are judged by it."""
+    if backend == "numpy" and precision != "float64":
+        return f"the numpy backend computes in float64; {precision} is for backend: jax"
+    return ""
 
 
 def _filter_settings(plugins: tuple[str, ...], state: dict):

@@ -49,9 +49,18 @@ def _union_members(annotation):
     return [_unwrap(a) for a in typing.get_args(annotation) if a is not type(None)]
 
 
+# the keys whose value chooses a member of a discriminated union: a component's ``kind``, a
+# prior's ``law`` (pfx.laws.priors)
+TAG_KEYS = ("kind", "law")
+
+
 def _kind_of(model_class) -> Any:
-    field = model_class.model_fields.get("kind")
-    return field.default if field is not None else None
+    """The tag that chooses ``model_class`` in its union: its ``kind`` (or ``law``)."""
+    for key in TAG_KEYS:
+        field = model_class.model_fields.get(key)
+        if field is not None:
+            return field.default
+    return None
 
 
 def _walk(root: type[BaseModel], location: tuple) -> tuple[tuple, Any]:
@@ -138,15 +147,21 @@ def _describe(error: dict, root: type[BaseModel]) -> tuple[tuple, str]:
     if kind == "missing":
         return location, "required key is missing"
     if kind == "union_tag_invalid":
+        tag_key = context.get("discriminator", "kind").strip("'")
         expected = re.findall(r"'([^']*)'", str(context.get("expected_tags", "")))
         hint = closest_name(context.get("tag"), expected)
         suggestion = f" (did you mean {hint!r}?)" if hint else f" (known: {', '.join(expected)})"
-        return location + ("kind",), f"unknown {_component_name(root, location)} kind {context.get('tag')!r}{suggestion}"
+        return location + (tag_key,), \
+            f"unknown {_component_name(root, location)} {tag_key} {context.get('tag')!r}{suggestion}"
     if kind == "union_tag_not_found":
+        tag_key = context.get("discriminator", "kind").strip("'")
         annotation = _unwrap(_walk(root, location)[1])
         kinds = [_kind_of(m) for m in _union_members(annotation)
                  if isinstance(m, type) and issubclass(m, BaseModel)] if annotation is not None else []
-        return location + ("kind",), f"required key is missing (one of: {', '.join(map(str, kinds))})"
+        given = error.get("input")
+        other = [key for key in TAG_KEYS if key != tag_key and isinstance(given, dict) and key in given]
+        instead = f"; write {tag_key}: instead of {other[0]}:" if other else ""
+        return location + (tag_key,), f"required key is missing (one of: {', '.join(map(str, kinds))}){instead}"
     if kind == "literal_error":
         expected = re.findall(r"'([^']*)'", str(context.get("expected", "")))
         hint = closest_name(error.get("input"), expected)

@@ -17,7 +17,8 @@ by side, each draw's weights divided by D, so its quantiles are those of the mix
 
 The D draws are spread evenly over the kept iterations of the chains pooled in (chain,
 iteration) order (``outputs.forecasts.trials`` names D); the seeds of their filters depend on
-(seed, cell, draw) only.
+(seed, cell, draw) only. D is at most the number of kept iterations: the plan refuses more
+(:func:`pfx.config.forecasts.kept_posterior_draws`), rather than this module giving fewer.
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ import re
 import numpy as np
 
 from pfx.figures.layout import time_axis
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, asks_for
 from pfx.figures.scores import cell_grid, cells_without, traced_steps
 from pfx.result_folder import ResultFolder
 
@@ -80,6 +80,7 @@ def percent(probability: float) -> str:
 
 
 @FIGURES.register("forecast_fan")
+@asks_for("outputs.forecasts")
 def forecast_fan(result: ResultFolder):
     """Forecast fans of the measurement for the first forecast trial: from each origin, its quantile bands over the horizons (widest lightest, the median a line), with the measurements as points.
 

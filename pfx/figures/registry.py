@@ -14,6 +14,11 @@ figures declare their tables (:func:`draws_from`); pfx's other figures draw a fi
 study's tables, never an estimation folder's. A figure that reads a table its folder lacks
 (:class:`~pfx.result_folder.MissingTable`, a plugin's figure say) is refused the same way when
 drawn.
+
+A figure that draws what only one config key writes declares that key (:func:`asks_for`:
+``forecast_fan`` draws forecasts.csv, which ``outputs.forecasts`` writes; the score figures,
+``metrics.scores``'s columns). A config that names the figure without the key would get no
+figure and no word: it is refused by :func:`refusal_in_config` instead.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Callable, Collection, Optional
 
 from pfx.errors import ConfigError
 from pfx.registry import Registry
@@ -34,6 +39,15 @@ def draws_from(*tables: str) -> Callable[[Callable], Callable]:
     """Decorator: the tables (names without ``.csv``) a figure cannot be drawn without."""
     def declare(figure: Callable) -> Callable:
         figure.tables = tables
+        return figure
+    return declare
+
+
+def asks_for(key: str) -> Callable[[Callable], Callable]:
+    """Decorator: the config key (``outputs.forecasts``, ``metrics.scores``) without which the
+    figure has nothing to draw."""
+    def declare(figure: Callable) -> Callable:
+        figure.asks_for = key
         return figure
     return declare
 
@@ -61,13 +75,19 @@ def _kind_of_tables(tables) -> str:
     return "another kind of folder"
 
 
-def refusal_in_config(name: str, estimation_method: Optional[str]) -> Optional[str]:
+def refusal_in_config(name: str, estimation_method: Optional[str], asked: Collection[str] = ()) -> Optional[str]:
     """Why a config's figure ``name`` would not apply to the folder the config makes (an
-    estimation method's, or a filter run's); None if it may."""
+    estimation method's, or a filter run's), or would draw nothing: it asks for a key
+    (:func:`asks_for`) that is not among the config's ``asked``; None if it may."""
     if estimation_method is None:
-        return applicability(name, set(), "a filter run's folder", estimation=False)
-    return applicability(name, set(ESTIMATION_TABLES[estimation_method]), estimation_kind(estimation_method),
-                         estimation=True)
+        reason = applicability(name, set(), "a filter run's folder", estimation=False)
+    else:
+        reason = applicability(name, set(ESTIMATION_TABLES[estimation_method]), estimation_kind(estimation_method),
+                               estimation=True)
+    key = getattr(FIGURES[name], "asks_for", None)
+    if reason is None and key is not None and key not in asked:
+        reason = f"figure {name} draws what {key} writes, and this config does not ask for it: add {key}, or drop the figure"
+    return reason
 
 
 def figure_table() -> str:

@@ -43,7 +43,7 @@ from pfx.figures.layout import (
     one_colour_per_cell,
     time_axis,
 )
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, asks_for
 from pfx.result_folder import ResultFolder
 
 PIT_BINS = 10                  # bins of the PIT histogram on [0, 1]
@@ -146,6 +146,7 @@ def uniform_bar_band(count: int, bins: int = PIT_BINS, probability: float = BAND
 
 
 @FIGURES.register("pit_histogram")
+@asks_for("metrics.scores")
 def pit_histogram(result: ResultFolder):
     """Histogram of the one-step-ahead PIT values per cell and measurement component (flat at 1 if calibrated), with the 95% band of a bar under uniformity and the KS p-value.
 
@@ -220,6 +221,7 @@ def step_means(steps, column: str, x_column: str) -> dict:
 
 
 @FIGURES.register("score_over_time")
+@asks_for("metrics.scores")
 def score_over_time(result: ResultFolder):
     """Mean CRPS of each measurement component and mean log score over time, a line per cell (lower is better).
 

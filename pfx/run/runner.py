@@ -34,6 +34,7 @@ import pandas as pd
 from pfx.analysis.step_summary import merge_step_summaries, summarize_steps
 from pfx.analysis.summary import summarize
 from pfx.config.plan import Cell, Plan, StudyPlan
+from pfx.config.plan_checks import plan_notes
 from pfx.config.plugin_faults import locate, run_time_fault
 from pfx.config.plugin_record import manifest_code, recorded_names
 from pfx.config.plugins import PLUGIN_COPIES, LoadedPlugin, ensure_loaded
@@ -109,6 +110,8 @@ def run_plan(plan: Plan, out: Path, *, workers: int = 1, executor: Optional[Exec
     out = Path(out)
     if isinstance(plan, StudyPlan):
         return run_study(plan, out, fresh=fresh, report=report)
+    for note in plan_notes(plan):          # what the run leaves out of what the config asks, in a line each
+        report(f"{plan.file}: {note}")
     if plan.experiment.estimation is not None:
         from pfx.run.estimation import run_estimation
 

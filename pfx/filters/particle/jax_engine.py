@@ -196,8 +196,10 @@ class JaxParticleFilter:
 
     def _trace(self, cloud: Cloud, outputs: StepOutputs, recording, trials: int, steps: int,
                observed: np.ndarray) -> FilterTrace:
+        # JAX's arrays read as read-only NumPy views, and pfx writes into the trace (here, the
+        # untraced rows; later, the metrics): every array the trace keeps is a copy of its own
         def by_trial(values):        # (T, R, ...) -> (R, T, ...)
-            return None if values is None else np.ascontiguousarray(np.swapaxes(np.asarray(values), 0, 1))
+            return None if values is None else np.array(np.swapaxes(np.asarray(values), 0, 1), order="C")
 
         spread = by_trial(outputs.spread)
         deviations = by_trial(outputs.standard_deviations)
@@ -211,9 +213,9 @@ class JaxParticleFilter:
             estimates=by_trial(outputs.estimate).astype(float), ess=by_trial(outputs.ess).astype(float),
             resampled=by_trial(outputs.resampled), degenerate=by_trial(outputs.degenerate),
             spread=np.full((trials, steps), np.nan) if spread is None else spread.astype(float),
-            log_likelihood=np.asarray(cloud.log_likelihood, dtype=float),
+            log_likelihood=np.array(cloud.log_likelihood, dtype=float),
             log_likelihood_increments=by_trial(outputs.increment).astype(float),
-            lost_particles=np.asarray(cloud.lost_particles, dtype=np.int64),
+            lost_particles=np.array(cloud.lost_particles, dtype=np.int64),
             particle_counts=np.full((trials, steps), self.particles),
             within_radius=by_trial(outputs.within_radius),
             standard_deviations=None if deviations is None else deviations.astype(float),
@@ -225,8 +227,8 @@ class JaxParticleFilter:
         if recording.forecast is not None:          # the origins' clouds, for the host's forecasts
             for step in sorted(recording.forecast.origins):
                 if 1 <= step <= steps:
-                    recording.forecast.clouds[step] = (np.asarray(outputs.forecast_particles[step - 1], dtype=float),
-                                                       np.asarray(outputs.forecast_log_weights[step - 1], dtype=float))
+                    recording.forecast.clouds[step] = (np.array(outputs.forecast_particles[step - 1], dtype=float),
+                                                       np.array(outputs.forecast_log_weights[step - 1], dtype=float))
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
