@@ -306,7 +306,9 @@ def figures(
         drawn = {path.stem for path in written}
         for name in add:
             if name not in drawn:
-                typer.echo(f"{name}: nothing to draw from this folder's tables (not added)", err=True)
+                asked = getattr(FIGURES[name], "asks_for", None)
+                needs = f": it draws what {asked} writes, which this folder's config did not ask for" if asked else ""
+                typer.echo(f"{name}: nothing to draw from this folder's tables{needs} (not added)", err=True)
         if add:
             record_figures(result_dir, [name for name in add if name in drawn])
         elif manifest.pop(FIGURES_PENDING, False):       # every figure is drawn now

@@ -122,6 +122,17 @@ def test_a_figure_of_what_the_config_does_not_ask_for_is_refused(tmp_path, figur
     plan_of(tmp_path, config)
 
 
+def test_a_figure_added_to_a_folder_without_its_output_says_which_key_writes_it(tmp_path, pfx_in_process):
+    config = write_config_file(tmp_path, tiny_config_dict(), "config.yaml")
+    assert pfx_in_process("run", config, "--out", tmp_path / "out", "--quiet").returncode == 0
+    added = pfx_in_process("figures", tmp_path / "out", "--figure", "forecast_fan")
+    assert added.returncode == 0, added.output
+    assert added.stderr.strip().splitlines() == [
+        "forecast_fan: nothing to draw from this folder's tables: it draws what outputs.forecasts writes, which "
+        "this folder's config did not ask for (not added)"]
+    assert not (tmp_path / "out" / "figures" / "forecast_fan.png").exists()
+
+
 # -- scores --------------------------------------------------------------------------------------
 
 def test_scores_that_no_filter_computes_are_refused_naming_the_kinds_that_do(tmp_path):

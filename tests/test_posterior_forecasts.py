@@ -68,3 +68,28 @@ def test_if2_forecasts_are_refused_by_key(tmp_path):
                       .replace("  warm_up: 40\n", ""))
     result = CliRunner().invoke(app, ["run", str(config), "--out", str(tmp_path / "out")])
     assert result.exit_code == 2 and "outputs.forecasts" in result.output and "PMMH" in result.output
+
+
+def test_a_draw_whose_filter_fails_is_left_out_in_one_line(tmp_path, monkeypatch, pfx_in_process):
+    """A posterior draw the forecasts cannot use (here one whose parameters the model refuses, as no
+    accepted draw can be, put there by hand) is not dropped without a word: the run says how many
+    draws the cell's forecasts come from, and why the first left out was."""
+    from pfx.estimation import posterior_forecasts as module
+
+    original = module.posterior_draws
+
+    def with_a_refused_draw(chains, columns, count):
+        draws = original(chains, columns, count)
+        draws.loc[0, columns[0]] = -1.0          # a negative variance
+        return draws
+
+    monkeypatch.setattr(module, "posterior_draws", with_a_refused_draw)
+    config = tmp_path / "pmmh.yaml"
+    config.write_text(CONFIG.replace("METHOD", "pmmh"))
+    result = pfx_in_process("run", config, "--out", tmp_path / "out")
+    assert result.returncode == 0, result.output
+    lines = [line for line in result.stderr.splitlines() if "posterior draws" in line]
+    assert len(lines) == 1 and "forecasts from 4 of 5 posterior draws; 1 left out" in lines[0], result.stderr
+    assert "draw 0: the model refuses its parameters" in lines[0]
+    table = pd.read_csv(tmp_path / "out" / "forecasts.csv")
+    assert sorted(set(table.loc[table["draw"] != "pooled", "draw"].astype(int))) == [1, 2, 3, 4]

@@ -23,6 +23,8 @@ iteration) order (``outputs.forecasts.trials`` names D); the seeds of their filt
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import pandas as pd
 
@@ -45,8 +47,18 @@ def posterior_draws(chains: pd.DataFrame, columns: list[str], count: int) -> pd.
     return kept.iloc[positions][["chain", "iteration", *columns]].reset_index(drop=True)
 
 
+class PosteriorForecasts(NamedTuple):
+    """One PMMH cell's forecasts: forecasts.csv's rows without the cell's labels, how many
+    posterior draws were asked, and why each draw left out was (a filter that failed at its
+    parameters), so that the run can say so."""
+
+    table: pd.DataFrame
+    draws: int
+    left_out: list[str]
+
+
 def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs, root_seed: int,
-                        cell_key: int) -> pd.DataFrame:
+                        cell_key: int) -> PosteriorForecasts:
     """forecasts.csv's rows of one PMMH cell (module docstring), without the cell's labels."""
     columns = target.estimation.columns
     draws = posterior_draws(chains, columns, forecasts.trials)
@@ -54,9 +66,11 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
     origins = origin_steps(forecasts, np.asarray(target.cell.filter_model.times(), dtype=float))
     by_place: dict[tuple[int, int], list] = {}
     frames = []
+    left_out: list[str] = []
     for index, draw in draws.iterrows():
         model = target.model_at(draw[columns].to_numpy(dtype=float))
         if model is None:            # a draw the model refuses cannot have been accepted; kept for safety
+            left_out.append(f"draw {index}: the model refuses its parameters")
             continue
         request = ForecastRequest(rows=np.array([0]), origins=origins, horizons=tuple(forecasts.horizons),
                                   quantiles=tuple(forecasts.quantiles))
@@ -66,7 +80,8 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
             planned = FILTERS[settings.kind].plan(model, settings, prior)
             summarised = planned.run(model, target.measurements[None], random, settings=settings, prior=prior,
                                      forecast=request).forecasts     # one row per sample, in their order
-        except ModelNumericalError:
+        except ModelNumericalError as error:
+            left_out.append(f"draw {index}: {error}")
             continue
         for position, sample in enumerate(request.samples):
             by_place.setdefault((sample.origin, sample.horizon), []).append(sample)
@@ -80,12 +95,13 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
         frames.append({"draw": POOLED, "chain": np.nan, "iteration": np.nan, **{name: np.nan for name in columns},
                        **_place(mixture), **_first(summaries(names, mixture, forecasts.quantiles))})
     if not frames:
-        return pd.DataFrame()
+        return PosteriorForecasts(pd.DataFrame(), len(draws), left_out)
     table = pd.DataFrame(frames)
     times = np.asarray(target.cell.filter_model.times(), dtype=float)
     table.insert(table.columns.get_loc("origin_step") + 1, "origin_time", times[table["origin_step"] - 1])
     table.insert(table.columns.get_loc("step") + 1, "time", times[table["step"] - 1])
-    return table.sort_values(["origin_step", "horizon"], kind="stable", ignore_index=True)
+    return PosteriorForecasts(table.sort_values(["origin_step", "horizon"], kind="stable", ignore_index=True),
+                              len(draws), left_out)
 
 
 def _place(sample) -> dict:

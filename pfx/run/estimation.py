@@ -387,15 +387,21 @@ def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray,
 
 # -- the tables ---------------------------------------------------------------------------------------------
 
-def _posterior_forecasts(plan: Plan, work: list[CellWork], forecasts) -> pd.DataFrame:
+def _posterior_forecasts(plan: Plan, work: list[CellWork], forecasts, out: Path,
+                         report: Callable[[str], None]) -> pd.DataFrame:
     """forecasts.csv after PMMH: every particle-filter cell's forecasts from its posterior draws
-    (:mod:`pfx.estimation.posterior_forecasts`), the cell's labels first."""
+    (:mod:`pfx.estimation.posterior_forecasts`), the cell's labels first; a draw whose filter
+    failed is left out, and the run says so in one line per cell."""
     frames = []
     for item in work:
         if not item.cell.filter.uses_particles:
             continue
         rows = item.rows[item.rows["iteration"] <= plan.experiment.estimation.iterations]
-        table = posterior_forecasts(item.target, rows, forecasts, plan.experiment.seed, item.cell.stream_key)
+        table, draws, left_out = posterior_forecasts(item.target, rows, forecasts, plan.experiment.seed,
+                                                     item.cell.stream_key)
+        if left_out:
+            report(f"{out}: cell {item.cell.key}: forecasts from {draws - len(left_out)} of {draws} posterior "
+                   f"draws; {len(left_out)} left out, the filter failing at their parameters ({left_out[0]})")
         if not table.empty:
             frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=table.index),
                                      table], axis=1))
@@ -453,7 +459,7 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
         write_csv(prior_grid(estimation, draws), out / "priors.csv")
         forecasts = plan.experiment.outputs.forecasts
         if forecasts.requested:            # from posterior draws, each with its own filter
-            write_csv(_posterior_forecasts(plan, work, forecasts), out / "forecasts.csv")
+            write_csv(_posterior_forecasts(plan, work, forecasts, out, report), out / "forecasts.csv")
         if spreads:
             write_csv(pd.concat(spreads, ignore_index=True), out / LIKELIHOOD_SPREAD.file)
         else:                   # an extended run whose chains are no longer flagged: no stale measurement
