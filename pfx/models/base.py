@@ -370,6 +370,16 @@ class Model(TimeAxis, BaseModel):
         noise = self.process_noise.sample(random, state.shape[1:-1])
         return self.propagate_at(state, control, noise, time)
 
+    @classmethod
+    def transition_method(cls) -> str:
+        """The method that makes this model's transition, as messages name it: the outermost of
+        :meth:`transition`, :meth:`sample_transition` and :meth:`sample_substep` its class
+        defines, else ``propagate`` (the default substep draws the process noise and calls it)."""
+        for name in ("transition", "sample_transition", "sample_substep"):
+            if getattr(cls, name) is not getattr(Model, name):
+                return name
+        return "propagate"
+
     def mean_transition(self, previous: np.ndarray, step: int) -> np.ndarray:
         r"""The noise-free transition over step k, :math:`\bar f_k(x_{k-1})`: (..., d) from
         ``previous`` (..., d).

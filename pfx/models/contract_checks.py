@@ -94,7 +94,8 @@ def methods_meant_as_properties(model_class: type, contract: type) -> list[tuple
 
 def check_contract(model, random: TrialStreams) -> None:
     """Call the model's methods once on a tiny batch (2 trials, 3 particles drawn from the
-    initial law) and raise ``ValueError("<method> returned ...")`` where a result has the
+    initial law; a transition of the model's own, ``sample_substep`` or ``sample_transition``,
+    too) and raise ``ValueError("<method> returned ...")`` where a result has the
     wrong shape or is not a floating-point array, a name or size disagrees with another
     (:func:`_check_names`), a declared index list is not one (:func:`check_component_indices`),
     or ``vectorised_parameters`` names what is not a number of the model."""
@@ -115,6 +116,11 @@ def check_contract(model, random: TrialStreams) -> None:
     _check_result("measurement_mean", model.measurement_mean(cloud), (trials, particles, m))
     measurement = _check_result("simulate_measurement", model.simulate_measurement(truth, random), (trials, m))
     _check_result("log_likelihood", model.log_likelihood(measurement[:, None, :], cloud), (trials, particles))
+    drawn_by = model.transition_method()
+    if drawn_by in ("sample_transition", "sample_substep"):     # a transition of its own: blamed by its name
+        times = [model.within_covariate_table(model.substep_time(1, j)) for j in range(model.propagations_per_step)]
+        _check_result(drawn_by, model.sample_transition(cloud.copy(), model.control(1), times, random),
+                      (trials, particles, d))
 
 
 def _check_names(model) -> None:

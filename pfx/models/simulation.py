@@ -28,7 +28,7 @@ def simulate_truth(model, random: TrialStreams) -> tuple[np.ndarray, np.ndarray]
         for k in range(1, model.steps + 1):
             with np.errstate(over="ignore", invalid="ignore"):   # reported just below
                 state = model.transition(state, k, random)
-                _check_shape(model, "the transition (propagate)", state, states.shape[::2], k)
+                _check_shape(model, f"the transition ({model.transition_method()})", state, states.shape[::2], k)
                 state = model.truth_event(state, k)
                 states[:, k] = state
                 measurement = model.simulate_measurement(state, random)

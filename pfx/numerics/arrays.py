@@ -24,10 +24,13 @@ JAX is imported only when a JAX array is met: pfx runs without it.
 
 from __future__ import annotations
 
+import numbers
 from types import ModuleType
 from typing import Any, Callable
 
 import numpy as np
+
+from pfx.numerics.parameter_checks import active_checks, collecting
 
 
 def namespace(*values: Any) -> ModuleType:
@@ -79,7 +82,15 @@ def repeat(times: int, body: Callable[[Any], Any], carry: Any) -> Any:
     on NumPy, ``jax.lax.fori_loop`` on JAX. Traced, a Python loop would unroll into ``times``
     copies of ``body`` (64 RK4 substeps: a program XLA takes minutes to compile); the JAX loop
     compiles ``body`` once. The backend is the carry's (:func:`namespace`); on NumPy the numbers
-    are those of the plain loop, operation for operation."""
+    are those of the plain loop, operation for operation.
+
+    ``times`` is a non-negative integer (a JAX integer with no axes may be traced: it is then
+    not checked) and ``body`` a function of the carry: anything else is a ValueError naming it.
+    Inside a compiled step, the laws' checks in ``body`` are carried out of the loop
+    (:mod:`pfx.numerics.parameter_checks`)."""
+    _check_times(times)
+    if not callable(body):
+        raise ValueError(f"repeat: body must be a function of the carry, got {type(body).__name__}")
     values = carry if isinstance(carry, tuple) else (carry,)
     if namespace(*values) is np:
         for _ in range(times):
@@ -87,4 +98,29 @@ def repeat(times: int, body: Callable[[Any], Any], carry: Any) -> Any:
         return carry
     import jax
 
-    return jax.lax.fori_loop(0, times, lambda _, current: body(current), carry)
+    outer = active_checks()
+    if outer is None:
+        return jax.lax.fori_loop(0, times, lambda _, current: body(current), carry)
+
+    def checked(_, state):                  # a loop's body is traced apart: a block of its own
+        current, codes = state
+        with collecting(outer.trials) as checks:
+            current = body(current)
+        return current, jax.numpy.where(codes != 0, codes, checks.codes)
+
+    carry, codes = jax.lax.fori_loop(0, times, checked, (carry, jax.numpy.zeros(outer.trials, jax.numpy.int32)))
+    outer.merge(codes)
+    return carry
+
+
+def _check_times(times: Any) -> None:
+    """``repeat``'s count: a Python or NumPy integer >= 0, or a JAX integer with no axes (its sign
+    checked when it has a value)."""
+    if is_jax_array(times) and times.ndim == 0 and np.issubdtype(times.dtype, np.integer):
+        import jax
+
+        if isinstance(times, jax.core.Tracer) or int(times) >= 0:
+            return
+    elif isinstance(times, numbers.Integral) and not isinstance(times, bool) and times >= 0:
+        return
+    raise ValueError(f"repeat: times must be a non-negative integer, got {times!r}")

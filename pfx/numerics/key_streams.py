@@ -29,6 +29,15 @@ from typing import Any, Optional, Protocol, Sequence
 
 import numpy as np
 
+from pfx.numerics.parameter_checks import (
+    BINOMIAL_COUNT,
+    BINOMIAL_PROBABILITY,
+    GAMMA_SCALE,
+    GAMMA_SHAPE,
+    POISSON_RATE,
+    check,
+)
+
 
 class Random(Protocol):
     """Batched draws, one independent stream per trial (leading axis): what a model's
@@ -152,9 +161,13 @@ class KeyStreams:
     def binomial(self, count: Any, probability: Any, *, shape: Optional[Sequence[int]] = None) -> Any:
         """Binomial draws, P(k) = C(n, k) p^k (1 - p)^(n - k), as floats of the streams' dtype
         (NumPy's are float64 too); ``count`` n and ``probability`` p laid out as in
-        :meth:`pfx.numerics.seeding.TrialStreams.binomial` (the trial axis first)."""
+        :meth:`pfx.numerics.seeding.TrialStreams.binomial` (the trial axis first). Parameters
+        are checked as NumPy's are (:mod:`pfx.numerics.parameter_checks`: at once, or traced,
+        by the engine after its scan), as are Poisson's and gamma's."""
         import jax
 
+        check(BINOMIAL_COUNT, count)
+        check(BINOMIAL_PROBABILITY, probability)
         return self._with_parameters(
             lambda key, n, p, size: jax.random.binomial(key, n, p, size, self.dtype), [count, probability], shape)
 
@@ -162,6 +175,7 @@ class KeyStreams:
         """Poisson draws, P(k) = rate^k e^(-rate) / k!, as floats of the streams' dtype."""
         import jax
 
+        check(POISSON_RATE, rate)
         return self._with_parameters(
             lambda key, rate, size: jax.random.poisson(key, rate, size).astype(self.dtype), [rate], shape)
 
@@ -169,6 +183,8 @@ class KeyStreams:
         """Gamma draws of shape k and scale theta (mean k theta, variance k theta^2)."""
         import jax
 
+        check(GAMMA_SHAPE, shape_parameter)
+        check(GAMMA_SCALE, scale)
         return self._with_parameters(
             lambda key, k, theta, size: theta * jax.random.gamma(key, k, size, self.dtype),
             [shape_parameter, scale], shape)

@@ -34,6 +34,19 @@ from typing import Optional, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from pfx.numerics.parameter_checks import (
+    BINOMIAL_COUNT,
+    BINOMIAL_PROBABILITY,
+    EXPONENTIAL_SCALE,
+    GAMMA_SCALE,
+    GAMMA_SHAPE,
+    NORMAL_SD,
+    POISSON_RATE,
+    Rule,
+    numbers,
+    refuse_unless_valid,
+)
+
 TRUTH_ROLE = 0
 FILTER_ROLE = 1
 STUDY_ROLE = 2
@@ -231,9 +244,8 @@ class TrialStreams:
         ``count`` is n (non-negative integers; integer-valued floats welcome, as a count-valued
         model keeps them), ``probability`` is p in [0, 1]; each trial's ``generator.binomial``.
         """
-        count = _checked("binomial", "count", count, _is_count, "a non-negative integer")
-        probability = _checked("binomial", "probability", probability,
-                               lambda values: (values >= 0) & (values <= 1), "in [0, 1]")
+        count = _checked(BINOMIAL_COUNT, count)
+        probability = _checked(BINOMIAL_PROBABILITY, probability)
         return self._draw("binomial", [count.astype(np.int64), probability], shape)
 
     def poisson(self, rate: ArrayLike, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -241,8 +253,7 @@ class TrialStreams:
 
         ``rate`` is λ >= 0 (at most NumPy's bound, about 9.2e18); each trial's ``generator.poisson``.
         """
-        rate = _checked("poisson", "rate", rate, lambda values: _is_non_negative(values)
-                        & (values <= _LARGEST_POISSON_RATE), f"non-negative and at most {_LARGEST_POISSON_RATE:.4g}")
+        rate = _checked(POISSON_RATE, rate)
         return self._draw("poisson", [rate], shape)
 
     def gamma(self, shape_parameter: ArrayLike, scale: ArrayLike = 1.0, *,
@@ -252,9 +263,8 @@ class TrialStreams:
         ``shape_parameter`` is the law's shape k >= 0 (named so, as ``shape`` is the draws'
         shape), ``scale`` is θ >= 0: mean kθ, variance kθ²; each trial's ``generator.gamma``.
         """
-        shape_parameter = _checked("gamma", "shape_parameter", shape_parameter, _is_non_negative,
-                                   "finite and non-negative")
-        scale = _checked("gamma", "scale", scale, _is_non_negative, "finite and non-negative")
+        shape_parameter = _checked(GAMMA_SHAPE, shape_parameter)
+        scale = _checked(GAMMA_SCALE, scale)
         return self._draw("gamma", [shape_parameter, scale], shape)
 
     def exponential(self, scale: ArrayLike = 1.0, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -263,7 +273,7 @@ class TrialStreams:
         θ E with E from :meth:`standard_exponential`: exactly ``generator.exponential(scale)``,
         which is that product.
         """
-        scale = _checked("exponential", "scale", scale, _is_non_negative, "finite and non-negative")
+        scale = _checked(EXPONENTIAL_SCALE, scale)
         (scale,), trial_shape = self._aligned("exponential", [scale], shape)
         return scale * self.standard_exponential(trial_shape)
 
@@ -274,7 +284,7 @@ class TrialStreams:
         Exactly ``generator.normal(mean, sd)``, which is that sum; ``sd`` >= 0 (finite).
         """
         mean = np.asarray(mean, dtype=float)
-        sd = _checked("normal", "sd", sd, _is_non_negative, "finite and non-negative")
+        sd = _checked(NORMAL_SD, sd)
         (mean, sd), trial_shape = self._aligned("normal", [mean, sd], shape)
         return mean + sd * self.standard_normal(trial_shape)
 
@@ -326,25 +336,12 @@ class TrialStreams:
         return out
 
 
-# NumPy's own bound on a Poisson rate (POISSON_LAM_MAX), beyond which the draws overflow int64.
-_LARGEST_POISSON_RATE = float(np.iinfo(np.int64).max) - 10 * math.sqrt(np.iinfo(np.int64).max)
-
-
-def _is_non_negative(values: np.ndarray) -> np.ndarray:
-    return np.isfinite(values) & (values >= 0)
-
-
-def _is_count(values: np.ndarray) -> np.ndarray:
-    return _is_non_negative(values) & (values == np.floor(values)) & (values < 2.0**63)
-
-
-def _checked(law: str, name: str, values: ArrayLike, valid, meaning: str) -> np.ndarray:
-    """``values`` as a float array, or a ValueError naming the law, the parameter and a bad value.
+def _checked(rule: Rule, values: ArrayLike) -> np.ndarray:
+    """``values`` as a float64 array, or a ValueError naming the law, the parameter and a bad
+    value (the rule's, :mod:`pfx.numerics.parameter_checks`).
 
     Checked before any draw, so that a refused call leaves every generator where it was.
     """
-    values = np.asarray(values, dtype=float)
-    bad = ~valid(values)
-    if np.any(bad):
-        raise ValueError(f"{law}: {name} must be {meaning}, got {float(values[bad].flat[0])!r}")
+    values = np.asarray(numbers(rule, values), dtype=float)
+    refuse_unless_valid(rule, values)
     return values

@@ -194,7 +194,8 @@ class ParticleFilter:
             self.state = self.model.transition(self.state, k, self.random)    # non-finite values: below
         if self.state.shape != self.cloud_shape:       # a tuple comparison: the contract, at the run's size
             source = "the proposal" if proposal is not None else \
-                "compiled_step" if self.compiled_step is not None else "the transition (propagate)"
+                "compiled_step" if self.compiled_step is not None else \
+                f"the transition ({self.model.transition_method()})"
             raise ModelContractError(f"model {self.model.kind}: {source} returned shape {self.state.shape} at step "
                                      f"{k} of the filter, for {self.trials} trials x {self.particles} particles; "
                                      f"expected {self.cloud_shape}")

@@ -25,9 +25,11 @@ Three things differ in form from the NumPy engine, not in what they compute:
   whose ESS is above the threshold keep their particles by a select. (The NumPy engine touches
   only the trials that resample.)
 * **error flags, not exceptions**: a trial whose particles all left the model's domain, a NaN
-  or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``; after the
-  scan the first one is raised as the NumPy engine raises it (:class:`~pfx.errors.ModelNumericalError`,
-  same message, same step).
+  or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``, and a law's
+  parameter out of its domain in the transition (a negative Poisson rate:
+  :mod:`pfx.numerics.parameter_checks`) the code of the rule it broke; after the scan the first
+  one is raised as the NumPy engine raises it (:class:`~pfx.errors.ModelNumericalError`, or the
+  law's refusal; same message, same step).
 * **precision**: ``float32`` keeps the particles, the process noise and the weights in single
   precision: what is stored and carried from step to step, hence the memory traffic that bounds
   a GPU. A model's arithmetic follows JAX's promotion rules: a constant held as a NumPy float64
@@ -53,10 +55,13 @@ from pfx.filters.particle.predictive import predictive_step
 from pfx.filters.trace import FilterTrace, Predictive
 from pfx.numerics.angles import circular_mean, wrap_difference
 from pfx.numerics.key_streams import KeyStreams
+from pfx.numerics.parameter_checks import broken_rule_message, collecting, merge_codes
 from pfx.numerics.seeding import SCORE_STREAM
 
-# the bits of a step's ``failures``, per trial
+# the bits of a step's ``failures``, per trial; above them, the code of the first rule of a law's
+# parameters the trial's transition broke (pfx.numerics.parameter_checks: a negative Poisson rate)
 EVERY_PARTICLE_LOST, BAD_LIKELIHOOD, NON_FINITE_ESTIMATE = 1, 2, 4
+BROKEN_RULE_SHIFT = 3
 
 
 class Cloud(NamedTuple):
@@ -252,7 +257,8 @@ class JaxParticleFilter:
         """Step k: predict, weight and normalise, estimate, resample (module docstring); with
         ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
         random = random.at(inputs.step)
-        predicted, lost, log_weights = self.predict(cloud, inputs, random)
+        with collecting(len(random)) as transition_checks:
+            predicted, lost, log_weights = self.predict(cloud, inputs, random)
         predictive = self.predictive(predicted, log_weights, inputs, scores.at(inputs.step)) \
             if scores is not None else None
         every_particle_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
@@ -263,9 +269,11 @@ class JaxParticleFilter:
             predicted, log_weights, weights, ess, random)
         failures = (jnp.where(every_particle_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad_likelihood, BAD_LIKELIHOOD, 0)
                     | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
+        if transition_checks.recorded:          # a model whose transition checks no law adds nothing
+            failures = failures | (transition_checks.codes << BROKEN_RULE_SHIFT)
         outputs = StepOutputs(
             estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
-            failures=failures.astype(jnp.int8),
+            failures=failures.astype(jnp.int16),
             spread=self.spread(resampled_weights, resampled_state) if flags.spread else None,
             within_radius=self.within_radius(resampled_weights, resampled_state, flags)
             if flags.radius is not None else None,
@@ -297,11 +305,14 @@ class JaxParticleFilter:
         else:
             def substep(current, place):
                 index, time = place
-                return jnp.asarray(model.sample_substep(current, control, time, random.at(index)), current.dtype), None
+                with collecting(len(random)) as checks:      # a scan's body is traced apart: its own block
+                    moved = model.sample_substep(current, control, time, random.at(index))
+                return jnp.asarray(moved, current.dtype), checks.codes
 
-            state, _ = jax.lax.scan(substep, model.reset_accumulators(state), (jnp.arange(substeps), inputs.times))
+            state, codes = jax.lax.scan(substep, model.reset_accumulators(state), (jnp.arange(substeps), inputs.times))
+            merge_codes(codes)
         state = jnp.asarray(state)
-        _check_shape(model, "the transition (propagate)", state, cloud.particles.shape)
+        _check_shape(model, f"the transition ({model.transition_method()})", state, cloud.particles.shape)
         state = state.astype(self.dtype)
         lost = ~jnp.all(jnp.isfinite(state), axis=-1)
         state = jnp.where(lost[..., None], 0.0, state)
@@ -454,15 +465,20 @@ def _raise_first_failure(model, failures: np.ndarray) -> None:
         raise error
 
 
-def first_failure(model, failures: np.ndarray) -> Optional[ModelNumericalError]:
+def first_failure(model, failures: np.ndarray) -> Optional[Exception]:
     """The error the NumPy engine would have raised for a run's failure bits (T, R), at the
-    first step with one; None when no bit is set."""
+    first step with one; None when no bit is set. A law's parameter out of its domain comes
+    first, as NumPy raises it in the transition, before the weights."""
     flagged = np.argwhere(failures != 0)        # (step, trial) pairs, in step order
     if flagged.size == 0:
         return None
     index = int(flagged[0, 0])
-    bits = int(np.bitwise_or.reduce(failures[index]))
     step = index + 1
+    codes = failures[index].astype(np.int64) >> BROKEN_RULE_SHIFT
+    if codes.any():
+        return ModelContractError(f"model {model.kind}: {model.transition_method()} raised ValueError: "
+                                  f"{broken_rule_message(int(codes[codes != 0][0]))} (step {step} of the filter)")
+    bits = int(np.bitwise_or.reduce(failures[index]))
     if bits & EVERY_PARTICLE_LOST:
         return ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
                                    f"{step} of the filter (check the prior and the noise)")
