@@ -145,6 +145,31 @@ def test_repeat_needs_a_function_and_counts_from_zero():
     assert pfx.repeat(np.int64(3), lambda value: value + 1.0, 2.0) == 5.0
 
 
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+def test_each_pass_of_repeat_draws_new_numbers_on_both_backends(backend):
+    """A loop body is traced once on jax: without the pass folded into the keys, all three passes
+    drew the same normals there, where numpy's Python loop draws new ones."""
+    if backend == "jax":
+        pytest.importorskip("jax")
+        import jax.numpy as xp
+
+        from pfx.numerics.key_streams import KeyStreams
+
+        random = KeyStreams.from_seeds([1, 2])
+    else:
+        xp, random = np, TrialStreams.from_seeds([1, 2])
+
+    def one_pass(carry):
+        index, draws = carry
+        row = xp.arange(3)[:, None] == index              # the pass's row, without an in-place write
+        return index + 1, xp.where(row, random.standard_normal(())[None, :], draws)
+
+    _, draws = pfx.repeat(3, one_pass, (xp.asarray(0), xp.zeros((3, 2))))
+    draws = np.asarray(draws)
+    assert len({tuple(row) for row in draws.round(12)}) == 3, draws
+    assert np.all(draws[0] != draws[1]) and np.all(draws[1] != draws[2])
+
+
 # -- in a run: the same line on both backends; a wrong shape blamed on sample_substep -------------
 
 ARRIVALS = '''from typing import Literal

@@ -30,6 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from pfx.numerics.key_streams import loop_pass
 from pfx.numerics.parameter_checks import active_checks, collecting
 
 
@@ -87,7 +88,8 @@ def repeat(times: int, body: Callable[[Any], Any], carry: Any) -> Any:
     ``times`` is a non-negative integer (a JAX integer with no axes may be traced: it is then
     not checked) and ``body`` a function of the carry: anything else is a ValueError naming it.
     Inside a compiled step, the laws' checks in ``body`` are carried out of the loop
-    (:mod:`pfx.numerics.parameter_checks`)."""
+    (:mod:`pfx.numerics.parameter_checks`), and a draw in ``body`` takes new keys at every pass
+    (:func:`pfx.numerics.key_streams.loop_pass`), as it takes new numbers on NumPy."""
     _check_times(times)
     if not callable(body):
         raise ValueError(f"repeat: body must be a function of the carry, got {type(body).__name__}")
@@ -98,14 +100,18 @@ def repeat(times: int, body: Callable[[Any], Any], carry: Any) -> Any:
         return carry
     import jax
 
+    def one_pass(index, current):           # traced once: the pass's draws fold in its index
+        with loop_pass(index):
+            return body(current)
+
     outer = active_checks()
     if outer is None:
-        return jax.lax.fori_loop(0, times, lambda _, current: body(current), carry)
+        return jax.lax.fori_loop(0, times, one_pass, carry)
 
-    def checked(_, state):                  # a loop's body is traced apart: a block of its own
+    def checked(index, state):              # a loop's body is traced apart: a block of its own
         current, codes = state
         with collecting(outer.trials) as checks:
-            current = body(current)
+            current = one_pass(index, current)
         return current, jax.numpy.where(codes != 0, codes, checks.codes)
 
     carry, codes = jax.lax.fori_loop(0, times, checked, (carry, jax.numpy.zeros(outer.trials, jax.numpy.int32)))

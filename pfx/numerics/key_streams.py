@@ -25,7 +25,9 @@ is computed from them may differ in the last bits between devices.
 
 from __future__ import annotations
 
-from typing import Any, Optional, Protocol, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Any, Iterator, Optional, Protocol, Sequence
 
 import numpy as np
 
@@ -37,6 +39,21 @@ from pfx.numerics.parameter_checks import (
     POISSON_RATE,
     check,
 )
+
+# The passes of the compiled loops a draw is made in (pfx.repeat's, innermost last): a loop body is
+# traced once, so without them every pass would draw from the same keys.
+_LOOP_PASSES: ContextVar[tuple] = ContextVar("loop_passes", default=())
+
+
+@contextmanager
+def loop_pass(index: Any) -> Iterator[None]:
+    """Within the block, each draw's keys also fold in ``index`` (a traced loop counter): the
+    body of a compiled loop draws new numbers at every pass, as a Python loop on NumPy does."""
+    token = _LOOP_PASSES.set(_LOOP_PASSES.get() + (index,))
+    try:
+        yield
+    finally:
+        _LOOP_PASSES.reset(token)
 
 
 class Random(Protocol):
@@ -102,10 +119,13 @@ class KeyStreams:
         return self.at(2**31 - int(purpose))
 
     def _next_keys(self) -> Any:
-        """The keys of the next draw (one per trial), and the counter advanced."""
+        """The keys of the next draw (one per trial), and the counter advanced; within a compiled
+        loop's pass (:func:`loop_pass`), folded with the pass too."""
         import jax
 
         keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(self.keys, self.counter)
+        for index in _LOOP_PASSES.get():         # inside pfx.repeat's compiled loop: this pass's keys
+            keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, index)
         self.counter += 1
         return keys
 
