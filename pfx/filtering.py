@@ -54,6 +54,7 @@ from pfx.config.plugin_faults import locate
 from pfx.config.plugins import LoadedPlugin, loaded_plugins, python_origins
 from pfx.config.plugins import load_plugin as load_plugin_entry
 from pfx.config.schema import config_schema
+from pfx.config.scores import compiled_draws_refusal, default_draws_refusal
 from pfx.config.validation import validate
 from pfx.errors import ConfigError, ModelNumericalError, located_value_error
 from pfx.estimation.likelihood_spread import Spread
@@ -151,12 +152,27 @@ class Filter:
             if not self.planned.computes_scores:
                 raise ConfigError(f"the {self.kind} filter does not compute the predictive scores (the particle "
                                   "filters and kf, ekf, ukf do)", file=CALLER, key="scores")
+            self._check_measurement_draws()
             options["scores"] = True
         trace = self.planned.run(self.model, data, TrialStreams.from_seeds(seeds), settings=self.settings,
                                  prior=self.prior, **options)
         return FilterResult(estimates=trace.estimates, ess=trace.ess, log_likelihood=trace.log_likelihood,
                             ancestors=trace.ancestors, seeds=seeds, trace=trace, smoothed=trace.smoothed,
                             predictive=trace.predictive)
+
+
+    def _check_measurement_draws(self) -> None:
+        """The scores of a particle filter come from the model's measurement draws: refused, as a
+        config's ``metrics.scores`` is (:mod:`pfx.config.scores`), where they are not the law the
+        filter weighs by, or cannot run in the jax backend's compiled filter."""
+        if not FILTERS[self.kind].carries_particles:
+            return
+        reason = default_draws_refusal(self.model, "the scores' CRPS and PIT")
+        if reason is None and self.settings.backend == "jax":
+            reason = compiled_draws_refusal(self.model, self.settings.precision)
+            reason = reason and f"{reason}, or set backend='numpy'"
+        if reason is not None:
+            raise ConfigError(reason, file=CALLER, key="scores")
 
 
 def particle_filter(model: Model, *, kind: str = "particle", prior=None, **settings: Any) -> Filter:

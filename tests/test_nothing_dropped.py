@@ -275,6 +275,34 @@ def test_numpy_only_measurement_draws_on_jax_with_scores_are_refused_at_plan_tim
     plan_of(tmp_path, config)
 
 
+def test_the_python_door_refuses_the_same_measurement_draws_for_scores(tmp_path):
+    """pfx.filter(..., scores=True) is judged as a config's metrics.scores: a plugin likelihood
+    with pfx's default draws, and on jax a NumPy-only simulate_measurement, are refused naming
+    the argument; the same filters run without scores."""
+    import numpy as np
+
+    import pfx
+
+    measurements = np.zeros((5, 1))
+    (tmp_path / "counts.py").write_text(COUNTS_PLUGIN.replace("DRAWS", ""))
+    pfx.load_plugin(tmp_path / "counts.py")
+    counts = pfx.model("poisson_walk")
+    with pytest.raises(ConfigError, match="scores: model poisson_walk .*defines its own log_likelihood but not "
+                                          "simulate_measurement"):
+        pfx.filter(counts, measurements, particles=20, scores=True)
+    pfx.filter(counts, measurements, particles=20)
+    if importlib.util.find_spec("jax") is None:
+        return
+    (tmp_path / "numpy_draws.py").write_text(NUMPY_DRAWS_PLUGIN)
+    pfx.load_plugin(tmp_path / "numpy_draws.py")
+    walk = pfx.model("numpy_draws_walk")
+    with pytest.raises(ConfigError, match="scores: model numpy_draws_walk's simulate_measurement does not run on "
+                                          "the jax backend .*set backend='numpy'"):
+        pfx.filter(walk, measurements, particles=20, backend="jax", scores=True)
+    pfx.filter(walk, measurements, particles=20, backend="jax")
+    pfx.filter(walk, measurements, particles=20, scores=True)
+
+
 # -- priors --------------------------------------------------------------------------------------
 
 def test_a_prior_written_with_kind_names_law_and_its_choices(tmp_path):

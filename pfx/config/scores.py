@@ -63,15 +63,24 @@ def check_scores(cells: list, experiment, file: str) -> None:
         if cell.filter.backend != "jax" or (type(cell.filter_model), cell.filter.precision) in traced:
             continue
         traced.add((type(cell.filter_model), cell.filter.precision))
-        from pfx.filters.particle.jax_support import measurement_draw_fault
-
-        reason = measurement_draw_fault(cell.filter_model, cell.filter.precision)
+        reason = compiled_draws_refusal(cell.filter_model, cell.filter.precision)
         if reason is not None:
-            raise ConfigError(f"model {cell.filter_model.kind}'s simulate_measurement does not run on the jax backend "
-                              f"({reason}), and the scores draw from it inside the compiled filter; write it against "
-                              "the array namespace, xp = pfx.namespace(state), drawing from the random argument "
-                              "(docs/plugins.md, 'Writing a model for both backends'), or set filter.backend: numpy",
-                              file=file, key=key)
+            raise ConfigError(f"{reason}, or set filter.backend: numpy", file=file, key=key)
+
+
+def compiled_draws_refusal(model, precision: str):
+    """Why the jax backend's compiled filter cannot draw ``model``'s measurements for the scores
+    (its ``simulate_measurement`` written for NumPy only), as the start of a sentence; None where
+    it can."""
+    from pfx.filters.particle.jax_support import measurement_draw_fault
+
+    reason = measurement_draw_fault(model, precision)
+    if reason is None:
+        return None
+    return (f"model {model.kind}'s simulate_measurement does not run on the jax backend ({reason}), and the scores "
+            "draw from it inside the compiled filter; write it against the array namespace, xp = "
+            "pfx.namespace(state), drawing from the random argument (docs/plugins.md, 'Writing a model for both "
+            "backends')")
 
 
 def check_measurement_draws(cells: list, file: str, key: str, what: str) -> None:
@@ -79,16 +88,22 @@ def check_measurement_draws(cells: list, file: str, key: str, what: str) -> None
     its measurements are drawn by pfx's default ``simulate_measurement``: ``what`` (the draws'
     use, in words) would come from another law than the one the filter weighs by."""
     for cell in cells:
-        model = cell.filter_model
-        if defined_by_user_code(model, "log_likelihood") and \
-                not defined_by_user_code(model, "simulate_measurement", "measure"):
-            code = getattr(type(model).log_likelihood, "__code__", None)
-            where = f" (plugin {code.co_filename})" if code is not None else ""
-            raise ConfigError(f"model {model.kind}{where} defines its own log_likelihood but not simulate_measurement: "
-                              "its measurements are drawn by pfx's (by default h(x) plus the measurement noise), "
-                              f"another law than the one the filter weighs by, so {what} would be wrong; add "
-                              "simulate_measurement(self, state, random) to the model, drawing z from the law "
-                              "log_likelihood evaluates (docs/plugins.md)", file=file, key=key)
+        reason = default_draws_refusal(cell.filter_model, what)
+        if reason is not None:
+            raise ConfigError(reason, file=file, key=key)
+
+
+def default_draws_refusal(model, what: str):
+    """Why ``model``'s measurement draws cannot serve ``what``: its class writes its own
+    ``log_likelihood`` and keeps pfx's default ``simulate_measurement``; None where they can."""
+    if not defined_by_user_code(model, "log_likelihood") or defined_by_user_code(model, "simulate_measurement", "measure"):
+        return None
+    code = getattr(type(model).log_likelihood, "__code__", None)
+    where = f" (plugin {code.co_filename})" if code is not None else ""
+    return (f"model {model.kind}{where} defines its own log_likelihood but not simulate_measurement: its measurements "
+            "are drawn by pfx's (by default h(x) plus the measurement noise), another law than the one the filter "
+            f"weighs by, so {what} would be wrong; add simulate_measurement(self, state, random) to the model, drawing "
+            "z from the law log_likelihood evaluates (docs/plugins.md)")
 
 
 def scores_notes(cells: list) -> list[str]:
