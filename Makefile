@@ -58,4 +58,4 @@ gpu-check:
 	bash examples/gpu_check.sh
 
 clean:
-	rm -rf $(VENV) $(BENCH_VENV) .venv-plain runs .pytest_cache
+	rm -rf $(VENV) $(BENCH_VENV) .venv-plain .jax-cache runs .pytest_cache

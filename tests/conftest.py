@@ -56,6 +56,15 @@ import yaml
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TIMEOUT_S = 180      # a safety net against hangs, not a timing assertion
 
+# JAX compiles each filter, PMMH and IF2 program it meets; the suite meets many of them more than
+# once (a rerun, an extended run, the same config in another file). Its persistent compilation
+# cache, shared by the workers and kept between sessions (a compiled program is keyed by its
+# whole computation and JAX's version, so a stale entry is never used), compiles each once. It
+# changes no number. Set here, before anything imports JAX; the subprocesses inherit it.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(REPO_ROOT / ".jax-cache"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
 TINY_CONFIG: dict[str, Any] = {
     "name": "tiny",
     "description": "a tiny experiment for the tests",

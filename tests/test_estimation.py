@@ -43,6 +43,7 @@ def nile_config(method="pmmh", **estimation):
                                                                       "upper": 100000.0},
                                                             "start": 2000.0, "proposal_sd": 0.5}}}}
     config["estimation"].update(estimation)
+    config["outputs"] = {"figures": []}      # the numbers are checked here; tests/test_estimation_figures.py draws
     return config
 
 

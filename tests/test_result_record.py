@@ -50,6 +50,8 @@ SHRUNK = {
     "configs/benchmarks/dapper-lorenz/lorenz96.yaml": ["model.steps=40", "metrics.burn_in=1.0"],
     # 600 months (the data's) of 20 substeps, each a call of the plugin, at 1000 and 5000 particles
     "configs/benchmarks/dacca-cholera/dacca.yaml": ["sweep.filter.particles=[50, 100]", "model.substeps=4"],
+    # the same months, scored (each cell's predictive draws at every step)
+    "configs/benchmarks/dacca-cholera/scores.yaml": ["sweep.filter.particles=[50, 100]", "model.substeps=4"],
     # the same on the jax backend (each cell compiles its own program)
     "configs/benchmarks/dacca-cholera/dacca-jax.yaml": ["sweep.filter.particles=[50, 100]", "model.substeps=4"],
     # 730 weeks of 7 daily substeps of count draws at 2000 particles
