@@ -13,7 +13,8 @@ and nothing more, and run pfx there as a user who installed it that way would:
   what is checked);
 * ``backend: jax`` and ``--executor dask-local`` are refused in one line naming the extra.
 
-The environment is made once (about a minute: pfx's dependencies from PyPI) and kept; each test
+The environment is made once (about half a minute: pfx's dependencies from PyPI, not compiled to
+bytecode, as Python compiles what it imports) and kept; each test
 session reinstalls pfx itself into it (``pip install --no-deps --no-build-isolation .``, with the
 build requirements installed there once), so the code tested is the working tree's, built and
 installed as ``pip install .`` builds it (package data included).
@@ -82,11 +83,11 @@ def plain(tmp_path_factory) -> dict:
     stamp = _dependencies_stamp()
     if not python.exists() or not stamp_file.exists() or stamp_file.read_text() != stamp:
         venv.create(PLAIN, with_pip=True, clear=True)
-        _pip(python, ".")                                    # pfx and its dependencies, no extra
-        _pip(python, *BUILD_REQUIREMENTS)                    # to rebuild pfx here, without a download
+        _pip(python, "--no-compile", ".")                    # pfx and its dependencies, no extra
+        _pip(python, "--no-compile", *BUILD_REQUIREMENTS)    # to rebuild pfx here, without a download
         stamp_file.write_text(stamp)
     else:                                                    # the working tree's pfx, as pip builds it
-        _pip(python, "--no-deps", "--force-reinstall", "--no-build-isolation", ".")
+        _pip(python, "--no-deps", "--force-reinstall", "--no-build-isolation", "--no-compile", ".")
     present = subprocess.run([str(python), "-c", "import importlib.util as u; "
                               f"print([m for m in {EXTRAS!r} if u.find_spec(m)])"],
                              capture_output=True, text=True, check=True).stdout.strip()
