@@ -310,7 +310,8 @@ def figures(
                 needs = f": it draws what {asked} writes, which this folder's config did not ask for" if asked else ""
                 typer.echo(f"{name}: nothing to draw from this folder's tables{needs} (not added)", err=True)
         if add:
-            record_figures(result_dir, [name for name in add if name in drawn])
+            record_figures(result_dir, [name for name in add if name in drawn],
+                           lambda config: _load_plan(config, [], None).config_hash)
         elif manifest.pop(FIGURES_PENDING, False):       # every figure is drawn now
             write_manifest(manifest, result_dir)
     except OSError as error:          # what the checks cannot see (a read-only file system for root)

@@ -24,10 +24,9 @@ import stat
 import tempfile
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING, Callable, Optional
 
 from pfx.errors import ConfigError
-from pfx.numerics.hashing import canonical_hash
 from pfx.user_files import UnreadableFile, read_user_file
 
 if TYPE_CHECKING:          # pandas and numpy are imported where a table is read, not before
@@ -340,9 +339,12 @@ def write_manifest(manifest: dict, out: Path) -> None:
     write_text(json.dumps(manifest, indent=2), Path(out) / MANIFEST)
 
 
-def record_figures(out: Path, names: list[str]) -> None:
+def record_figures(out: Path, names: list[str], config_hash: Callable[[Path], str]) -> None:
     """Add figures to a finished folder's record (manifest and config.yaml), so that ``pfx
-    figures`` renders them again and a rerun of the config keeps or drops them knowingly."""
+    figures`` renders them again and a rerun of the config keeps or drops them knowingly. The
+    manifest's ``config_hash`` is the rewritten config.yaml's, as ``config_hash(path)`` computes
+    it (the plan's: with its plugins' code and its data files' contents), so that a rerun of the
+    config finds the folder up to date."""
     import yaml
 
     manifest = read_manifest(out)
@@ -355,7 +357,7 @@ def record_figures(out: Path, names: list[str]) -> None:
         config = yaml.safe_load(config_path.read_text())
         config.setdefault("outputs", {})["figures"] = manifest["figures"]
         write_text(yaml.safe_dump(config, sort_keys=False), config_path)
-        manifest["config_hash"] = canonical_hash(config)
+        manifest["config_hash"] = config_hash(config_path)
     write_text(json.dumps(manifest, indent=2), Path(out) / MANIFEST)
 
 

@@ -309,6 +309,19 @@ def test_figures_command_adds_a_figure_to_the_record(finished, tmp_path, pfx_in_
     assert wrong.returncode == 2 and "did you mean 'ess_over_time'" in wrong.stderr
 
 
+def test_a_figure_added_to_a_folder_of_recorded_data_keeps_it_up_to_date(tmp_path, pfx_in_process):
+    """The record's config hash names its data files by content (and a plugin by its code): the
+    hash written with an added figure is the plan's, so the folder's own config finds it up to date."""
+    folder = tmp_path / "nile"
+    ran = pfx_in_process("run", REPO_ROOT / "configs" / "examples" / "nile.yaml", "--out", folder, "--trials", "2",
+                         "--quiet")
+    assert ran.returncode == 0, ran.output
+    added = pfx_in_process("figures", folder, "--figure", "log_likelihood_increment_over_time")
+    assert added.returncode == 0, added.output
+    again = pfx_in_process("run", folder / "config.yaml", "--out", folder)
+    assert again.returncode == 0 and "up to date (same config hash" in again.stderr, again.output
+
+
 def test_end_of_run_prints_a_summary_and_the_next_command(tmp_path, pfx_in_process):
     config = write_config_file(tmp_path, tiny_config_dict(        # 6 trials: the fewest with an interval
         trials=6, arms={"few": {"particles": 10}, "many": {"particles": 40}}, outputs={"figures": []}), "arms.yaml")

@@ -31,7 +31,7 @@ the cheapest:
   global generator has moved on between the two calls, so they differ. A method that ignores
   the stream it is given but is deterministic passes: its results are the same every run.
 
-The plan (:func:`pfx.config.plan.check_plugin_model`) runs the last three for a plugin's model.
+The plan (:func:`pfx.config.plan_checks.check_plugin_model`) runs the last three for a plugin's model.
 The probes are cheap (2 trials x 3 particles, one step), and the reproducibility verdict is kept
 per model class and settings, so that many cells of one model pay it once.
 """
