@@ -38,11 +38,12 @@ over the resampled states (before the move), as in Fox's and AMCL's implementati
 from __future__ import annotations
 
 from statistics import NormalDist
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, ClassVar, Literal, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
 
+from pfx.filters.backends import Backends
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -99,6 +100,7 @@ class KLDSampling(BaseModel):
     """KLD-sampling (Fox 2003): as many particles as the histogram bound asks, at most filter.particles."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    backends: ClassVar[Backends] = Backends(what="adaptive particle counts", why="it is written for the NumPy engine's step")
     kind: Literal["kld"] = "kld"
     epsilon: StrictFloat = Field(0.05, gt=0, description="KL-distance bound epsilon (Fox: 0.05)")
     delta: StrictFloat = Field(0.01, gt=0, lt=1, description="the bound holds with probability 1 - delta (Fox: 0.01)")

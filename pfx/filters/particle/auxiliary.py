@@ -41,6 +41,7 @@ from typing import Optional
 
 import numpy as np
 
+from pfx.filters.backends import Backends
 from pfx.numerics.log_weights import normalise_weights
 
 
@@ -51,6 +52,8 @@ class AuxiliaryFirstStage:
     the weights, resamples the trials the ESS rule picks with its resampling stage, and gathers
     the ancestors' look-ahead :math:`g_{a_i}` for the second stage).
     """
+
+    backends = Backends(what="the auxiliary particle filter", why="it is written for the NumPy engine's step")
 
     def weights(self, model, log_weights: np.ndarray, previous: np.ndarray, step: int,
                 measurement: np.ndarray, observed: Optional[np.ndarray]):

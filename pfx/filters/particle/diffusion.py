@@ -12,17 +12,20 @@ After a trial resamples, duplicated particles are moved apart by independent noi
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, ClassVar, Literal, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from pfx.filters.backends import BOTH, Backends
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
 
 class _Diffusion(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    #: where it runs (pfx.filters.backends): the built-in ones draw through the array namespace
+    backends: ClassVar[Backends] = Backends(BOTH)
 
     def apply(self, particles: np.ndarray, random: TrialStreams) -> np.ndarray:
         raise NotImplementedError

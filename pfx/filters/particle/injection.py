@@ -25,11 +25,12 @@ stops the averages. A step without a measurement leaves them unchanged.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
+from pfx.filters.backends import Backends
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -37,6 +38,7 @@ class AugmentedMCL(BaseModel):
     """Augmented MCL: inject prior draws at rate max(0, 1 - w_fast / w_slow)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    backends: ClassVar[Backends] = Backends(what="particle injection", why="it is written for the NumPy engine's step")
     kind: Literal["augmented"] = "augmented"
     alpha_slow: StrictFloat = Field(0.001, ge=0, lt=1, description="decay rate of the slow average (book: 0.001)")
     alpha_fast: StrictFloat = Field(0.1, gt=0, le=1, description="decay rate of the fast average (book: 0.1)")

@@ -1,10 +1,11 @@
 """What the JAX backend runs, and the one-line refusal of what it does not run yet.
 
-``filter.backend: jax`` runs the bootstrap particle filter (``kind: particle`` with the ESS rule,
-or ``sis``) with the likelihood as weight and one of the unbiased resamplers. Every other
-setting that changes the algorithm is refused here, at plan time, by its key: a config never
-runs on the NumPy backend behind its author's back. The refusals name what to do instead.
-(docs/backends.md keeps the same list for readers.)
+``filter.backend: jax`` runs the particle filter (``kind: particle`` with the ESS rule, or
+``sis``) with the components that declare the jax backend (:mod:`pfx.filters.backends`): the
+bootstrap proposal, the likelihood as weight, the unbiased resamplers, the diffusions. A
+component that does not is refused here, at plan time, by its key and with the reason it
+declares: a config never runs on the NumPy backend behind its author's back. docs/backends.md's
+table says the same for readers, and a test holds it to the declarations.
 """
 
 from __future__ import annotations
@@ -12,10 +13,9 @@ from __future__ import annotations
 import importlib.util
 from typing import Optional
 
+from pfx.filters.backends import JAX, declared
+from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.resampling import RESAMPLERS
-
-# the resamplers the JAX backend has (pfx.filters.particle.jax_resampling): the unbiased ones
-JAX_RESAMPLER_NAMES = ("systematic", "stratified", "multinomial", "residual")
 
 # What the JAX backend runs but does not record yet, by what asks for it. A config is refused by
 # its key (pfx.config.plan_checks), a call of pfx.filter by its argument (pfx.filtering), in
@@ -28,30 +28,34 @@ def jax_installed() -> bool:
     return importlib.util.find_spec("jax") is not None
 
 
+def jax_components(settings) -> list[tuple[str, str, object]]:
+    """The components of a ``filter:`` section that decide what the step computes, as (key,
+    name, component), in the order a refusal names them: each declares where it runs
+    (:mod:`pfx.filters.backends`)."""
+    adaptive, injection = getattr(settings, "adaptive", None), getattr(settings, "injection", None)
+    components = [("resampler", settings.resampler, RESAMPLERS[settings.resampler]),
+                  ("weighting", settings.weighting.label(), settings.weighting),
+                  ("proposal", settings.proposal.kind, settings.proposal),
+                  ("auxiliary", "", AuxiliaryFirstStage if settings.auxiliary else None),
+                  ("move", settings.move.kind, settings.move),
+                  ("diffusion", settings.diffusion.kind, settings.diffusion),
+                  ("adaptive", getattr(adaptive, "kind", ""), adaptive),
+                  ("injection", getattr(injection, "kind", ""), injection)]
+    components += [("smoothers", smoother.kind, smoother) for smoother in getattr(settings, "smoothers", None) or ()]
+    return [(key, name, component) for key, name, component in components if component is not None]
+
+
 def check_jax_settings(settings) -> None:
-    """ValueError('@key: reason') for the first setting of ``filter:`` the JAX backend cannot run."""
+    """ValueError('@key: reason') for the first component of ``filter:`` that does not declare the
+    jax backend (:mod:`pfx.filters.backends`), with the reason it declares."""
     if not jax_installed():
         raise ValueError("@backend: jax is not installed in this Python; install the extra: pip install 'pfx[jax]' "
                          "(docs/backends.md: the extra for NVIDIA GPUs), or set backend: numpy")
-    if settings.resampler not in JAX_RESAMPLER_NAMES:
-        unbiased = "" if RESAMPLERS[settings.resampler].unbiased else " (it is the biased one kept to show its bias)"
-        raise ValueError(f"@resampler: the jax backend has the resamplers {', '.join(JAX_RESAMPLER_NAMES)}; not "
-                         f"{settings.resampler}{unbiased}: use backend: numpy for it")
-    if not settings.weighting.is_likelihood:
-        raise ValueError(f"@weighting: the jax backend weighs by the model's likelihood (gaussian); "
-                         f"{settings.weighting.label()} runs on backend: numpy")
-    refusals = {
-        "proposal": settings.proposal.guided and f"guided proposals ({settings.proposal.kind})",
-        "auxiliary": settings.auxiliary and "the auxiliary particle filter",
-        "move": settings.move.kind != "none" and f"moves after resampling ({settings.move.kind})",
-        "adaptive": getattr(settings, "adaptive", None) is not None and "adaptive particle counts (KLD)",
-        "injection": getattr(settings, "injection", None) is not None and "particle injection",
-        "smoothers": bool(getattr(settings, "smoothers", None)) and "smoothers",
-    }
-    for key, what in refusals.items():
-        if what:
-            raise ValueError(f"@{key}: the jax backend does not run {what} yet; set backend: numpy for this "
-                             "filter (docs/backends.md lists what each backend runs)")
+    for key, name, component in jax_components(settings):
+        backends = declared(component)
+        if not backends.runs_on(JAX):
+            raise ValueError(f"@{key}: {backends.refusal(JAX, name)}; set backend: numpy for this filter "
+                             "(docs/backends.md lists what each backend runs)")
 
 
 def measurement_draw_fault(model, precision: str = "float64") -> Optional[str]:

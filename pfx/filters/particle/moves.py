@@ -93,6 +93,7 @@ from typing import Annotated, ClassVar, Literal, Optional, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
+from pfx.filters.backends import BOTH, Backends
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
@@ -170,6 +171,8 @@ class _Move(BaseModel):
 
     needs_parents: ClassVar[bool] = False      # whether the engine keeps x_{k-1} for MoveContext.parents
     reports_acceptance: ClassVar[bool] = False
+    #: where it runs (pfx.filters.backends)
+    backends: ClassVar[Backends] = Backends(what="moves after resampling", why="it is written for the NumPy engine's step")
 
     def bind(self, model, settings) -> "_Move":
         """The move for ``model`` (ValueError('@move: reason') if it cannot run with it and the
@@ -190,6 +193,7 @@ class NoMove(_Move):
     """No move after resampling."""
 
     kind: Literal["none"] = "none"
+    backends: ClassVar[Backends] = Backends(BOTH)
 
 
 @MOVES.register_kind

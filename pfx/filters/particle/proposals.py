@@ -69,6 +69,7 @@ from typing import ClassVar, Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from pfx.filters.backends import BOTH, Backends
 from pfx.filters.kalman.linear_form import check_linear_form
 from pfx.filters.kalman.linearisation import measurement_jacobian
 from pfx.filters.kalman.measurement_form import check_measurement_form, measurement_angles, measurement_innovation
@@ -95,6 +96,8 @@ class ProposalBase(BaseModel):
 
     #: False for the bootstrap proposal only: the engine then runs the transition itself
     guided: ClassVar[bool] = True
+    #: where it runs (pfx.filters.backends)
+    backends: ClassVar[Backends] = Backends(what="guided proposals", why="it is written for the NumPy engine's step")
 
     def check(self, model) -> None:
         """Raise ValueError('@proposal: reason') if this proposal cannot run on ``model``."""
@@ -135,6 +138,7 @@ class BootstrapProposal(ProposalBase):
 
     kind: Literal["bootstrap"] = "bootstrap"
     guided: ClassVar[bool] = False
+    backends: ClassVar[Backends] = Backends(BOTH)
 
 
 def gaussian_transition(model) -> AdditiveTransition:

@@ -34,6 +34,7 @@ from typing import Callable
 
 import numpy as np
 
+from pfx.filters.backends import BOTH, Backends
 from pfx.numerics.compiled import compiled
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
@@ -162,6 +163,7 @@ def offspring_counts(indices: np.ndarray, n: int) -> np.ndarray:
 class Resampler:
     function: Callable[[np.ndarray, TrialStreams], np.ndarray]
     unbiased: bool
+    backends: Backends = Backends(what="the resampler")
 
     def __call__(self, weights, random):
         return self.function(weights, random)
@@ -169,8 +171,10 @@ class Resampler:
 
 RESAMPLERS: Registry[Resampler] = Registry("resampler")
 for _function in (multinomial, stratified, systematic, residual):
-    RESAMPLERS.add(_function.__name__, Resampler(_function, unbiased=True), _function.__doc__.splitlines()[0])
-RESAMPLERS.add("han_lee_iv", Resampler(han_lee_iv, unbiased=False),
+    RESAMPLERS.add(_function.__name__, Resampler(_function, unbiased=True, backends=Backends(BOTH)),
+                   _function.__doc__.splitlines()[0])
+RESAMPLERS.add("han_lee_iv", Resampler(han_lee_iv, unbiased=False, backends=Backends(
+    what="the resampler", why="it is the biased one, kept to show its bias")),
                "BIASED: han-lee Algorithm IV as printed (N smallest of N+1 sorted uniforms)")
 
 

@@ -31,6 +31,7 @@ from typing import ClassVar, Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
+from pfx.filters.backends import BOTH, Backends
 from pfx.registry import Registry
 
 
@@ -41,6 +42,8 @@ class _Weighting(BaseModel):
     #: weight: guided proposals, the auxiliary filter, the mcmc move and a model's compiled step
     #: need it (their importance weights and targets are ratios of densities)
     is_likelihood: ClassVar[bool] = False
+    #: where it runs (pfx.filters.backends)
+    backends: ClassVar[Backends] = Backends(what="the weighting", why="it is written for the NumPy engine's step")
 
     def label(self) -> str:
         """Short name for tables: the kind, plus the form where there is one."""
@@ -69,6 +72,7 @@ class GaussianWeighting(_Weighting):
 
     kind: Literal["gaussian"] = "gaussian"
     is_likelihood: ClassVar[bool] = True
+    backends: ClassVar[Backends] = Backends(BOTH)
 
     def log_weights(self, model, measurement, particles, weights):
         return model.log_likelihood(measurement, particles)
