@@ -72,6 +72,7 @@ def run(config: ConfigSource, *, out: Optional[Union[str, os.PathLike]] = None, 
     """
     from pfx.run.executors import make_executor
     from pfx.run.memory import check_fits, default_budget
+    from pfx.run.progress_bar import show_progress
     from pfx.run.runner import check_folder, run_plan
 
     report = (lambda message: None) if quiet else _print_error_stream
@@ -87,7 +88,7 @@ def run(config: ConfigSource, *, out: Optional[Union[str, os.PathLike]] = None, 
         if where:
             report(f"running on {where}")
         run_plan(plan, target, executor=executor, fresh=fresh, report=report,
-                 progress=not quiet and sys.stderr.isatty() and not os.environ.get("CI"),
+                 progress=show_progress(quiet),
                  memory_budget=budget)
     if not quiet:
         print(f"{plan.experiment.name}: {plan.size_text} -> {target}")

@@ -107,7 +107,9 @@ def _with_outcome(message: str, error: BaseException) -> str:
 
 
 def _show_progress(quiet: bool) -> bool:
-    return not quiet and sys.stderr.isatty() and not os.environ.get("CI")
+    from pfx.run.progress_bar import show_progress
+
+    return show_progress(quiet)
 
 
 def _load_plan(path: Path, assignments: list[str], trials: Optional[int], report=None):
@@ -318,6 +320,22 @@ def figures(
         raise ConfigError(f"cannot write {error.filename or 'a figure'}: {error.strerror or error}",
                           file=str(result_dir)) from None
     for path in written:
+        typer.echo(str(path))
+
+
+@app.command()
+@_guarded
+def simulate(
+    config: Path = typer.Argument(..., help="config file", show_default=False),
+    out: Path = typer.Option(..., "--out", help="folder for simulations.csv and its figure"),
+    paths: int = typer.Option(20, "--paths", help="paths to simulate (1 to 10,000)"),
+    assignments: List[str] = typer.Option([], "--set", help="override a key: dotted.path=value"),
+):
+    """Simulate measurement paths from the config's model (seeded per path), over its recorded data."""
+    from pfx.run.simulations import simulate_over_data
+
+    plan = _load_plan(config, assignments, None, lambda message: typer.echo(message, err=True))
+    for path in simulate_over_data(plan, out, paths):
         typer.echo(str(path))
 
 

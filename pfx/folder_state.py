@@ -21,8 +21,9 @@ An estimation folder has iterations instead of trials (:func:`_estimation_conten
 finished one with more iterations than asked is refused, one with the same config is up to
 date, an interrupted one is resumed (with more iterations than it holds, extended).
 
-A folder with another results hash, or not made by pfx, is refused unless ``--fresh``; one
-this process could not write into, before anything is written
+A folder with another results hash, or not made by pfx, is refused unless ``--fresh`` (the
+refusal names the keys whose values differ from the folder's recorded config:
+:func:`changed_keys`); one this process could not write into, before anything is written
 (:func:`pfx.result_folder.check_writable`).
 
 One run writes a folder at a time (:func:`pfx.folder_lock.folder_lock`); what a run read before
@@ -31,9 +32,12 @@ it held the lock is read again once it does (:func:`inspect_folder`'s ``locked``
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
+
+import yaml
 
 from pfx.errors import ConfigError
 from pfx.folder_lock import LOCK_FILE, held_error, lock_holder
@@ -97,8 +101,8 @@ def _contents(plan, out: Path, fresh: bool) -> FolderState:
         raise ConfigError("result folder has an unreadable manifest.json; use --fresh", file=str(out))
     if manifest.get("results_hash") != plan.results_hash:
         raise ConfigError(f"result folder holds results of a different config (results hash "
-                          f"{manifest.get('results_hash')} != {plan.results_hash}); use --fresh to "
-                          "replace them or --out for another folder", file=str(out))
+                          f"{manifest.get('results_hash')} != {plan.results_hash}{_what_changed(plan, out)}); use "
+                          "--fresh to replace them or --out for another folder", file=str(out))
     if not plan.cells:                       # a study: no trials
         return FolderState(manifest=manifest)
     if plan.experiment.estimation is not None:
@@ -128,3 +132,59 @@ def _estimation_contents(plan, out: Path, manifest: dict) -> FolderState:
                           f"would drop {held - asked}; ask for {held} or more (more extend the chains), use --fresh "
                           "to recompute, or --out for another folder", file=str(out), key="estimation.iterations")
     return FolderState(manifest=manifest)
+
+
+# The keys of a config that do not enter its results hash (Plan.results_hash): a change there
+# keeps a folder's results, so it is never why a folder holds results of a different config.
+RECORD_ONLY_KEYS = ("name", "description", "trials", "outputs.figures", "outputs.formats", "estimation.iterations")
+# How many changed keys the refusal names; the rest are counted.
+CHANGED_KEYS_SHOWN = 5
+
+
+def _what_changed(plan, out: Path) -> str:
+    """``; keys that differ from its record: seed, filter.particles``: the dotted keys whose
+    values differ between the config the folder recorded (its ``config.yaml``) and the plan's,
+    the first :data:`CHANGED_KEYS_SHOWN` of them; empty where the folder has no readable record."""
+    try:
+        recorded = yaml.safe_load((out / "config.yaml").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return ""
+    if not isinstance(recorded, dict):
+        return ""
+    keys = changed_keys(recorded, plan.resolved, out)
+    if not keys:
+        return ("; its config.yaml differs in no key that sets the numbers: its plugins' code, its data files' "
+                "contents or the version of pfx that ran it differ")
+    shown = ", ".join(keys[:CHANGED_KEYS_SHOWN])
+    more = f" and {len(keys) - CHANGED_KEYS_SHOWN} more" if len(keys) > CHANGED_KEYS_SHOWN else ""
+    return f"; keys that differ from its record: {shown}{more}"
+
+
+def changed_keys(recorded: dict, resolved: dict, folder: Path) -> list[str]:
+    """The dotted keys (``model.mu``, ``estimation.parameters.model.mu.start``) whose values
+    differ between a folder's recorded config and a resolved one, in the resolved config's
+    order, then the keys only the record has. A list is one value. The record names its data
+    files relative to the folder (:func:`pfx.run.folder_record.write_record_config`), so those
+    are compared as the files they reach; the plugins (the record names its copies) and the
+    keys that keep the results (:data:`RECORD_ONLY_KEYS`) are left out."""
+    old, new = _leaves(recorded), _leaves(resolved)
+    for key in old.keys() | new.keys():
+        if key.startswith("data.") and isinstance(old.get(key), str) and isinstance(new.get(key), str):
+            old[key] = os.path.realpath(Path(folder) / old[key])
+            new[key] = os.path.realpath(new[key])
+    keys = list(new) + [key for key in old if key not in new]
+    return [key for key in keys if old.get(key, _ABSENT) != new.get(key, _ABSENT)
+            and key not in RECORD_ONLY_KEYS and key != "plugins" and not key.startswith("plugins.")]
+
+
+_ABSENT = object()
+
+
+def _leaves(value, prefix: str = "") -> dict:
+    """A nested mapping as ``{dotted key: value}``; lists, numbers, text and empty mappings are leaves."""
+    if not isinstance(value, dict) or not value:
+        return {prefix: value}
+    leaves = {}
+    for key, item in value.items():
+        leaves.update(_leaves(item, f"{prefix}.{key}" if prefix else str(key)))
+    return leaves

@@ -42,6 +42,9 @@ def nile_config(method="pmmh", **estimation):
                            "model.process_noise.variance": {"prior": {"law": "uniform", "lower": 1.0,
                                                                       "upper": 100000.0},
                                                             "start": 2000.0, "proposal_sd": 0.5}}}}
+    if method == "if2":                      # PMMH's proposal, which an IF2 config refuses
+        for parameter in config["estimation"]["parameters"].values():
+            del parameter["proposal_sd"]
     config["estimation"].update(estimation)
     config["outputs"] = {"figures": []}      # the numbers are checked here; tests/test_estimation_figures.py draws
     return config

@@ -80,6 +80,10 @@ def check_result_folder(folder: Path) -> dict[str, list[dict[str, str]]]:
         for column, value in row.items():
             if value != "":
                 continue
+            if column in ("log_mean_likelihood", "log_mean_likelihood_se"):
+                # pomp's logmeanexp counts a -inf as a zero likelihood; its jackknife needs two nonzero ones
+                assert int(row["log_likelihood_n"]) < (2 if column.endswith("_se") else 1), f"summary.csv: empty {column}"
+                continue
             metric, _, statistic = column.rpartition("_")
             if statistic in ("low", "high"):
                 metric, _, statistic = metric.rpartition("_")[0], None, f"ci95_{statistic}"

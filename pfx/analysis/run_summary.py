@@ -9,6 +9,17 @@ values for one. Headings carry the unit the manifest records for the position; a
 percent, its interval too. On a terminal the table is drawn by rich (as plain text: a unit in
 square brackets is not markup); elsewhere (CI, a pipe, a log file) it is plain aligned text.
 
+**A metric only where it means something.** The errors (position RMSE, final error) need the
+true states: a run on recorded data without a truth file has none, and its table leaves them
+out (trials.csv keeps their empty columns: docs/output-files.md). So does the share converged
+there, unless the config chose the convergence radius: the default radius of 1 position unit
+is a robot's criterion (1 m), which on a series of counts or flows means nothing. Where every
+trial of a cell filtered the same measurements (recorded data, ``datasets: 1``) the table adds,
+beside the mean log-likelihood, the log of the mean likelihood with its jackknife standard
+error (summary.csv's ``log_mean_likelihood``, pomp's ``logmeanexp(ll, se = TRUE)``): how the
+field reports a particle filter's likelihood. Over independent datasets that average means
+nothing, and the table leaves it out.
+
 Two things a reader could not see from the means alone are said in the table and in a line:
 
 * **The convergence radius.** The share converged depends wholly on ``metrics.convergence.radius``
@@ -36,7 +47,7 @@ import yaml
 
 from pfx.analysis.estimation_flags import flag_texts, if2_advice, pmmh_advice
 from pfx.analysis.metrics import ConvergenceCriterion
-from pfx.analysis.summary import MINIMUM_VALUES
+from pfx.analysis.summary import LOG_MEAN_LIKELIHOOD, MINIMUM_VALUES
 
 # (summary.csv metric, heading, scale, unit): the metrics a reader looks at first. The unit is
 # the manifest's unit of the position (None: none, a log-likelihood), or a fixed suffix.
@@ -45,6 +56,8 @@ MAIN_METRICS = (("rmse_position", "position RMSE", 1.0, POSITION),
                 ("error_distance_final", "final error", 1.0, POSITION),
                 ("converged", "converged", 100.0, "%"),
                 ("log_likelihood", "log-likelihood", 1.0, None))
+TRUTH_METRICS = ("rmse_position", "error_distance_final")    # errors against the true state
+LOG_MEAN_HEADING = "log mean likelihood (se)"
 NO_INTERVAL = "no CI"
 DEFAULT_RADIUS = ConvergenceCriterion.model_fields["radius"].default
 
@@ -71,18 +84,56 @@ def _cell_value(row: pd.Series, metric: str, scale: float, suffix: str) -> str:
     return text
 
 
+def _folder_config(folder: Path) -> dict:
+    """The folder's config.yaml ({} where it is missing or unreadable)."""
+    try:
+        config = yaml.safe_load((folder / "config.yaml").read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):
+        return {}
+    return config if isinstance(config, dict) else {}
+
+
+def _log_mean_value(row: pd.Series) -> str:
+    """"-3804.96 (0.12)": the log of the mean likelihood with its jackknife standard error (the
+    estimate alone where there is none: one trial, or every likelihood zero)."""
+    estimate, error = row.get(LOG_MEAN_LIKELIHOOD), row.get(f"{LOG_MEAN_LIKELIHOOD}_se")
+    if estimate is None or pd.isna(estimate):
+        return "-"
+    return f"{estimate:.6g}" + (f" ({error:.2g})" if error is not None and not pd.isna(error) else "")
+
+
 def convergence_radius(folder: Path) -> tuple[float, bool] | None:
     """(the convergence radius, whether it is pfx's default) from the folder's config.yaml;
     None where it cannot be said in one heading (no config.yaml, or a sweep of the convergence
     settings: each cell's value is then in its own label column)."""
+    config = _folder_config(folder)
     try:
-        config = yaml.safe_load((folder / "config.yaml").read_text(encoding="utf-8"))
         radius = float(config["metrics"]["convergence"]["radius"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError):
         return None
     if any(str(key).startswith("metrics.convergence") for key in (config.get("sweep") or {})):
         return None
     return radius, radius == DEFAULT_RADIUS
+
+
+def has_truth(folder: Path) -> bool:
+    """Whether the run knew the true states: False for recorded measurements without a truth
+    file (config.yaml's ``data``), whose errors and truth-based convergence mean nothing."""
+    data = _folder_config(folder).get("data")
+    return not (isinstance(data, dict) and data.get("measurements") and not data.get("truth"))
+
+
+def radius_chosen(folder: Path) -> bool:
+    """Whether the config set the convergence radius (or swept it) rather than leaving pfx's default."""
+    radius = convergence_radius(folder)
+    return radius is None or not radius[1]
+
+
+def shares_data(folder: Path, manifest: dict) -> bool:
+    """Whether every trial of a cell filtered the same measurements (recorded data, or
+    ``datasets: 1``): only then is the log of their mean likelihood an estimate of one likelihood
+    (:mod:`pfx.analysis.summary`)."""
+    return bool(manifest.get("recorded_data")) or _folder_config(folder).get("datasets") == 1
 
 
 @dataclass
@@ -135,11 +186,14 @@ def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str
     degenerate = degenerate_cells(folder)
     impossible = {cell for cell, found in degenerate.items() if found.impossible}
     radius = convergence_radius(folder)
+    truth = has_truth(folder)
     metrics = []
     for metric, heading, scale, unit in MAIN_METRICS:
         shown = f"{metric}_mean" in summary and summary[f"{metric}_mean"].notna().any()
         if not shown and not (metric == "log_likelihood" and impossible):
             continue
+        if not truth and (metric in TRUTH_METRICS or (metric == "converged" and not radius_chosen(folder))):
+            continue       # recorded data without the truth: no error, and no criterion the user chose
         if unit == POSITION:
             metrics.append((metric, heading + (f" [{position_unit}]" if position_unit else ""), scale, ""))
         elif metric == "converged" and radius is not None:
@@ -148,12 +202,15 @@ def summary_rows(folder: Path, manifest: dict) -> tuple[list[str], list[list[str
             metrics.append((metric, f"{heading} ({within}{', default' if default else ''})", scale, unit or ""))
         else:
             metrics.append((metric, heading, scale, unit or ""))
+        if metric == "log_likelihood" and LOG_MEAN_LIKELIHOOD in summary and shares_data(folder, manifest):
+            metrics.append((LOG_MEAN_LIKELIHOOD, LOG_MEAN_HEADING, 1.0, ""))
     if any(found.affected for found in degenerate.values()):
         metrics.append(("degenerate_steps", "degenerate steps", 1.0, ""))
     header = [*label_columns, "trials", *(heading for _, heading, _, _ in metrics)]
     rows = []
     for _, row in summary.iterrows():
-        values = [_cell_value(row, metric, scale, suffix) for metric, _, scale, suffix in metrics]
+        values = [_log_mean_value(row) if metric == LOG_MEAN_LIKELIHOOD else _cell_value(row, metric, scale, suffix)
+                  for metric, _, scale, suffix in metrics]
         if row.get("cell") in impossible:      # the mean of values with a -inf among them is -inf
             values[[metric for metric, _, _, _ in metrics].index("log_likelihood")] = "-inf"
         rows.append([str(row[c]) for c in label_columns] + [str(int(row["trials"]))] + values)
@@ -172,7 +229,7 @@ def summary_notes(folder: Path, manifest: dict) -> list[str]:
         name = (", ".join(f"{c}={rows.iloc[0][c]}" for c in label_columns) if len(rows) else cell)
         notes.append(f"cell {name}: {_degeneracy_text(found)}")
     radius = convergence_radius(folder)
-    if radius is not None and radius[1] and "converged_mean" in summary:
+    if radius is not None and radius[1] and "converged_mean" in summary and has_truth(folder):
         shares = summary["converged_mean"].dropna()
         if len(shares) and shares.eq(0).all():
             unit = manifest.get("units", {}).get("position", "")

@@ -33,6 +33,22 @@ such interval, from the smallest value to the largest, covers the median with pr
 interval). Below that, a 95% interval would rest wholly on assuming the values normal, which
 errors, counts and times are not (two trials gave a final error of 161.7 [-1740, 2063]).
 
+**The log of the mean likelihood.** Beside the statistics of ``log_likelihood`` (over its
+finite values), two columns summarise the likelihood estimates as the particle-filtering
+field reports them (pomp's ``logmeanexp(ll, se = TRUE)``,
+:func:`pfx.numerics.log_mean_exp.log_mean_exp_jackknife`): ``log_mean_likelihood``,
+:math:`\log \frac1n \sum_t e^{\ell_t}` over the cell's n trials with a log-likelihood (a
+particle filter's likelihood estimate is unbiased, its log is not, so the estimates are
+averaged before the log is taken; a trial whose estimate is zero, -inf, counts as a zero), and
+``log_mean_likelihood_se``, its jackknife standard error (empty for one trial). A Kalman filter's
+log-likelihood is exact: its trials on the same data agree, so the column equals the mean and
+the standard error is 0, which is what there is to say. The average is of one likelihood
+only where the trials filter the same data (recorded data, ``datasets: 1``); over trials of
+independent simulated datasets it averages the likelihoods of different data, which estimates
+no one likelihood: compare such cells by ``log_likelihood_mean``. The columns are computed in
+every cell with a log-likelihood (this table cannot tell how its trials' data were made);
+``pfx run``'s end-of-run table shows them only where the trials share their data.
+
 References: E. B. Wilson, "Probable inference, the law of succession, and statistical
 inference", JASA 22 (1927) 209-212; L. D. Brown, T. T. Cai, A. DasGupta, "Interval estimation
 for a binomial proportion", Statistical Science 16 (2001) 101-133; M. Mandelkern, "Setting
@@ -48,6 +64,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pfx.analysis.value_ranges import ANY_VALUE, ValueRange, metric_range
+from pfx.numerics.log_mean_exp import log_mean_exp_jackknife
 
 if TYPE_CHECKING:          # pandas is imported where a table is read
     import pandas as pd
@@ -59,6 +76,8 @@ MINIMUM_VALUES = next(n for n in count(1) if 1 - 2 * 0.5 ** n >= CONFIDENCE)
 
 # trials.csv columns that are identifiers or settings, not metrics to summarise
 NON_METRIC_COLUMNS = {"cell", "trial", "seed", "truth_seed", "filter_seed", "steps"}
+LOG_LIKELIHOOD = "log_likelihood"              # the metric whose likelihoods are also averaged (below)
+LOG_MEAN_LIKELIHOOD = "log_mean_likelihood"    # summary.csv's column of that average, and _se
 
 
 def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:
@@ -74,11 +93,20 @@ def summarize(trials: pd.DataFrame, label_columns: list[str]) -> pd.DataFrame:
         row["trials"] = len(group)
         for metric in metrics:
             values = group[metric].to_numpy(dtype=float)
-            values = values[np.isfinite(values)]
             row.update({f"{metric}_{name}": value
-                        for name, value in describe(values, metric_range(metric)).items()})
+                        for name, value in describe(values[np.isfinite(values)], metric_range(metric)).items()})
+            if metric == LOG_LIKELIHOOD:
+                row.update(log_mean_likelihood(values))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def log_mean_likelihood(log_likelihoods: np.ndarray) -> dict[str, float]:
+    """The log of the mean of a cell's likelihood estimates and its jackknife standard error
+    (pomp's ``logmeanexp(ll, se = TRUE)``, module docstring), over every trial with a
+    log-likelihood: a -inf (a zero estimate) counts as zero, an empty field (none computed) not at all."""
+    estimate, standard_error = log_mean_exp_jackknife(log_likelihoods[~np.isnan(log_likelihoods)])
+    return {LOG_MEAN_LIKELIHOOD: estimate, f"{LOG_MEAN_LIKELIHOOD}_se": standard_error}
 
 
 def describe(values: np.ndarray, value_range: ValueRange = ANY_VALUE) -> dict[str, float]:

@@ -70,7 +70,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from pfx.config.covariate_files import fill_covariates
-from pfx.config.data_files import DataTable, check_alignment, display_path, read_table, time_spacing
+from pfx.config.data_files import (
+    DataTable,
+    check_alignment,
+    dates_to_model_time,
+    display_path,
+    read_table,
+    time_spacing,
+)
 from pfx.config.validation import validate
 from pfx.errors import ConfigError
 from pfx.models import MODELS
@@ -178,6 +185,8 @@ def prepare_recorded_data(raw: dict, file: Optional[str]) -> Optional[RecordedDa
         controls = read_table(config.controls, config_file=file, key="data.controls", blanks=False)
         check_alignment(controls, measurements)
     data = RecordedData(measurements, truth, controls)
+    kind = model.get("kind") if isinstance(model, dict) else None
+    dates_to_model_time(measurements, [truth, controls], raw, MODELS[kind] if kind in MODELS else None)
 
     if isinstance(model, dict):
         _fix_steps_and_dt(model, data, file)

@@ -24,6 +24,38 @@ from pfx.registry import with_article
 ESTIMATION_FIGURES = {"pmmh": ("chain_traces", "posterior_marginals", "posterior_pairs"), "if2": ("if2_convergence",)}
 
 
+# The settings one method reads and the other does not, each with what the other method does
+# instead: a PMMH setting in an IF2 config (or the reverse) is refused rather than ignored, so
+# that a user who knows another package's names does not think it set the walk it runs.
+METHOD_ONLY_KEYS = {
+    "warm_up": ("pmmh", "IF2 has no warm-up (every pass moves the swarm, and its random walk shrinks by "
+                        "cooling_fraction_50)"),
+    "adapt": ("pmmh", "IF2's random walk does not adapt, it cools by cooling_fraction_50"),
+    "adapt_after": ("pmmh", "IF2's random walk does not adapt, it cools by cooling_fraction_50"),
+    "particle_count": ("pmmh", "IF2 takes a number of particles, filter.particles"),
+    "cooling_fraction_50": ("if2", "PMMH's random walk does not cool, it adapts during the warm-up (warm_up, "
+                                   "adapt)"),
+    "evaluations": ("if2", "PMMH's chains carry each draw's log-likelihood (chains.csv)"),
+}
+METHOD_ONLY_PARAMETER_KEYS = {
+    "proposal_sd": ("pmmh", "IF2's random walk is set by random_walk_sd"),
+    "random_walk_sd": ("if2", "PMMH's proposal is set by proposal_sd"),
+}
+METHOD_NAMES = {"pmmh": "PMMH", "if2": "IF2"}
+
+
+def _other_methods_keys(settings: BaseModel, method: str, table: dict, prefix: str = "") -> None:
+    """ValueError naming the first key of ``settings`` that only the other method reads. A key
+    at its default value is let through: the record a run writes (config.yaml) holds every key
+    with its default, and must run again as it is."""
+    for key, (owner, instead) in table.items():
+        if owner != method and key in settings.model_fields_set:
+            default = type(settings).model_fields[key].default
+            if getattr(settings, key) != default:
+                raise ValueError(f"@{prefix}{key}: {with_article(METHOD_NAMES[owner])} setting, which "
+                                 f"{METHOD_NAMES[method]} does not read: {instead}; drop it")
+
+
 class EstimatedParameter(BaseModel):
     """One estimated parameter: its prior, the scale it moves on, where chains start."""
 
@@ -135,7 +167,9 @@ class EstimationConfig(BaseModel):
 
     @model_validator(mode="after")
     def _check(self):
+        _other_methods_keys(self, self.method, METHOD_ONLY_KEYS)
         for path, parameter in self.parameters.items():
+            _other_methods_keys(parameter, self.method, METHOD_ONLY_PARAMETER_KEYS, prefix=f"parameters.{path}.")
             if isinstance(parameter.start, list) and len(parameter.start) != self.chains:
                 raise ValueError(f"@parameters.{path}.start: {len(parameter.start)} values for {self.chains} chains")
         names = [self.column(path) for path in self.parameters]

@@ -75,6 +75,7 @@ class Plan:
     resolved: dict                 # the resolved config (written as config.yaml)
     cells: list[Cell] = field(default_factory=list)
     plugins: list[LoadedPlugin] = field(default_factory=list)   # what ``plugins:`` loaded
+    notes: list[str] = field(default_factory=list)      # what reading the config did that the run says
 
     @property
     def config_hash(self) -> str:
@@ -337,6 +338,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved["data"] = files       # covariates only: the measurements are simulated
     if experiment.datasets is None:
         resolved.pop("datasets", None)     # nor is that of a config without datasets
+    if experiment.time_unit is None:
+        resolved.pop("time_unit", None)    # nor that of a config without a time unit
     if not experiment.outputs.genealogy:
         resolved["outputs"].pop("genealogy", None)     # nor that of a config without genealogy.csv
     if not experiment.metrics.scores and "metrics" in resolved:
@@ -350,7 +353,8 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("trials", None)         # it has none
         if experiment.estimation.particle_count is None:
             resolved["estimation"].pop("particle_count")     # the record of a config without it is unchanged
-    return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells)
+    return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells,
+                notes=[data.measurements.note] if data is not None and data.measurements.note else [])
 
 
 def _label_backends(cells: list[Cell]) -> None:

@@ -98,18 +98,24 @@ def check_outputs_and_estimation(cells: list, experiment, file: str) -> None:
 
 def asked_outputs(cells: list, experiment) -> frozenset:
     """The keys that write what some figures draw (:func:`pfx.figures.registry.asks_for`) which
-    this config asks for."""
+    this config asks for; and ``NO_TRUTH`` for recorded data without ``data.truth``, which the
+    figures of the true states cannot draw (:func:`pfx.figures.registry.draws_truth`)."""
+    from pfx.figures.registry import NO_TRUTH
+
     asked = {"outputs.forecasts"} if experiment.outputs.forecasts.requested else set()
     if any(cell.metrics.scores for cell in cells):
         asked.add("metrics.scores")
+    if any(cell.data is not None and cell.data.truth is None for cell in cells):
+        asked.add(NO_TRUTH)
     return frozenset(asked)
 
 
 def plan_notes(plan) -> list[str]:
     """What the plan's run will leave out of what its config asks, where leaving it out is the
-    honest answer (part of it can be made), one line each: the runner prints them, ``--quiet``
-    silences them. A config that asks for what cannot be made at all is refused instead."""
-    return forecast_notes(plan.experiment, plan.cells) + scores_notes(plan.cells)
+    honest answer (part of it can be made), and what reading the config did in its place (a
+    data file's dates read as days: ``plan.notes``), one line each: the runner prints them,
+    ``--quiet`` silences them. A config that asks for what cannot be made at all is refused instead."""
+    return plan.notes + forecast_notes(plan.experiment, plan.cells) + scores_notes(plan.cells)
 
 
 def check_backends(cells: list, experiment, arms: dict, file: str) -> None:

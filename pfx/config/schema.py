@@ -25,6 +25,7 @@ from pfx.analysis.metrics import MetricsConfig
 from pfx.config.data import DataConfig
 from pfx.config.estimation import EstimationConfig
 from pfx.config.forecasts import ForecastOutputs
+from pfx.config.time_units import LONGEST_UNIT_NAME, UnitName
 from pfx.figures import FIGURES
 from pfx.filters import FILTERS
 from pfx.filters.particle.adaptive import KLDSampling
@@ -288,6 +289,11 @@ def _build(plugins: frozenset) -> ConfigSchema:
         data: Optional[DataConfig] = Field(
             None, description="recorded data to filter instead of simulating the model (docs/recorded-data.md); "
                               "default none: simulate")
+        time_unit: Optional[UnitName] = Field(
+            None, json_schema_extra={"minLength": 1, "maxLength": LONGEST_UNIT_NAME},
+            description="the unit of the times (the model's dt, a data file's `time` column), for the figures' time "
+                        "axes and the record (manifest units.time), e.g. `day`; a label, which changes no number "
+                        "(`step` puts the step on the axes); default: the model's own (`s` for most models)")
         estimation: Optional[EstimationConfig] = Field(
             None, description="estimate model parameters from the data (PMMH or IF2, docs/estimation.md) instead "
                               "of running trials; default none")

@@ -141,8 +141,9 @@ class CompiledSwarm:
     def _raise_failure(self, swarm: np.ndarray, iteration: int, failures: np.ndarray) -> None:
         """The pass's failure as the NumPy backend names it: the random walk's parameter the
         model refuses (a ConfigError naming the transform to use), else the filter's failure."""
-        PerturbedParameters(self.target, self.template, iteration, None, None).at(swarm)
-        raise first_failure(self.template, failures)
+        failure = first_failure(self.template, failures)
+        PerturbedParameters(self.target, self.template, iteration, None, None).refuse_swarm(swarm, failure)
+        raise failure
 
     # -- traced -------------------------------------------------------------------------------------
 

@@ -33,10 +33,12 @@ from typing import Callable
 
 import numpy as np
 
-from pfx.errors import ConfigError
+from pfx.errors import ModelNumericalError
 from pfx.estimation.target import EstimationTarget, RowPriors
+from pfx.estimation.walk_domain import walk_error
 from pfx.filters.particle.bound import bind_particle_filter
 from pfx.filters.particle.engine import ParticleFilter
+from pfx.numerics.log_mean_exp import log_mean_likelihood
 from pfx.numerics.log_weights import normalise_rows
 from pfx.numerics.seeding import TrialStreams, chain_seeds
 
@@ -75,29 +77,15 @@ class PerturbedParameters:
         try:
             return self.model.with_parameter_arrays(self.target.parameter_arrays(natural))
         except ValueError as error:
-            raise self._outside_the_model(natural, error) from None
+            raise walk_error(self.target, self.model, self.iteration, natural, error) or error from None
 
-    def _outside_the_model(self, natural: np.ndarray, error: ValueError) -> ConfigError:
-        """The random walk carried a particle's parameter where the model refuses it (a variance
-        below zero on the scale of ``transform: none``): one line naming the parameter, the value
-        and the transform that keeps it inside. The run stops; the passes before are kept."""
-        target = self.target
-        culprit = 0
-        for j in range(target.dimension):     # which parameter the model refuses on its own
-            try:
-                self.model.with_parameter_arrays({target.paths[j][len("model."):]: natural[..., j:j + 1]})
-            except ValueError:
-                culprit = j
-                break
-        path = target.paths[culprit]
-        transform = target.transforms[culprit].name
-        value = natural[..., culprit].min() if np.any(natural[..., culprit] <= 0) else natural[..., culprit].max()
-        reason = str(error).split(": ", 1)[-1] if str(error).startswith("@") else str(error)
-        return ConfigError(f"IF2's random walk (transform: {transform}) moved {path} to {value:.4g} in pass "
-                           f"{self.iteration}, where model {self.model.kind} refuses it ({reason}); estimate it on a "
-                           "scale that stays inside the model's range (transform: log for a positive value, logit "
-                           "for a bounded one, with a prior whose support is that range)",
-                           key=f"estimation.parameters.{path}.transform")
+    def refuse_swarm(self, swarm: np.ndarray, error: Exception) -> None:
+        """Raise the ConfigError naming the parameter the model refuses among the particles'
+        parameters ``swarm`` (on the transformed scale) after a pass failed with ``error``
+        (:func:`pfx.estimation.walk_domain.walk_error`); nothing if the model refuses none."""
+        refused = walk_error(self.target, self.model, self.iteration, self.target.to_natural(swarm), error)
+        if refused is not None:
+            raise refused
 
     def compiled_step(self):
         return None
@@ -106,8 +94,29 @@ class PerturbedParameters:
         d = self.model.state_dimension
         parameters = self.perturb(state[..., d:], step, random)
         self.current = self.at(parameters)
-        moved = self.current.transition(state[..., :d], step, random)
+        try:
+            moved = self.current.transition(state[..., :d], step, random)
+        except ValueError as error:      # a law refused a parameter (binomial: probability above 1)
+            natural = self.target.to_natural(parameters)
+            raise walk_error(self.target, self.model, self.iteration, natural, error,
+                             self._probe(natural, state[..., :d], step, random)) or error from None
         return np.concatenate([moved, parameters], axis=-1)
+
+    def _probe(self, natural: np.ndarray, state: np.ndarray, step: int, random: TrialStreams):
+        """Whether the transition fails again with only parameter j at the particles' values,
+        the others at their replicate's estimate (the run stops either way: the draws it takes
+        from the streams are never used)."""
+        def fails(j: int) -> bool:
+            alone = np.broadcast_to(np.asarray(self.row_values)[:, None, :], natural.shape).copy()
+            alone[..., j] = natural[..., j]
+            try:
+                self.model.with_parameter_arrays(self.target.parameter_arrays(alone)).transition(state, step, random)
+            except ValueError:
+                return True
+            except Exception:       # another failure: not the one being explained
+                return False
+            return False
+        return fails if self.row_values is not None else None
 
     def log_likelihood(self, measurement: np.ndarray, state: np.ndarray) -> np.ndarray:
         return self.current.log_likelihood(measurement, state[..., :self.model.state_dimension])
@@ -154,10 +163,13 @@ class IteratedFiltering:
         """Each replicate's estimate: the swarm's mean on the natural scale, (R, p)."""
         return self.target.to_natural(swarm).mean(axis=1)
 
-    def outside_the_domain(self, estimates: np.ndarray, replicate: int) -> ValueError:
-        """The error of a pass whose replicate's estimate (the swarm's mean) the model refuses."""
-        return ValueError(f"IF2 replicate {replicate}'s estimate {dict(zip(self.target.columns, estimates[replicate]))} "
-                          "is outside the model's domain")
+    def outside_the_domain(self, estimates: np.ndarray, replicate: int, iteration: int = 0) -> Exception:
+        """The error of pass ``iteration`` whose replicate's estimate (the swarm's mean) the model
+        refuses: the walk's ConfigError naming the parameter, else a ValueError naming the estimate."""
+        error = ValueError(f"IF2 replicate {replicate}'s estimate {dict(zip(self.target.columns, estimates[replicate]))} "
+                           "is outside the model's domain")
+        template = self.target.cell.filter_model
+        return walk_error(self.target, template, iteration, estimates[replicate:replicate + 1, None, :], error) or error
 
     def iterate(self, swarm: np.ndarray, iteration: int) -> tuple[np.ndarray, np.ndarray]:
         """One pass (module docstring): the new swarm and each replicate's log-likelihood estimate."""
@@ -165,14 +177,20 @@ class IteratedFiltering:
         estimates = self.estimates(swarm)
         models = [target.model_at(row) for row in estimates]
         if any(model is None for model in models):
-            raise self.outside_the_domain(estimates, next(r for r, model in enumerate(models) if model is None))
+            raise self.outside_the_domain(estimates, next(r for r, model in enumerate(models) if model is None),
+                                          iteration)
         perturbed = PerturbedParameters(target, models[0], iteration, RowPriors([target.prior_of(m) for m in models]),
                                         estimates)
         bound = bind_particle_filter("particle", perturbed, target.cell.filter, SwarmPrior(perturbed, swarm))
         random = TrialStreams.from_seeds(self.seeds(iteration))
         data = np.ascontiguousarray(np.broadcast_to(target.measurements, (self.replicates,) + target.measurements.shape))
         engine = ParticleFilter(bound, data, random)
-        trace = engine.run()
+        try:
+            trace = engine.run()
+        except ModelNumericalError as error:     # a NaN likelihood where the walk left the model's range?
+            finite = np.isfinite(engine.log_weights)
+            perturbed.refuse_swarm(engine.state[..., models[0].state_dimension:][finite][None], error)
+            raise
         parameters = engine.state[..., models[0].state_dimension:]
         # The swarm that starts the next pass is an equally weighted sample: resample rows whose
         # last weights are not uniform (their last step did not resample).
@@ -203,18 +221,3 @@ class IteratedFiltering:
         seeds = [chain_seeds(self.root_seed, self.cell_key, replicate, EVALUATION_STREAMS + run)[0]
                  for replicate in range(self.replicates) for run in range(runs)]
         return log_mean_likelihood(self.target.log_likelihoods(rows, seeds).reshape(self.replicates, runs))
-
-
-def log_mean_likelihood(log_likelihood: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    r"""Per row of K log-likelihood estimates (R, K): :math:`\log \frac1K \sum_k \hat L_k` and its
-    standard error by the delta method (NaN for K = 1). A row whose every estimate is zero has
-    -inf, and no standard error."""
-    runs = log_likelihood.shape[1]
-    top = log_likelihood.max(axis=1, keepdims=True)
-    zero = ~np.isfinite(top[:, 0])
-    ratios = np.exp(log_likelihood - np.where(zero[:, None], 0.0, top))
-    mean = ratios.mean(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        log_mean = np.where(zero, -np.inf, top[:, 0] + np.log(mean))
-        standard_error = ratios.std(axis=1, ddof=1) / mean / np.sqrt(runs) if runs > 1 else np.full(len(mean), np.nan)
-    return log_mean, np.where(zero, np.nan, standard_error)

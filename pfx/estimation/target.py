@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, replace
+from typing import Optional
 
 import numpy as np
 from pydantic import ValidationError
@@ -146,6 +147,12 @@ class EstimationTarget:
         again, checks run); None if the model refuses them (outside its domain)."""
         model, _ = self._model_or_refusal(dict(zip(self.paths, values)))
         return model
+
+    def refusal(self, values: dict[str, float]) -> Optional[str]:
+        """The model's reason for refusing the parameters at ``values`` (path -> value; the
+        others at the config's values), or None if it accepts them."""
+        model, reason = self._model_or_refusal(values)
+        return reason if model is None else None
 
     def _model_or_refusal(self, values: dict[str, float]) -> tuple[object, str]:
         """The filter model with the parameters at ``values`` (path -> value) set, and "", or

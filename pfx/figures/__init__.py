@@ -15,6 +15,7 @@ from pfx.figures import (
     estimation_chains,  # noqa: F401
     estimation_pairs,  # noqa: F401
     estimator_spread,  # noqa: F401
+    filtered_over_data,  # noqa: F401
     forecasts,  # noqa: F401
     if2,  # noqa: F401
     log_likelihood,  # noqa: F401
@@ -23,9 +24,11 @@ from pfx.figures import (
     motion,  # noqa: F401
     particle_count,  # noqa: F401
     pmmh_efficiency,  # noqa: F401
+    predictions_over_data,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
     scores,  # noqa: F401
+    simulations_over_data,  # noqa: F401
     smoothing,  # noqa: F401
     state_errors,  # noqa: F401
     sweeps,  # noqa: F401

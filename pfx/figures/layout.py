@@ -2,8 +2,10 @@
 
 Three things every figure of a quantity over time needs, decided here once:
 
-* **Axis labels from the model.** The time axis reads ``time [s]``, or ``step`` / ``action``
-  when the model counts steps or actions (``units.time`` in manifest.json); the error axis names
+* **Axis labels from the model.** The time axis reads ``time [s]`` in the model's time unit, or
+  in the config's ``time_unit`` where it sets one (``time [day]``), or ``step`` / ``action``
+  when that unit counts steps or actions (``units.time`` in manifest.json,
+  :mod:`pfx.config.time_units`); the error axis names
   what the error distance measures: ``|error| of x`` when the position is one state component
   (with its unit if it has one), ``position error distance [m]`` when it is several.
 * **Small multiples for sweeps.** Up to :data:`MOST_LINES_IN_ONE_PANEL` cells share one panel.
@@ -44,7 +46,8 @@ CHARACTERS_PER_INCH = 14              # of legend text at LEGEND_FONT_SIZE, with
 # -- axis labels --------------------------------------------------------------------------------
 
 def time_axis(result: ResultFolder) -> tuple[str, str]:
-    """The column of the time axis and its label: ("time", "time [s]"), or ("step", "action")."""
+    """The column of the time axis and its label: ("time", "time [s]") in the folder's time unit
+    (manifest.json's ``units.time``: the model's, or the config's ``time_unit``), or ("step", "action")."""
     unit = result.units.get("time", "s")
     if unit in COUNTED_TIME_UNITS:
         return "step", unit

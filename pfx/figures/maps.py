@@ -7,7 +7,9 @@
   true path (a trial picked per panel would compare different paths, and could pick the
   luckiest for one filter and the worst for another). The figure's title names the trial, each
   panel's its position RMSE. Panels of the same world (one model) share their axes, so their
-  paths compare at a glance.
+  paths compare at a glance. Recorded data without ``data.truth`` have no true path: the map
+  draws the estimated path alone (it still shows where the filter put the target), with no
+  legend entry, start or RMSE of a truth that does not exist, and its title says so.
 * ``particle_snapshots``: the particle cloud at the kept steps of the first cell's first trial
   (marker area proportional to weight), with the true and estimated positions.
 * ``particle_animation``: the same, step by step, as an animated GIF.
@@ -121,7 +123,7 @@ def _same_world(frame, cells: list[str]) -> bool:
 def trajectory_map(result: ResultFolder):
     """True and estimated path of one trial over the model's world, a panel per cell, the same trial in every panel (the smallest trial number traced in every cell).
 
-    Planar models: the world from scene.csv; panels of one world share their axes; the title names the trial, each panel its position RMSE.
+    Planar models: the world from scene.csv; panels of one world share their axes; the title names the trial, each panel its position RMSE. Recorded data without data.truth: the estimated path alone.
     """
     planar = _planar(result)
     steps = result.steps
@@ -134,16 +136,22 @@ def trajectory_map(result: ResultFolder):
     common = shared_trial(frame, cells)
     figure, axes_list = _grid(len(cells), share=_same_world(frame, cells))
     unit = result.units.get("position", "")
+    truthless = False
     for axes, cell in zip(axes_list, cells):
         rows = frame[frame["_cell"] == cell]
         # No trial traced in every cell (a folder written by hand): each panel its own first.
         trial = common if common is not None else int(rows["trial"].min())
         rows = rows[rows["trial"] == trial].sort_values("step")
         draw_scene(axes, result.scene)
-        axes.plot(rows[f"truth_{x_name}"], rows[f"truth_{y_name}"], color="black", linewidth=1.6, label="true path")
+        # recorded data without data.truth: no true path, and the start is the estimate's
+        start = "truth" if rows[[f"truth_{x_name}", f"truth_{y_name}"]].notna().to_numpy().any() else "estimate"
+        truthless = truthless or start == "estimate"
+        if start == "truth":
+            axes.plot(rows[f"truth_{x_name}"], rows[f"truth_{y_name}"], color="black", linewidth=1.6,
+                      label="true path")
         axes.plot(rows[f"estimate_{x_name}"], rows[f"estimate_{y_name}"], color="tab:blue", linewidth=1.3,
                   marker=".", markersize=4, label="estimated path")
-        axes.scatter(rows[f"truth_{x_name}"].iloc[:1], rows[f"truth_{y_name}"].iloc[:1], marker="o",
+        axes.scatter(rows[f"{start}_{x_name}"].iloc[:1], rows[f"{start}_{y_name}"].iloc[:1], marker="o",
                      color="black", zorder=6, label="start")
         rmse = _trial_rmse(result, rows["cell"].iloc[0], trial)
         which = f"trial {trial}" + (f": RMSE {rmse:.3g} {unit}".rstrip() if np.isfinite(rmse) else "")
@@ -158,7 +166,8 @@ def trajectory_map(result: ResultFolder):
         which = f"trial {common} in every panel (the first trial traced in every cell)"
     else:
         which = f"trial {common}"
-    figure.suptitle(f"{result.manifest.get('name', '')}: true and estimated paths{shown}\n{which}", fontsize=12)
+    paths = "estimated paths (recorded data: no true path)" if truthless else "true and estimated paths"
+    figure.suptitle(f"{result.manifest.get('name', '')}: {paths}{shown}\n{which}", fontsize=12)
     return figure
 
 

@@ -19,6 +19,12 @@ A figure that draws what only one config key writes declares that key (:func:`as
 ``forecast_fan`` draws forecasts.csv, which ``outputs.forecasts`` writes; the score figures,
 ``metrics.scores``'s columns). A config that names the figure without the key would get no
 figure and no word: it is refused by :func:`refusal_in_config` instead.
+
+A figure drawn from the true states (estimate - truth) declares so (:func:`draws_truth`).
+Recorded data without ``data.truth`` have no true states: such a figure is refused in one
+line, in a config (the plan passes :data:`NO_TRUTH` among ``asked``) and asked of a folder
+(:func:`truth_refusal`). A figure that has something to show without the truth draws that
+instead (``trajectory_map`` draws the estimated path alone) and does not declare it.
 """
 
 from __future__ import annotations
@@ -33,6 +39,8 @@ from pfx.registry import Registry
 from pfx.result_folder import ESTIMATION_TABLES, FILE_MODE, MissingTable, ResultFolder, estimation_kind
 
 FIGURES: Registry[Callable] = Registry("figure")
+# A member of refusal_in_config's ``asked``: the config's recorded data come without data.truth.
+NO_TRUTH = "no data.truth"
 
 
 def draws_from(*tables: str) -> Callable[[Callable], Callable]:
@@ -50,6 +58,31 @@ def asks_for(key: str) -> Callable[[Callable], Callable]:
         figure.asks_for = key
         return figure
     return declare
+
+
+def draws_truth(figure: Callable) -> Callable:
+    """Decorator: the figure draws the true states, so recorded data without ``data.truth`` have
+    nothing for it (module docstring)."""
+    figure.draws_truth = True
+    return figure
+
+
+def _without_truth(name: str) -> str:
+    return (f"figure {name} draws the true states (estimate - truth), and recorded data without data.truth have "
+            "none: add data.truth, or drop the figure (filtered_over_data draws the estimates over the data)")
+
+
+def truth_refusal(name: str, result: ResultFolder) -> Optional[str]:
+    """Why figure ``name`` cannot be drawn from ``result``: it draws the true states, and the
+    folder's recorded data had none (no finite ``rms_error_<state>`` in steps_summary.csv);
+    None if it may."""
+    if not getattr(FIGURES[name], "draws_truth", False) or not result.recorded_data:
+        return None
+    if not {"steps_summary", "steps"} & result.tables:
+        return None                    # drawing it says which table is missing
+    summary = result.steps_summary
+    errors = [column for column in summary.columns if column.startswith("rms_error_")]
+    return None if summary[errors].notna().to_numpy().any() else _without_truth(name)
 
 
 def applicability(name: str, tables: set[str], kind: str, estimation: bool) -> Optional[str]:
@@ -72,13 +105,16 @@ def _kind_of_tables(tables) -> str:
     for method, written in ESTIMATION_TABLES.items():
         if set(tables) <= set(written):
             return estimation_kind(method)
+    if set(tables) <= {"simulations"}:
+        return "a `pfx simulate` folder"
     return "another kind of folder"
 
 
 def refusal_in_config(name: str, estimation_method: Optional[str], asked: Collection[str] = ()) -> Optional[str]:
     """Why a config's figure ``name`` would not apply to the folder the config makes (an
     estimation method's, or a filter run's), or would draw nothing: it asks for a key
-    (:func:`asks_for`) that is not among the config's ``asked``; None if it may."""
+    (:func:`asks_for`) that is not among the config's ``asked``, or it draws the true states
+    (:func:`draws_truth`) and ``asked`` holds :data:`NO_TRUTH`; None if it may."""
     if estimation_method is None:
         reason = applicability(name, set(), "a filter run's folder", estimation=False)
     else:
@@ -87,6 +123,8 @@ def refusal_in_config(name: str, estimation_method: Optional[str], asked: Collec
     key = getattr(FIGURES[name], "asks_for", None)
     if reason is None and key is not None and key not in asked:
         reason = f"figure {name} draws what {key} writes, and this config does not ask for it: add {key}, or drop the figure"
+    if reason is None and getattr(FIGURES[name], "draws_truth", False) and NO_TRUTH in asked:
+        reason = _without_truth(name)
     return reason
 
 
@@ -154,7 +192,7 @@ def render_figures(result_dir: str | Path, names: Optional[list[str]] = None,
     names = names if names is not None else result.manifest.get("figures", [])
     tables = result.tables
     for name in names:                     # every refusal before anything is drawn
-        reason = applicability(name, tables, result.kind, result.is_estimation)
+        reason = applicability(name, tables, result.kind, result.is_estimation) or truth_refusal(name, result)
         if reason:
             raise ConfigError(f"{reason}; `pfx list figures` says what each figure draws", file=str(result.path))
     out = result.path / "figures"

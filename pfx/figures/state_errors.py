@@ -16,6 +16,10 @@ stops where it leaves the axes (a triangle marks the edge it crossed) and the pa
 with that time and its largest error (:func:`pfx.figures.layout.plot_within`); in the
 relative change, its count of diverged trials is written instead of an interval. The figure
 stays readable and says what it leaves out. Legends sit below the panels, off the data.
+
+Both draw nothing but estimate - truth, so both declare it (:func:`pfx.figures.registry.draws_truth`):
+recorded data without ``data.truth`` have no truth, and either figure is refused in one line
+rather than drawn as empty panels (``filtered_over_data`` draws the estimates over the data).
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from pfx.figures.layout import (
     time_text,
     trials_text,
 )
-from pfx.figures.registry import FIGURES
+from pfx.figures.registry import FIGURES, draws_truth
 from pfx.result_folder import ResultFolder
 
 
@@ -45,6 +49,7 @@ def _label(name: str, unit: str) -> str:
 
 
 @FIGURES.register("state_error_over_time")
+@draws_truth
 def state_error_over_time(result: ResultFolder):
     """Estimation error of every state component over time, one line per cell (RMS if several trials).
 
@@ -55,7 +60,11 @@ def state_error_over_time(result: ResultFolder):
     summary = result.steps_summary
     if summary.empty:
         return None
-    states = [state for state in result.state_names if f"rms_error_{state}" in summary]
+    # a component without a single error (no truth) would be an empty panel
+    states = [state for state in result.state_names
+              if f"rms_error_{state}" in summary and summary[f"rms_error_{state}"].notna().any()]
+    if not states:
+        return None
     signed = int(summary["trials"].max()) == 1 and not result.steps.empty
     lines = _signed_errors(result, states) if signed else _rms_errors(result, summary, states)
     cells = summary.drop_duplicates("cell")
@@ -109,6 +118,7 @@ def _rms_errors(result: ResultFolder, summary, states: list[str]) -> dict:
 
 
 @FIGURES.register("relative_change_by_state")
+@draws_truth
 def relative_change_by_state(result: ResultFolder):
     """Each arm's mean RMSE per state relative to the first arm's, paired by trial, with 95% intervals.
 

@@ -5,7 +5,7 @@ and a reference implementation's runs.
 For the runs :math:`\hat\ell_1..\hat\ell_R` of one N: their mean with its 95% t-interval, the
 standard deviation and the mean's standard error, and the log-mean-exp
 :math:`\log \frac1R \sum_r e^{\hat\ell_r}`, the log of the average of the unbiased estimates of
-:math:`L` (pomp's own summary of replicates, computed in the log domain); and the mean wall time
+:math:`L` (pomp's own summary of replicates, :mod:`pfx.numerics.log_mean_exp`); and the mean wall time
 per run. Two sets of independent runs agree (:func:`agreement_verdict`) when, at every N both
 ran, the difference of their means lies within :data:`Z_LIMIT` standard errors of the
 difference, the two standard errors added in quadrature.
@@ -17,17 +17,12 @@ import math
 
 import numpy as np
 import pandas as pd
-from scipy.special import logsumexp
 
 from pfx.analysis.summary import describe
+from pfx.numerics.log_mean_exp import log_mean_exp
 from pfx.papers.base import Verdict, format_number, verdict_from_checks
 
 Z_LIMIT = 3.0              # standard errors of a difference beyond which two means disagree
-
-
-def log_mean_exp(values: np.ndarray) -> float:
-    r""":math:`\log \frac1R \sum_r e^{v_r}`, in the log domain."""
-    return float(logsumexp(values) - math.log(len(values)))
 
 
 def estimate_numbers(trials: pd.DataFrame) -> pd.DataFrame:
@@ -40,7 +35,7 @@ def estimate_numbers(trials: pd.DataFrame) -> pd.DataFrame:
         sd = float(np.std(values, ddof=1))
         rows.append({"N": int(particles), "runs": len(values), "mean": statistics["mean"],
                      "low": statistics["ci95_low"], "high": statistics["ci95_high"], "sd": sd,
-                     "se": sd / math.sqrt(len(values)), "log_mean_exp": log_mean_exp(values),
+                     "se": sd / math.sqrt(len(values)), "log_mean_exp": float(log_mean_exp(values)),
                      "seconds": float(group["run_time_s"].mean())})
     return pd.DataFrame(rows).set_index("N")
 

@@ -18,7 +18,9 @@ auto`` (read back from ``estimation/<cell>.particle_count.csv``, or measured by 
 progress (the model must accept each chain's start and the data have a likelihood above zero there). Any of
 these refused, the folder is as it was. Only then does it write. Stopped (Ctrl-C, SIGTERM, an
 error), it keeps what it computed: PMMH's rows are saved every :data:`CHECKPOINT_SECONDS` and at
-the stop, IF2's after every pass; the same command resumes.
+the stop, IF2's after every pass; the same command resumes. While the iterations run, one
+progress bar (:mod:`pfx.run.progress_bar`) counts them over all cells, as each is reported (on
+jax, a compiled block's when it ends); it changes nothing the run computes or writes.
 """
 
 from __future__ import annotations
@@ -74,6 +76,7 @@ from pfx.run.particle_count_pilot import (
     read_back_after_warm_up,
     write_particle_count,
 )
+from pfx.run.progress_bar import NO_BAR, progress_bar
 
 CHECKPOINT_SECONDS = 10.0
 # every table a run may write; likelihood_spread.csv only where a flagged cell's spread was measured,
@@ -110,11 +113,11 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
         # As a finished filter run: nothing to recompute (IF2's final evaluations included).
         report(up_to_date_note(out, plan.config_hash))
         return out
-    work = _prepare(plan, out, state, {})         # and damaged progress, dropped iterations, bad starts
+    work = _prepare(plan, out, state, {}, progress)      # and damaged progress, dropped iterations, bad starts
     with folder_lock(out, remove_if_unused=True):
         # Read again: until this run held the lock, another one may have been writing the folder.
         state = inspect_folder(plan, out, fresh, locked=True)
-        work = _prepare(plan, out, state, {item.cell.key: item for item in work})
+        work = _prepare(plan, out, state, {item.cell.key: item for item in work}, progress)
         earlier_record = {} if fresh else {name: (out / name).read_bytes() for name in RECORD if (out / name).is_file()}
         if fresh:
             clear_outputs(out, TABLES + RECORD)
@@ -132,15 +135,21 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
         write_text(json.dumps(manifest, indent=2), out / MANIFEST)
         keep_pilots(out, work, report)
         cell_times: dict[str, float] = {}
+        # one bar for every cell's iterations left (each cell's first is 1, or where its progress ends)
+        left = sum(max(0, estimation.iterations - item.first + 1) for item in work)
         try:
-            for item in work:
-                if item.note:
-                    report(f"{out}: cell {item.cell.key}: {item.note}")
-                started = time.perf_counter()
-                try:
-                    item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out, report)
-                finally:
-                    cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
+            with progress_bar(progress, left, plan.experiment.name, "iterations") as bar:
+                for item in work:
+                    if item.note:
+                        report(f"{out}: cell {item.cell.key}: {item.note}")
+                    if len(work) > 1:
+                        bar.describe(_bar_name(plan, item))
+                    started = time.perf_counter()
+                    try:
+                        item.rows = (_run_pmmh if estimation.method == "pmmh" else _run_if2)(item, plan, out, report,
+                                                                                            bar)
+                    finally:
+                        cell_times[item.cell.key] = item.seconds + time.perf_counter() - started
             _assemble(plan, out, work, report)
             write_particle_count(plan, out, work)
         except BaseException as error:
@@ -189,17 +198,20 @@ def _keep_what_ran(out: Path, manifest: dict, cell_times: dict, earlier_record: 
 
 # -- what a run takes up: the rows kept, or the starts -------------------------------------------------
 
-def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellWork]) -> list[CellWork]:
+def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellWork],
+             progress: bool = False) -> list[CellWork]:
     """Every cell's work, read and checked (module docstring), writing nothing. ``state``: what
     the folder holds (nothing, with --fresh); ``earlier``: the work found before the lock, whose
-    computed starts are reused (they do not depend on the folder)."""
+    computed starts are reused (they do not depend on the folder); ``progress``: a pilot of
+    ``particles: auto`` shows its bar."""
     estimation, work = plan.experiment.estimation, []
     # A finished run's progress files hold every iteration its manifest records, no fewer.
     finished = (state.manifest or {}).get("estimation", {}).get("iterations") if state.complete else None
     for cell in plan.cells:
         before = earlier.get(cell.key)
         target = before.target if before else EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
-        pilot, measured = particle_count(plan, target, out, state, before) if is_auto(plan, cell) else (None, False)
+        pilot, measured = (particle_count(plan, target, out, state, before, progress) if is_auto(plan, cell)
+                           else (None, False))
         if pilot is not None:
             target = target.with_particles(pilot.particles)
         item = None
@@ -307,9 +319,10 @@ def _iterated_filtering(plan: Plan, target: EstimationTarget) -> IteratedFilteri
 
 # -- running the iterations -----------------------------------------------------------------------------
 
-def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None]) -> pd.DataFrame:
+def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None], bar=NO_BAR) -> pd.DataFrame:
     """The cell's remaining iterations; its rows saved every CHECKPOINT_SECONDS, at the end, and
-    when the run stops (all complete iterations: a stopped run keeps its work)."""
+    when the run stops (all complete iterations: a stopped run keeps its work). ``bar`` counts
+    the iterations as they are reported (on jax, a compiled block's at its end)."""
     estimation, target, chains = plan.experiment.estimation, item.target, item.state
     sampler = _sampler(plan, target)
     frames, unsaved, saved = [item.rows], item.started, time.perf_counter()
@@ -317,6 +330,7 @@ def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], Non
     def record(iteration: int, accepted: np.ndarray) -> None:
         nonlocal frames, unsaved, saved
         frames.append(_chain_rows(chains, iteration, accepted, target))
+        bar.advance()
         unsaved = True
         if time.perf_counter() - saved > CHECKPOINT_SECONDS:
             frames = [pd.concat(frames, ignore_index=True)]
@@ -328,7 +342,9 @@ def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], Non
         iteration = item.first
         while iteration <= estimation.iterations:
             if iteration == estimation.warm_up + 1 and after_warm_up_applies(plan, item):
+                bar.describe(f"{_bar_name(plan, item)}: particles: auto, measuring again")
                 item.target = measure_after_warm_up(plan, item, chains, out, report)
+                bar.describe(_bar_name(plan, item))
                 sampler = _sampler(plan, item.target)
             # a block ends at the warm-up's end too (where `particles: auto` may measure again)
             last = min(iteration + sampler.block_size - 1, estimation.iterations,
@@ -342,6 +358,11 @@ def _run_pmmh(item: CellWork, plan: Plan, out: Path, report: Callable[[str], Non
     return frames[0]
 
 
+def _bar_name(plan: Plan, item: CellWork) -> str:
+    """What the iterations' bar says it counts: the experiment, and the cell where there are several."""
+    return plan.experiment.name if len(plan.cells) == 1 else f"{plan.experiment.name}, cell {item.cell.key}"
+
+
 def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, target: EstimationTarget) -> pd.DataFrame:
     columns, count = target.columns, len(chains.values)
     rows = pd.DataFrame({"chain": np.arange(count), "iteration": iteration,
@@ -352,9 +373,10 @@ def _chain_rows(chains: Chains, iteration: int, accepted: np.ndarray, target: Es
     return rows[CHAINS.progress_columns(columns)]
 
 
-def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None]) -> pd.DataFrame:
+def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None], bar=NO_BAR) -> pd.DataFrame:
     """The cell's remaining passes, each saved as it ends: the table, then the swarm (a run
-    stopped between the two leaves the table a pass ahead, which the next run computes again)."""
+    stopped between the two leaves the table a pass ahead, which the next run computes again);
+    ``bar`` counts them."""
     estimation, target, rows = plan.experiment.estimation, item.target, item.rows
     method = _iterated_filtering(plan, target)
 
@@ -364,6 +386,7 @@ def _run_if2(item: CellWork, plan: Plan, out: Path, report: Callable[[str], None
                          ignore_index=True)
         write_csv(rows, progress_file(out, item.cell))
         save_swarm(swarm, swarm_file(out, item.cell))
+        bar.advance()
         raise_if_requested()
 
     # pass by pass on numpy; compiled blocks of passes on jax (imported only then: it needs the jax extra)

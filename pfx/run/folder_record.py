@@ -27,6 +27,7 @@ import pfx
 from pfx.config.plan import Plan, StudyPlan
 from pfx.config.plugin_record import copied_entries, copy_paths, is_own_copy, stored_name
 from pfx.config.plugins import PLUGIN_COPIES
+from pfx.config.time_units import time_unit
 from pfx.result_folder import read_manifest, write_bytes, write_manifest, write_text
 
 
@@ -135,13 +136,15 @@ def plugins_record(plan: Plan | StudyPlan) -> dict:
 
 
 def run_manifest(plan: Plan, started: str) -> dict:
+    """A filter run's manifest as it starts. Its ``units`` are the model's, but the time's: the
+    config's ``time_unit`` where it sets one (:func:`pfx.config.time_units.time_unit`)."""
     model = plan.cells[0].truth_model
     return {
         **provenance(plan, started),
         "trials": plan.experiment.trials,
         "label_columns": plan.label_columns,
         "legend_columns": plan.legend_columns,
-        "units": {"time": model.time_unit, "position": model.position_unit,
+        "units": {"time": time_unit(plan.resolved, model), "position": model.position_unit,
                   **{f"state_{n}": u for n, u in zip(model.state_names, model.state_units)}},
         "position_states": [model.state_names[i] for i in model.position_components],
         "angular_states": [model.state_names[i] for i in model.angular_components],

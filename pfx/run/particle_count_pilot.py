@@ -6,11 +6,15 @@ when a resumed or extended run finds one (checked by replaying the rule on its r
 measured by the rule of :mod:`pfx.estimation.particle_count` at ``estimation.particle_count.at``
 (the chains' start by default), which may refuse before anything is written. The write phase
 then keeps the measured rows at once (so that no later run measures again), says each choice in
-a line, and the tables end with particle_count.csv.
+a line with what the chains will cost at it (:func:`cost_text`: their wall time projected from
+the run's own filter runs at that N, so that a run that will take an hour says so before it
+starts), and the tables end with particle_count.csv. While it measures, the pilot shows its
+progress bar (:mod:`pfx.run.progress_bar`).
 """
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Callable
 
@@ -21,14 +25,15 @@ from pfx.config.estimation import AUTO
 from pfx.config.estimation_tables import CELL, PARTICLE_COUNT
 from pfx.config.plan import Cell, Plan
 from pfx.errors import ConfigError
-from pfx.estimation.likelihood_spread import log_likelihood_spread
-from pfx.estimation.particle_count import ParticleChoice, choose_particle_count
+from pfx.estimation.likelihood_spread import Spread, log_likelihood_spread
+from pfx.estimation.particle_count import ParticleChoice, choose_particle_count, effective_sd, ladder
 from pfx.estimation.pmmh import Chains
 from pfx.estimation.target import EstimationTarget
 from pfx.folder_state import FolderState
 from pfx.numerics.seeding import restart_seed
 from pfx.result_folder import write_csv
 from pfx.run.estimation_progress import damaged, pilot_file, read_pilot
+from pfx.run.progress_bar import progress_bar
 
 
 def is_auto(plan: Plan, cell: Cell) -> bool:
@@ -36,10 +41,11 @@ def is_auto(plan: Plan, cell: Cell) -> bool:
 
 
 def particle_count(plan: Plan, target: EstimationTarget, out: Path, state: FolderState,
-                    before) -> tuple[ParticleChoice, bool]:
+                   before, progress: bool = False) -> tuple[ParticleChoice, bool]:
     """The cell's particle count and whether this run measured it: read back from the folder's
     progress (a resumed or extended run; checked, as every progress file is), the count found
-    before the lock, or the pilot's (:mod:`pfx.estimation.particle_count`), writing nothing."""
+    before the lock, or the pilot's (:mod:`pfx.estimation.particle_count`), writing nothing;
+    ``progress``: the pilot shows its bar (:func:`_with_bar`)."""
     path = pilot_file(out, target.cell)
     if state.manifest is not None and path.is_file():
         return _read_back_pilot(plan, target, path), False
@@ -53,8 +59,29 @@ def particle_count(plan: Plan, target: EstimationTarget, out: Path, state: Folde
     def spread_at(particles: int):
         return log_likelihood_spread(target, point, particles, settings.runs, plan.experiment.seed)
 
-    return choose_particle_count(spread_at, settings, key=_particles_key(plan, target.cell), point_text=point_text,
-                                 file=plan.file), True
+    name = f"{plan.experiment.name}: particles: auto"
+    with progress_bar(progress, sum(ladder(settings)), name, counted=False) as bar:
+        return choose_particle_count(_with_bar(spread_at, settings, bar, name), settings,
+                                     key=_particles_key(plan, target.cell), point_text=point_text, file=plan.file), True
+
+
+def _with_bar(spread_at: Callable[[int], Spread], settings, bar, name: str) -> Callable[[int], Spread]:
+    """``spread_at``, advancing the pilot's bar. Its work is weighed in particles, which a rung's
+    time grows with: the bar starts at the ladder's every rung up to the cap, and once a rung is
+    at or below the target, the one N left to measure is about as large as it (rule step 2)."""
+    done = 0
+
+    def measure(particles: int) -> Spread:
+        nonlocal done
+        bar.describe(f"{name}, N = {particles}")
+        row = spread_at(particles)
+        done += particles
+        bar.advance(particles)
+        if effective_sd(row) <= settings.target_sd:
+            bar.resize(done + particles)
+        return row
+
+    return measure
 
 
 def _read_back_pilot(plan: Plan, target: EstimationTarget, path: Path) -> ParticleChoice:
@@ -158,12 +185,16 @@ def measure_after_warm_up(plan: Plan, item, chains: Chains, out: Path, report: C
         write_csv(item.after_warm_up.table(), path)
         how = f"measured at {text}"
     best = item.after_warm_up.chosen
-    report(f"{out}: cell {item.cell.key}: particles auto after the warm-up -> {best.particles} (sd of the "
-           f"log-likelihood {best.sd:.3g}, target {estimation.pilot.target_sd:g}; {how})")
-    report("  " + _ladder_text(item.after_warm_up))
     moved = target.with_particles(best.particles)
     seeds = [restart_seed(plan.experiment.seed, item.cell.stream_key, chain) for chain in range(len(chains.values))]
+    started = time.perf_counter()
     chains.log_likelihood = moved.log_likelihoods(chains.values, seeds)
+    timed = ("their estimates computed again", time.perf_counter() - started)     # one iteration's filter runs
+    report(f"{out}: cell {item.cell.key}: particles auto after the warm-up -> {best.particles} (sd of the "
+           f"log-likelihood {best.sd:.3g}, target {estimation.pilot.target_sd:g}; {how})"
+           + cost_text(item.after_warm_up, target, estimation.iterations - estimation.warm_up, " after the warm-up",
+                       timed))
+    report("  " + _ladder_text(item.after_warm_up))
     return moved
 
 
@@ -188,11 +219,66 @@ def keep_pilots(out: Path, work: list, report: Callable[[str], None]) -> None:
             continue
         if item.pilot_measured:
             write_csv(item.pilot.table(), pilot_file(out, item.cell))
-        best, target_sd = item.pilot.chosen, item.target.estimation.pilot.target_sd
+        estimation, best = item.target.estimation, item.pilot.chosen
         how = "measured" if item.pilot_measured else f"read back from {pilot_file(out, item.cell).name}"
+        left = estimation.iterations - item.first + 1
+        # the starts, computed by this run at the chosen N, are one iteration's filter runs, timed
+        timed = ("their starts", item.seconds) if item.started and item.after_warm_up is None else None
+        cost = cost_text(item.after_warm_up or item.pilot, item.target, left, "" if item.first == 1 else " left", timed)
+        again = item.after_warm_up is None and estimation.pilot.after_warm_up and item.first <= estimation.warm_up + 1
+        if cost and again:
+            cost += "; N is measured again after the warm-up"
         report(f"{out}: cell {item.cell.key}: particles auto -> {best.particles} (sd of the log-likelihood "
-               f"{best.sd:.3g}, target {target_sd:g}; {how})")
+               f"{best.sd:.3g}, target {estimation.pilot.target_sd:g}; {how}){cost}")
         report("  " + _ladder_text(item.pilot))
+
+
+# -- what the chains will cost ---------------------------------------------------------------------------
+
+def cost_text(choice: ParticleChoice, target: EstimationTarget, iterations: int, which: str = "",
+              timed: tuple[str, float] | None = None) -> str:
+    """What the chains will cost at the chosen N, said before they run: "; the 4 chains x 2000
+    iterations will take about 58 min at 0.43 s per filter run (...)", or "" when no iteration is
+    left. Each iteration makes one filter run per chain (C; fewer where a proposal leaves the
+    prior), run as the chains' starts were: in one batch where the target is batched, else one
+    by one. So the time per iteration is measured where it can be:
+
+    * ``timed``: what this run timed of C filter runs at that N, as an iteration makes them
+      (the starts, or after the warm-up each chain's estimate computed again), and its seconds:
+      an iteration costs that;
+    * else (a resumed or extended run, whose starts were computed before) the pilot's R runs at
+      N, t seconds: a run costs t / R. Run one by one, that is what an iteration's run costs; in
+      one batch, a call's fixed cost is shared by R rows in the pilot and C in the chains, so
+      the projection is a lower bound ("at least");
+    * on jax the pilot's and the starts' times are mostly compiling (a program for each shape),
+      so no time is projected.
+    """
+    if iterations <= 0:
+        return ""
+    if target.cell.filter.backend == "jax":
+        return ("; on jax the pilot's times are mostly compiling (a program for each N), so they do not tell what "
+                "the chains will take: their progress bar measures it")
+    chains, best = target.estimation.chains, choice.chosen
+    if timed is not None:
+        what, seconds = timed
+        per_run, bound = seconds / chains, "about"
+        source = f"{what}, {chains} filter runs at N = {best.particles}, took {seconds:.2g} s"
+    else:
+        per_run, bound = best.seconds / best.runs, "at least" if target.batched else "about"
+        source = f"the pilot's {best.runs} runs at N = {best.particles} took {best.seconds:.2g} s"
+        if target.batched:
+            source += f" in one batch, whose fixed cost the chains' batches of {chains} share among fewer runs"
+    return (f"; the {chains} chains x {iterations} iterations{which} will take {bound} "
+            f"{duration_text(per_run * chains * iterations)} at {per_run:.2g} s per filter run ({source})")
+
+
+def duration_text(seconds: float) -> str:
+    """A wall time in words, to two significant figures: 45 s, 58 min, 2.5 h."""
+    if seconds < 60:
+        return f"{seconds:.2g} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.2g} min"
+    return f"{seconds / 3600:.2g} h" if seconds < 100 * 3600 else f"{seconds / 3600:.0f} h"
 
 
 def write_particle_count(plan: Plan, out: Path, work: list) -> None:

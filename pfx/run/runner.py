@@ -59,6 +59,7 @@ from pfx.run.executors import Executor, make_executor
 from pfx.run.folder_record import now, plugins_record, provenance, run_manifest, write_record_config
 from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
+from pfx.run.progress_bar import progress_bar
 
 OUTPUT_FILES = ("trials.csv", "steps.csv", "steps_summary.csv", "summary.csv", "particles.csv", "genealogy.csv",
                 "forecasts.csv", "scene.csv", "config.yaml", "manifest.json")
@@ -303,15 +304,13 @@ def _run_cells(plan: Plan, out: Path, cells: list[Cell], executor: Executor, bud
     returned: list[dict[int, BatchResult]] = [{} for _ in cells]
     by_tasks = executor.counts == "tasks"
     total = len(tasks) if by_tasks else sum(sizes)
-    with _progress_bar(progress, total, experiment.name, executor.counts) as live:
-        task_id = live.add_task(executor.counts, total=total) if live else None
+    with progress_bar(progress, total, experiment.name, executor.counts) as bar:
         for position, result in executor.run(function, [tasks[index] for index in order]):
             raise_if_requested()                 # a stop signal whose exception was swallowed
             index = order[position]
             number = owner[index]
             returned[number][index] = result
-            if live:
-                live.advance(task_id, 1 if by_tasks else sizes[index])
+            bar.advance(1 if by_tasks else sizes[index])
             if len(returned[number]) == expected[number]:
                 batches = returned[number]
                 _write_cell(out, cells[number], [batches[i] for i in sorted(batches)], cell_times)
@@ -333,24 +332,6 @@ def run_batch_with_plugins(plugins: tuple[LoadedPlugin, ...], arguments: bytes) 
         if fault is None:
             raise
         raise fault from None
-
-
-def _progress_bar(enabled: bool, total: int, name: str, counts: str = "trials"):
-    if not enabled or total == 0:
-        return nullcontext()
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    return Progress(TextColumn(f"{name}"), BarColumn(), MofNCompleteColumn(), TextColumn(counts),
-                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True,
-                    console=Console(stderr=True))
 
 
 def _write_cell(out: Path, cell: Cell, results: list[BatchResult], cell_times: dict) -> None:

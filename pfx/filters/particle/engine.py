@@ -59,6 +59,7 @@ import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError, note_step
 from pfx.filters.particle.cloud import active_uniform, posterior_mean, resample_rows
+from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
 from pfx.filters.particle.moves import MoveContext
 from pfx.filters.particle.predictive import PredictiveRecorder
 from pfx.filters.particle.recorders import Recording, recorders_for
@@ -248,9 +249,7 @@ class ParticleFilter:
                 normalised, new_weights, normaliser = normalise_rows(updated)
             if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
                 bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
-                raise ModelNumericalError(
-                    f"model {self.model.kind} gave {bad} log-likelihood at step {k} of the filter "
-                    "(did particles leave the model's domain? check the prior and the noise)")
+                raise ModelNumericalError(bad_log_likelihood_message(self.model, k, bad))
             underflow = np.isneginf(normaliser)
             self.trace.degenerate[underflow, t] = True
             normalised[underflow] = self.uniform_log_weight

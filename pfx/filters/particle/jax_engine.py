@@ -51,6 +51,7 @@ import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
+from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
 from pfx.filters.particle.predictive import predictive_step
 from pfx.filters.trace import FilterTrace, Predictive
 from pfx.numerics.angles import circular_mean, wrap_difference
@@ -483,7 +484,6 @@ def first_failure(model, failures: np.ndarray) -> Optional[Exception]:
         return ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
                                    f"{step} of the filter (check the prior and the noise)")
     if bits & BAD_LIKELIHOOD:
-        return ModelNumericalError(f"model {model.kind} gave NaN or an infinite log-likelihood at step {step} of "
-                                   "the filter (did particles leave the model's domain? check the prior and the noise)")
+        return ModelNumericalError(bad_log_likelihood_message(model, step, "NaN or an infinite"))
     return ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {step} of the filter "
                                "(check the prior and the noise)")
