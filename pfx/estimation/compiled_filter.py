@@ -74,7 +74,7 @@ class CompiledFilter:
     """One estimation target's filter as a compiled function of the parameters (module docstring)."""
 
     def __init__(self, target):
-        from pfx.filters.particle.jax_engine import _Flags
+        from pfx.filters.particle.jax_engine import Flags
 
         self.target = target
         settings = target.cell.filter
@@ -82,7 +82,7 @@ class CompiledFilter:
         self.follows = initial_law_follows_parameters(self.template, settings)
         self.bound = bind_particle_filter(settings.kind, self.template, settings, target.prior_of(self.template))
         self.state_dimension = self.template.state_dimension
-        self.flags = _Flags(spread=False, radius=None, deviations=False, genealogy=False, history=False)
+        self.flags = Flags(spread=False, radius=None, deviations=False, genealogy=False, history=False)
         self._program = None
 
     # -- on the host ------------------------------------------------------------------------------
@@ -90,7 +90,7 @@ class CompiledFilter:
     def inputs(self, rows: int):
         """The step inputs (measurements, controls, substep times) of ``rows`` rows."""
         measurements = np.broadcast_to(self.target.measurements, (rows,) + self.target.measurements.shape)
-        return self.bound.compiled._inputs(np.ascontiguousarray(measurements))
+        return self.bound.compiled.step_inputs(np.ascontiguousarray(measurements))
 
     def host_laws(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For parameter rows (R, p) on the natural scale: whether the model accepts each row, and
@@ -143,7 +143,7 @@ class CompiledFilter:
         engine = self.engine(values)
         if self.follows:
             engine.bound = replace(engine.bound, prior=RowGaussians(means, factors))
-        cloud, outputs = engine._filter(keys, inputs, self.flags)
+        cloud, outputs = engine.traced_run(keys, inputs, self.flags)
         failed = jnp.any(outputs.failures != 0, axis=0)
         return jnp.where(failed, -jnp.inf, cloud.log_likelihood)
 

@@ -171,7 +171,7 @@ class CompiledSwarm:
         bound = replace(self.filter.bound, model=perturbed, prior=None)
         engine = PerturbedPass(bound, self, iteration)
         engine.bound = replace(bound, prior=SwarmStart(states, swarm, engine.perturbation_sd(0)))
-        cloud, outputs = engine._filter(keys, inputs, self.filter.flags)
+        cloud, outputs = engine.traced_run(keys, inputs, self.filter.flags)
         parameters = cloud.particles[..., d:].astype(swarm.dtype)
         # the next pass starts from an equally weighted swarm: resample the replicates whose last
         # step did not (their weights are not uniform)

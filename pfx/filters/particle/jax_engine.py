@@ -174,19 +174,21 @@ class JaxParticleFilter:
         if getattr(random, "seeds", None) is None:
             raise RuntimeError("the jax backend needs the trials' seeds (TrialStreams.from_seeds)")
         trials, steps, _ = measurements.shape
-        flags = _Flags.of(recording)
+        flags = Flags.of(recording)
         with jax.enable_x64(True):
             program = self._programs.get(flags)
             if program is None:
-                program = self._programs[flags] = jax.jit(lambda keys, inputs: self._filter(keys, inputs, flags))
+                program = self._programs[flags] = jax.jit(lambda keys, inputs: self.traced_run(keys, inputs, flags))
             keys = KeyStreams.from_seeds(random.seeds).keys
-            inputs = self._inputs(measurements)
+            inputs = self.step_inputs(measurements)
             cloud, outputs = program(keys, inputs)
             cloud, outputs = jax.device_get((cloud, outputs))
         _raise_first_failure(self.model, np.asarray(outputs.failures))
         return self._trace(cloud, outputs, recording, trials, steps, inputs.observed.T)
 
-    def _inputs(self, measurements: np.ndarray) -> StepInputs:
+    def step_inputs(self, measurements: np.ndarray) -> StepInputs:
+        """What each step reads, as arrays indexed by the step (:class:`StepInputs`), from the
+        measurements (trials, T, m); estimation's compiled likelihood prepares them once."""
         model, steps = self.model, measurements.shape[1]
         missing = np.isnan(measurements).any(axis=-1)
         controls = [model.control(k) for k in range(1, steps + 1)]
@@ -239,7 +241,10 @@ class JaxParticleFilter:
 
     # -- compiled: the run and its step --------------------------------------------------------
 
-    def _filter(self, keys, inputs: StepInputs, flags: "_Flags"):
+    def traced_run(self, keys, inputs: StepInputs, flags: "Flags"):
+        """The run as a traceable function: the prior's cloud, then :meth:`step` scanned over the
+        steps; (the last cloud, the steps' :class:`StepOutputs`). :meth:`run` compiles it per
+        set of ``flags``; estimation traces it inside its own programs, at parameter arrays."""
         random = KeyStreams(keys, self.dtype)
         trials, count = keys.shape[0], self.particles
         state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
@@ -250,10 +255,10 @@ class JaxParticleFilter:
                       lost_particles=jnp.zeros(trials, jnp.int32),
                       ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)))
         scores = random.derived(SCORE_STREAM) if flags.scores else None
-        return jax.lax.scan(lambda carried, step_inputs: self.step(carried, step_inputs, random, flags, scores),
+        return jax.lax.scan(lambda carried, at_step: self.step(carried, at_step, random, flags, scores),
                             cloud, inputs)
 
-    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "_Flags",
+    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "Flags",
              scores: Optional[KeyStreams] = None):
         """Step k: predict, weight and normalise, estimate, resample (module docstring); with
         ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
@@ -387,7 +392,7 @@ class JaxParticleFilter:
         squared = jnp.sum((positions - centre) ** 2, axis=-1)
         return jnp.sqrt(jnp.sum(weights * squared, axis=-1))
 
-    def within_radius(self, weights, state, flags: "_Flags"):
+    def within_radius(self, weights, state, flags: "Flags"):
         """The share of particles (by weight, or by count) within the radius of the mean."""
         radius, weighted = flags.radius
         positions = state[..., list(self.model.position_components)]
@@ -406,7 +411,7 @@ class JaxParticleFilter:
         return jnp.sqrt(jnp.einsum("rn,rnd->rd", weights, centred * centred))
 
 
-class _Flags(NamedTuple):
+class Flags(NamedTuple):
     """The diagnostics a run computes (static: each set of flags is its own compiled program)."""
 
     spread: bool
@@ -418,7 +423,7 @@ class _Flags(NamedTuple):
     forecast_rows: Optional[tuple] = None
 
     @classmethod
-    def of(cls, recording) -> "_Flags":
+    def of(cls, recording) -> "Flags":
         traced = recording.trace_rows is not None and len(recording.trace_rows) > 0
         criterion = recording.spread_criterion
         return cls(spread=traced or criterion is not None,
