@@ -93,12 +93,14 @@ def read_table(path: str | Path) -> pd.DataFrame:
 
 
 # The tables of an estimation folder, by method (besides config.yaml, manifest.json, estimation/, figures/).
-ESTIMATION_TABLES = {"pmmh": ("chains", "posterior", "priors"), "if2": ("if2", "maximum_likelihood")}
+ESTIMATION_TABLES = {"pmmh": ("chains", "posterior", "priors"), "if2": ("if2", "maximum_likelihood"),
+                     "profile": ("if2", "maximum_likelihood", "profile", "profile_interval", "profile_smoothed")}
 
 
 def estimation_kind(method: str) -> str:
-    """"a PMMH estimation folder", "an IF2 estimation folder"."""
-    return f"{'an' if method == 'if2' else 'a'} {method.upper()} estimation folder"
+    """"a PMMH estimation folder", "an IF2 estimation folder", "a profile-likelihood estimation folder"."""
+    return f"{'an' if method == 'if2' else 'a'} {'profile-likelihood' if method == 'profile' else method.upper()} " \
+           "estimation folder"
 
 
 class MissingTable(FileNotFoundError):

@@ -43,6 +43,22 @@ The order matters: a noisy estimate also lowers the acceptance rate, so the spre
 first; and a badly scaled proposal makes longer chains a waste, so its scale comes before their
 length.
 
+**A correlated posterior**, named beside any of the three (:func:`strongest_correlation`): where
+two estimated parameters' draws after the warm-up have a correlation :math:`|\rho|` above
+:data:`CORRELATION_LIMIT`, the posterior is a ridge, along which a random walk of independent
+steps moves slowly whatever its scale (the user of issue 49 was told to run 26000 iterations
+for :math:`\rho = 0.79`). The line names the pair and :math:`\rho`, and what helps: a proposal
+that learns the posterior's covariance (Haario, Saksman & Tamminen 2001), which pfx does only
+during the warm-up (``estimation.warm_up`` > 0 with ``adapt: true``; ``warm_up`` is 0 unless
+set, so by default nothing adapts), or a reparametrisation that estimates what the data pin down
+(the two parameters' ratio or product, say) in place of one of them. The correlation is that of
+the draws on the natural scale, pooled over the chains: the number ``posterior_pairs`` prints
+above its diagonal and a user computes from chains.csv. (The proposal walks on the transformed
+scale; for a posterior concentrated enough to be judged, the two correlations differ little.)
+Without such a pair, a run whose proposal did not adapt is told so, with the keys that make it:
+on pfx's PMMH benchmarks a warm-up with adaptation gave 1.2 to 1.3 times the ESS per iteration
+of none (docs/estimation.md, "The proposal").
+
 **IF2** (maximum_likelihood.csv's ``flag``, per replicate). Replicates that reached the maximum
 agree within the likelihood-ratio tolerance :math:`\tfrac12\chi^2_p(0.95)` (p estimated
 parameters; 1.92 for one, 3.00 for two): points closer than that to the maximum lie inside the
@@ -61,6 +77,7 @@ when its log-likelihood is not finite (the likelihood is zero at its estimate).
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Mapping, Optional, Sequence
 
@@ -77,6 +94,7 @@ FAR_SPREAD = 5.0                 # above it, the 1/N law's N is likely too many 
 SPREAD_RUNS = 40                 # filter runs that measure it: the sd's relative standard error is 11 %
 ACCEPTANCE_LOW = 0.05
 ACCEPTANCE_HIGH = 0.5
+CORRELATION_LIMIT = 0.5          # |rho| of two parameters' kept draws above which the line names the pair
 LIKELIHOOD_RATIO_LEVEL = 0.95
 MONTE_CARLO_SES = 2.0
 
@@ -133,27 +151,31 @@ def _two_figures(value: float) -> float:
 
 
 def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mapping] = None,
-                chosen_by_pilot: bool = False) -> Optional[str]:
+                chosen_by_pilot: bool = False, chains: Optional[pd.DataFrame] = None,
+                adapt: bool = True, adapt_after: int = 100) -> Optional[str]:
     """One line for a cell's posterior.csv rows ``posterior`` whose ``flag`` is not empty (None
     when none is): what to try first (module docstring). ``iterations``: the chains' iterations so
     far (warm-up included); ``spread``: the cell's row of likelihood_spread.csv (``particles``,
     ``runs``, ``finite``, ``sd``), where the run measured one; ``chosen_by_pilot``: the cell's
     particles are ``auto`` (the manifest's ``particle_count``), so more particles means measuring
-    again nearer the posterior."""
+    again nearer the posterior; ``chains``: the cell's rows of chains.csv (or its progress rows),
+    whose draws after the warm-up name a strongly correlated pair, if any; ``adapt``,
+    ``adapt_after``: the config's ``estimation.adapt`` and ``estimation.adapt_after``."""
     flagged = posterior[flag_texts(posterior["flag"]) != ""]
     if flagged.empty:
         return None
-    chains = int(posterior["chains"].iloc[0])
-    draws_per_chain = int(posterior["n"].iloc[0]) // max(chains, 1)
+    chain_count = int(posterior["chains"].iloc[0])
+    draws_per_chain = int(posterior["n"].iloc[0]) // max(chain_count, 1)
     head = f"chains flagged for {', '.join(flagged['parameter'].astype(str))} (posterior.csv, flag{_worst(flagged)}): "
     if too_few_draws(draws_per_chain):
         return head + (f"more iterations: {draws_per_chain} draws per chain after the warm-up are too few to judge the "
                        f"chains (at least {MINIMUM_DRAWS}, and {ESS_PER_CHAIN} effective per chain); raise "
                        "estimation.iterations")
+    aside = "" if chains is None else _proposal_aside(chains, _parameters(posterior), adapt, adapt_after, iterations)
     if spread is not None:
         noisy = _noisy_estimate(spread, chosen_by_pilot, posterior)
         if noisy:
-            return head + noisy
+            return head + noisy + aside
     acceptance = float(posterior["acceptance_rate"].iloc[0])
     measured = _spread_aside(spread)
     reference = ("a random walk accepts best near 0.234 on an exact likelihood (0.44 in one dimension), about "
@@ -161,12 +183,70 @@ def pmmh_advice(posterior: pd.DataFrame, iterations: int, spread: Optional[Mappi
     if acceptance < ACCEPTANCE_LOW:
         return head + (f"a smaller proposal scale: the acceptance rate after the warm-up is {acceptance:.3g} < "
                        f"{ACCEPTANCE_LOW}{measured}; try a smaller proposal_sd, or adapt: true with a longer warm_up; "
-                       + reference)
+                       + reference) + aside
     if acceptance > ACCEPTANCE_HIGH:
         return head + (f"a larger proposal scale: the acceptance rate after the warm-up is {acceptance:.3g} > "
                        f"{ACCEPTANCE_HIGH}{measured}; try a larger proposal_sd, or adapt: true with a longer warm_up; "
-                       + reference)
-    return head + _more_iterations(posterior, chains, draws_per_chain, iterations) + measured
+                       + reference) + aside
+    return head + _more_iterations(posterior, chain_count, draws_per_chain, iterations) + measured + aside
+
+
+def _parameters(posterior: pd.DataFrame) -> list[str]:
+    """The estimated parameters of a cell's posterior.csv rows (not its log-likelihood row)."""
+    return [str(name) for name in posterior["parameter"] if name != "log_likelihood"]
+
+
+def correlation(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson's correlation of the draws where both are finite (NaN if either is constant)."""
+    both = np.isfinite(x) & np.isfinite(y)
+    if both.sum() < 2 or np.std(x[both]) == 0 or np.std(y[both]) == 0:
+        return float("nan")
+    return float(np.corrcoef(x[both], y[both])[0, 1])
+
+
+def strongest_correlation(chains: pd.DataFrame, parameters: Sequence[str]) -> Optional[tuple[str, str, float]]:
+    """The two of ``parameters`` whose draws after the warm-up (``chains``: a cell's rows of
+    chains.csv, chains pooled, natural scale) are most correlated, and their correlation; None
+    for fewer than two parameters or no finite correlation."""
+    kept = chains[~chains["warm_up"].astype(bool)]
+    strongest = None
+    for first, second in itertools.combinations(parameters, 2):
+        rho = correlation(kept[first].to_numpy(dtype=float), kept[second].to_numpy(dtype=float))
+        if math.isfinite(rho) and (strongest is None or abs(rho) > abs(strongest[2])):
+            strongest = (first, second, rho)
+    return strongest
+
+
+def _proposal_aside(chains: pd.DataFrame, parameters: Sequence[str], adapt: bool, adapt_after: int, iterations: int) -> str:
+    """The aside on the proposal: the pair of parameters correlated beyond
+    :data:`CORRELATION_LIMIT`, if any, and what helps given how this run's proposal adapted; or,
+    with no such pair, that it did not adapt, where it did not (module docstring); else ""."""
+    strongest = strongest_correlation(chains, parameters)
+    warm_up = int(chains.loc[chains["warm_up"].astype(bool), "iteration"].max())    # iteration 0, the start, is warm-up
+    adapted = adapt and warm_up >= adapt_after
+    correlated = strongest is not None and abs(strongest[2]) > CORRELATION_LIMIT
+    if adapted and not correlated:
+        return ""
+    # a quarter of the iterations, and twice adapt_after, so that the adapted covariance has draws behind it
+    suggested = max(iterations // 4, 2 * adapt_after)
+    example = f"e.g. warm_up: {suggested} with iterations: {iterations + suggested}, keeping as many draws"
+    if not adapt:
+        how = f"set adapt: true, with a warm_up longer than adapt_after ({adapt_after}), {example}"
+    elif warm_up == 0:
+        how = f"set estimation.warm_up (0 unless set, so nothing adapted) with adapt: true (the default), {example}"
+    else:
+        how = f"a warm_up longer than adapt_after ({adapt_after}, the iterations before the first adaptation), {example}"
+    learn = f"which it does only during the warm-up: {how} (a new run, --fresh)"
+    if not correlated:
+        return f"; also, the proposal did not learn the posterior's covariance (Haario et al. 2001), {learn}"
+    first, second, rho = strongest
+    said = (f"; also, {first} and {second} are correlated (corr {rho:.2f} in the draws after the warm-up, above "
+            f"{CORRELATION_LIMIT:g}): a random walk of independent steps moves slowly along such a ridge")
+    reparametrise = "or reparametrise, estimating what the data pin down (their ratio or product, say) in place of one"
+    if adapted:
+        return said + (f"; the proposal adapted to the draws' covariance over the warm-up's {warm_up} iterations: a "
+                       f"longer estimation.warm_up learns it better, {reparametrise}")
+    return said + f"; let the proposal learn the posterior's covariance (Haario et al. 2001), {learn}, {reparametrise}"
 
 
 def _worst(flagged: pd.DataFrame) -> str:

@@ -329,9 +329,13 @@ def print_estimation_summary(folder: Path, manifest: dict, echo) -> None:
         title = f"{manifest.get('name', '')}: posterior after the warm-up, chains pooled, per cell"
         spreads = _likelihood_spreads(folder)
         iterations = int(manifest.get("estimation", {}).get("iterations") or 0)
+        chains = _chains(folder)
+        estimation = _folder_config(folder).get("estimation") or {}
+        proposal = {key: estimation[key] for key in ("adapt", "adapt_after") if key in estimation}
         for cell, cell_rows in table.groupby("cell", sort=False):
             advice = pmmh_advice(cell_rows, iterations, spreads.get(cell),
-                                 chosen_by_pilot=cell in (manifest.get("particle_count") or {}))
+                                 chosen_by_pilot=cell in (manifest.get("particle_count") or {}),
+                                 chains=chains.get(cell), **proposal)
             if advice:
                 notes.append(f"cell {_cell_name(cell_rows, labels, cell)}: {advice}")
     elif method == "if2" and (folder / "maximum_likelihood.csv").is_file():
@@ -368,6 +372,16 @@ def _with_flags(table: pd.DataFrame) -> pd.DataFrame:
     table = table.copy()
     table["flag"] = flag_texts(table["flag"]) if "flag" in table else ""
     return table
+
+
+def _chains(folder: Path) -> dict[str, pd.DataFrame]:
+    """chains.csv's rows per cell key, whose draws name a correlated pair in the advice (none
+    where the folder has no readable chains.csv)."""
+    try:
+        chains = pd.read_csv(folder / "chains.csv", dtype={"cell": str})
+    except (OSError, pd.errors.EmptyDataError):
+        return {}
+    return {cell: rows for cell, rows in chains.groupby("cell", sort=False)}
 
 
 def _likelihood_spreads(folder: Path) -> dict[str, pd.Series]:

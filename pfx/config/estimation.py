@@ -15,13 +15,15 @@ from typing import Literal, Optional, Union
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from pfx.config.estimation_tables import reserved_names, tables_with
+from pfx.config.profile_settings import ProfileSettings, check_profile
 from pfx.errors import ConfigError
 from pfx.laws.priors import Prior, TransformName, make_transform
 from pfx.registry import with_article
 
 # The figures an estimation config draws unless its outputs name others (a filter run's defaults
 # draw trials, which it has none of).
-ESTIMATION_FIGURES = {"pmmh": ("chain_traces", "posterior_marginals", "posterior_pairs"), "if2": ("if2_convergence",)}
+ESTIMATION_FIGURES = {"pmmh": ("chain_traces", "posterior_marginals", "posterior_pairs"), "if2": ("if2_convergence",),
+                      "profile": ("profile_likelihood",)}
 
 
 # The settings one method reads and the other does not, each with what the other method does
@@ -127,9 +129,10 @@ class EstimationConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    method: Literal["pmmh", "if2"] = Field(
+    method: Literal["pmmh", "if2", "profile"] = Field(
         description="pmmh: particle marginal Metropolis-Hastings (Andrieu, Doucet & Holenstein 2010); if2: "
-                    "iterated filtering (Ionides et al. 2015)")
+                    "iterated filtering (Ionides et al. 2015); profile: a likelihood profile over one parameter by IF2 "
+                    "at each grid value, with the Monte Carlo adjusted profile's interval (Ionides et al. 2017)")
     parameters: dict[str, EstimatedParameter] = Field(
         min_length=1, description="dotted path into the model (as `--set` takes it, e.g. model.mu) -> prior, "
                                   "transform, start")
@@ -149,6 +152,9 @@ class EstimationConfig(BaseModel):
     evaluations: StrictInt = Field(10, ge=1, le=10_000, description="IF2: filter runs at each replicate's final "
                                                                    "estimate, for its log-likelihood and standard "
                                                                    "error (maximum_likelihood.csv)")
+    profile: Optional[ProfileSettings] = Field(
+        None, description="method: profile: the profiled parameter (a dotted path) and its grid (grid, or lower, "
+                          "upper and points); chains are the IF2 starts per grid value")
     particle_count: Optional[ParticleCount] = Field(
         None, description="PMMH with `particles: auto`: how the pilot chooses each cell's particle count "
                           "(target_sd, runs, smallest, largest, at); default: those defaults")
@@ -167,9 +173,11 @@ class EstimationConfig(BaseModel):
 
     @model_validator(mode="after")
     def _check(self):
-        _other_methods_keys(self, self.method, METHOD_ONLY_KEYS)
+        method = "if2" if self.method == "profile" else self.method     # a profile runs IF2 (its settings)
+        _other_methods_keys(self, method, METHOD_ONLY_KEYS)
+        check_profile(self, reserved_names())
         for path, parameter in self.parameters.items():
-            _other_methods_keys(parameter, self.method, METHOD_ONLY_PARAMETER_KEYS, prefix=f"parameters.{path}.")
+            _other_methods_keys(parameter, method, METHOD_ONLY_PARAMETER_KEYS, prefix=f"parameters.{path}.")
             if isinstance(parameter.start, list) and len(parameter.start) != self.chains:
                 raise ValueError(f"@parameters.{path}.start: {len(parameter.start)} values for {self.chains} chains")
         names = [self.column(path) for path in self.parameters]
@@ -218,7 +226,9 @@ class EstimationConfig(BaseModel):
 
     @property
     def columns(self) -> list[str]:
-        return [self.column(path) for path in self.parameters]
+        """The parameters' columns in the tables; a profile's profiled parameter first."""
+        profiled = [self.profile.column] if self.profile is not None and self.method == "profile" else []
+        return profiled + [self.column(path) for path in self.parameters]
 
 
 def check_figures_apply(figures: list[str], estimation: Optional[EstimationConfig], file: str,

@@ -58,6 +58,12 @@ LIKELIHOOD_SPREAD = TableLayout("likelihood_spread.csv", (),
 PARTICLE_COUNT_STAGES = ("before_chains", "after_warm_up")
 PARTICLE_COUNT = TableLayout("particle_count.csv", ("particles", "runs", "finite", "mean", "sd", "sd_standard_error",
                                                     "run_time_s", "chosen"), ())
+# profile.csv (method: profile): a row per grid value and start, the profiled parameter's column first
+# among the parameters'; profile_interval.csv and profile_smoothed.csv have no parameter columns
+PROFILE = TableLayout("profile.csv", ("grid_point", "start"), ("log_likelihood", "log_likelihood_se"))
+PROFILE_INTERVAL_COLUMNS = ("parameter", "level", "span", "estimates", "maximum", "log_likelihood_maximum",
+                            "cutoff", "lower", "upper", "se_statistical", "se_monte_carlo", "flag")
+PROFILE_SMOOTHED_COLUMNS = ("parameter", "value", "smoothed_log_likelihood")
 
 # posterior.csv: a row per parameter and one for the log-likelihood; the quantiles by their probability
 QUANTILES = {"quantile_2_5": 0.025, "quantile_25": 0.25, "median": 0.5, "quantile_75": 0.75, "quantile_97_5": 0.975}
@@ -70,7 +76,7 @@ PRIORS_COLUMNS = ("parameter", "value", "density")
 
 def tables_with(name: str) -> list[str]:
     """The tables in which ``name`` is a column (or, in posterior.csv, a row of its own)."""
-    found = [layout.file for layout in (CHAINS, IF2, MAXIMUM_LIKELIHOOD, LIKELIHOOD_SPREAD)
+    found = [layout.file for layout in (CHAINS, IF2, MAXIMUM_LIKELIHOOD, LIKELIHOOD_SPREAD, PROFILE)
              if name in (CELL, *layout.own)]
     if name in (CELL, *POSTERIOR_COLUMNS, *POSTERIOR_EXTRA_ROWS):
         found.append("posterior.csv")
@@ -82,4 +88,4 @@ def tables_with(name: str) -> list[str]:
 def reserved_names() -> set[str]:
     """Every name a parameter may not take, whatever the cell's labels (see the module docstring)."""
     return {CELL, *CHAINS.own, *IF2.own, *MAXIMUM_LIKELIHOOD.own, *LIKELIHOOD_SPREAD.own, *POSTERIOR_COLUMNS, *POSTERIOR_EXTRA_ROWS,
-            *PRIORS_COLUMNS}
+            *PRIORS_COLUMNS, *PROFILE.own}

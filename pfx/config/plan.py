@@ -88,7 +88,8 @@ class Plan:
         """Hash of what the numbers depend on: every cell (its settings and labels), the seed,
         and which trials keep traces and particle clouds. Not the name, the description, the
         figures or the trial count: changing those keeps a result folder's results (more trials
-        extend them, each trial having its own random streams)."""
+        extend them, each trial having its own random streams); nor, after PMMH, the forecasts,
+        made from the kept chains (:mod:`pfx.run.estimation_outputs`)."""
         outputs = self.experiment.outputs
         numbers_depend_on = {"seed": self.experiment.seed,
                              "cells": [[cell.key, cell.labels] for cell in self.cells],
@@ -98,12 +99,13 @@ class Plan:
             numbers_depend_on["datasets"] = self.experiment.datasets
         if outputs.genealogy:                        # likewise: genealogy.csv is a table of the results
             numbers_depend_on["genealogy"] = outputs.genealogy
-        if outputs.forecasts.requested:              # and forecasts.csv
-            numbers_depend_on["forecasts"] = outputs.forecasts.model_dump(mode="json")
+        if outputs.forecasts.requested and self.experiment.estimation is None:   # and a filter run's forecasts.csv
+            numbers_depend_on["forecasts"] = outputs.forecasts.model_dump(mode="json")   # (PMMH's reads the chains)
         if self.experiment.estimation is not None:   # every setting but the iterations (more extend a run)
             estimation = self.experiment.estimation.model_dump(mode="json", exclude={"iterations"})
-            if self.experiment.estimation.particle_count is None:
-                estimation.pop("particle_count")     # absent, the hash of earlier results is unchanged
+            for optional in ("particle_count", "profile"):     # absent, the hash of earlier results is unchanged
+                if getattr(self.experiment.estimation, optional) is None:
+                    estimation.pop(optional, None)
             numbers_depend_on["estimation"] = estimation
         return canonical_hash(with_plugin_code(numbers_depend_on, self.plugins))
 
@@ -351,8 +353,9 @@ def _expand(raw: dict, file: str, trials: Optional[int], schema: ConfigSchema,
         resolved.pop("estimation", None)     # nor that of a config without estimation
     else:
         resolved.pop("trials", None)         # it has none
-        if experiment.estimation.particle_count is None:
-            resolved["estimation"].pop("particle_count")     # the record of a config without it is unchanged
+        for optional in ("particle_count", "profile"):     # the record of a config without them is unchanged
+            if getattr(experiment.estimation, optional) is None:
+                resolved["estimation"].pop(optional, None)
     return Plan(file=file, experiment=experiment, resolved=resolved, cells=cells,
                 notes=[data.measurements.note] if data is not None and data.measurements.note else [])
 

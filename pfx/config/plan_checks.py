@@ -36,6 +36,7 @@ from pfx.config.estimation import (
 from pfx.config.forecasts import check_forecasts, forecast_notes
 from pfx.config.plugin_faults import locate as locate_plugin_fault
 from pfx.config.plugins import LoadedPlugin
+from pfx.config.profile_settings import profile_as_if2
 from pfx.config.scores import check_measurement_draws, check_scores, scores_notes
 from pfx.errors import ConfigError
 from pfx.filters.particle.jax_support import not_recorded
@@ -153,6 +154,15 @@ def check_estimation(estimation, cell, file: str, several: bool) -> None:
     parameters, so it needs a bootstrap particle filter and a model that takes each of them as an
     array (``vectorised_parameters``)."""
     where = f" (cell {cell.labels})" if several else ""
+    if estimation.method == "profile":      # the IF2 run it is: its profiled parameter is checked as an estimated one
+        profiled = estimation.profile.parameter
+        try:
+            check_estimation(profile_as_if2(estimation), cell, file, several)
+        except ConfigError as error:
+            key = ("estimation.profile.parameter" if (error.key or "").startswith(f"estimation.parameters.{profiled}")
+                   else error.key)
+            raise ConfigError(error.reason, file=file, key=key) from None
+        return
     check_estimated_paths(estimation, cell.filter_model, file, where)
     check_column_names(estimation, list(cell.labels), file, where)
     if estimation.method != "if2":

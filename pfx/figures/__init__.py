@@ -25,6 +25,7 @@ from pfx.figures import (
     particle_count,  # noqa: F401
     pmmh_efficiency,  # noqa: F401
     predictions_over_data,  # noqa: F401
+    profile,  # noqa: F401
     resampling,  # noqa: F401
     sampling,  # noqa: F401
     scores,  # noqa: F401

@@ -18,6 +18,7 @@ from typing import Optional
 
 import numpy as np
 
+from pfx.analysis.estimation_flags import correlation  # the one the flag line names, computed once
 from pfx.figures.estimation_chains import (
     TRUE_VALUE,
     Chains,
@@ -42,14 +43,6 @@ def evenly_thinned(count: int, most: int = MOST_POINTS_PER_CELL) -> np.ndarray:
     if count <= most:
         return np.arange(count)
     return np.unique(np.linspace(0, count - 1, most).round().astype(int))
-
-
-def correlation(x: np.ndarray, y: np.ndarray) -> float:
-    """Pearson's correlation of the draws where both are finite (NaN if either is constant)."""
-    both = np.isfinite(x) & np.isfinite(y)
-    if both.sum() < 2 or np.std(x[both]) == 0 or np.std(y[both]) == 0:
-        return float("nan")
-    return float(np.corrcoef(x[both], y[both])[0, 1])
 
 
 @FIGURES.register("posterior_pairs")

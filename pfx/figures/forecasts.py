@@ -21,6 +21,11 @@ one fan covering the next (at most that many, at least 2), evenly spaced over th
 origins (the first and the last among them), and the title says how many of how many. The
 cells that wrote no forecasts (a Kalman filter or the grid: no particle cloud) are named.
 Returns None (draws nothing) for a folder without forecasts.csv or its quantile columns.
+
+After PMMH (an estimation folder's forecasts.csv, :mod:`pfx.estimation.posterior_forecasts`) the
+fans are the posterior predictive forecast's, the rows whose ``draw`` is :data:`POOLED` (every
+posterior draw's cloud side by side), and the measurements are forecasts.csv's observed values
+(an estimation folder has no steps.csv).
 """
 
 from __future__ import annotations
@@ -30,13 +35,14 @@ import re
 import numpy as np
 
 from pfx.figures.layout import time_axis
-from pfx.figures.registry import FIGURES, asks_for
+from pfx.figures.registry import FIGURES, asks_for, draws_on_estimation_from
 from pfx.figures.scores import cell_grid, cells_without, traced_steps
 from pfx.result_folder import ResultFolder
 
 MOST_ORIGINS = 6               # fans drawn per panel at most, evenly spaced over the origins
 FAN_COLOUR = "C0"
 LIGHTEST, DARKEST = 0.18, 0.45  # the opacity of the widest and of the innermost band
+POOLED = "pooled"               # the `draw` of PMMH's posterior predictive rows (pfx.estimation.posterior_forecasts)
 
 
 def quantile_probability(label: str) -> float:
@@ -81,10 +87,11 @@ def percent(probability: float) -> str:
 
 @FIGURES.register("forecast_fan")
 @asks_for("outputs.forecasts")
+@draws_on_estimation_from("forecasts")
 def forecast_fan(result: ResultFolder):
     """Forecast fans of the measurement for the first forecast trial: from each origin, its quantile bands over the horizons (widest lightest, the median a line), with the measurements as points.
 
-    From forecasts.csv (`outputs.forecasts`) and steps.csv's `measurement_<m>`; a panel per cell with forecasts and measurement component. Of more than 6 origins, as many as keep the fans apart (2 to 6), evenly spaced; the title says how many of how many. Each fan starts at its origin's measurement.
+    From forecasts.csv (`outputs.forecasts`) and steps.csv's `measurement_<m>`; a panel per cell with forecasts and measurement component. Of more than 6 origins, as many as keep the fans apart (2 to 6), evenly spaced; the title says how many of how many. Each fan starts at its origin's measurement. After PMMH, the posterior predictive forecast (every posterior draw pooled).
     """
     forecasts = result.forecasts
     components = [column.removeprefix("observed_") for column in forecasts.columns if column.startswith("observed_")]
@@ -92,9 +99,16 @@ def forecast_fan(result: ResultFolder):
     if forecasts.empty or not components:
         return None
     x_column, x_label = time_axis(result)
-    trial = int(forecasts["trial"].min())
-    forecasts = forecasts[forecasts["trial"] == trial]
-    steps = traced_steps(result)
+    trial = None
+    if "draw" in forecasts:           # after PMMH: the posterior draws' mixture, not a trial
+        draws = forecasts.loc[forecasts["draw"].astype(str) != POOLED, "draw"].nunique()
+        forecasts = forecasts[forecasts["draw"].astype(str) == POOLED]
+        source = f"the posterior predictive ({draws} posterior draws pooled)"
+    else:
+        trial = int(forecasts["trial"].min())
+        forecasts = forecasts[forecasts["trial"] == trial]
+        source = f"the filter's cloud, trial {trial}"
+    steps = traced_steps(result)      # none in an estimation folder
     if not steps.empty:
         steps = steps[steps["trial"] == trial]
     grid = cell_grid(result, forecasts.drop_duplicates("cell"), components, panel_size=(5.0, 3.0))
@@ -112,7 +126,7 @@ def forecast_fan(result: ResultFolder):
                   label="measurement", zorder=3)
         if len(grid.labels) > 1 or len(components) > 1:
             axes.set_title(f"{grid.labels[cell]}, {component}", fontsize=9)
-    title = _title(result, forecasts, trial, counts) + _without_forecasts(result, forecasts)
+    title = _title(result, forecasts, source, counts) + _without_forecasts(result, forecasts)
     grid.finish(title, x_label, lambda component: f"measurement {component}")
     return grid.figure
 
@@ -174,9 +188,9 @@ def _without_forecasts(result: ResultFolder, forecasts) -> str:
     return f"\n{missing}" if missing else ""
 
 
-def _title(result: ResultFolder, forecasts, trial: int, counts: set) -> str:
+def _title(result: ResultFolder, forecasts, source: str, counts: set) -> str:
     horizons = ", ".join(str(int(h)) for h in sorted(forecasts["horizon"].unique()))
     shown = ", ".join(f"{drawn} of {every}" for drawn, every in sorted(counts))
     spacing = " (evenly spaced, fans apart)" if any(drawn < every for drawn, every in counts) else ""
-    return (f"{result.manifest.get('name', '')}: forecasts of the measurement from the filter's cloud, trial {trial}\n"
+    return (f"{result.manifest.get('name', '')}: forecasts of the measurement from {source}\n"
             f"origins drawn: {shown}{spacing}; horizons {horizons} steps; each fan starts at its origin's measurement")

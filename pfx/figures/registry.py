@@ -18,7 +18,10 @@ drawn.
 A figure that draws what only one config key writes declares that key (:func:`asks_for`:
 ``forecast_fan`` draws forecasts.csv, which ``outputs.forecasts`` writes; the score figures,
 ``metrics.scores``'s columns). A config that names the figure without the key would get no
-figure and no word: it is refused by :func:`refusal_in_config` instead.
+figure and no word: it is refused by :func:`refusal_in_config` instead. A filter run's figure
+that an estimation folder can draw too declares the tables it reads there
+(:func:`draws_on_estimation_from`: ``forecast_fan``, the posterior predictive forecasts of
+forecasts.csv after PMMH).
 
 A figure drawn from the true states (estimate - truth) declares so (:func:`draws_truth`).
 Recorded data without ``data.truth`` have no true states: such a figure is refused in one
@@ -60,6 +63,15 @@ def asks_for(key: str) -> Callable[[Callable], Callable]:
     return declare
 
 
+def draws_on_estimation_from(*tables: str) -> Callable[[Callable], Callable]:
+    """Decorator: a filter run's figure that an estimation folder holding ``tables`` (names
+    without ``.csv``) can draw too."""
+    def declare(figure: Callable) -> Callable:
+        figure.estimation_tables = tables
+        return figure
+    return declare
+
+
 def draws_truth(figure: Callable) -> Callable:
     """Decorator: the figure draws the true states, so recorded data without ``data.truth`` have
     nothing for it (module docstring)."""
@@ -95,6 +107,12 @@ def applicability(name: str, tables: set[str], kind: str, estimation: bool) -> O
         if missing:
             return (f"figure {name} draws {', '.join(table + '.csv' for table in missing)}, which {kind} does not "
                     f"have: it is {_kind_of_tables(needed)}'s figure")
+    elif estimation and hasattr(figure, "estimation_tables"):
+        missing = [table for table in figure.estimation_tables if table not in tables]
+        if missing:
+            key = getattr(figure, "asks_for", None)
+            return (f"figure {name} draws {', '.join(table + '.csv' for table in missing)}, which {kind} does not "
+                    f"have" + (f" ({key} writes it)" if key else ""))
     elif estimation and FIGURES.origin(name) is None:
         return (f"figure {name} draws a filter run's (or a study's) tables, and {kind} has "
                 f"{', '.join(sorted(table + '.csv' for table in tables))} instead")
@@ -118,8 +136,10 @@ def refusal_in_config(name: str, estimation_method: Optional[str], asked: Collec
     if estimation_method is None:
         reason = applicability(name, set(), "a filter run's folder", estimation=False)
     else:
-        reason = applicability(name, set(ESTIMATION_TABLES[estimation_method]), estimation_kind(estimation_method),
-                               estimation=True)
+        # with the tables the figure reads there, which its key (asks_for, below) writes
+        written = set(getattr(FIGURES[name], "estimation_tables", ()))
+        reason = applicability(name, set(ESTIMATION_TABLES[estimation_method]) | written,
+                               estimation_kind(estimation_method), estimation=True)
     key = getattr(FIGURES[name], "asks_for", None)
     if reason is None and key is not None and key not in asked:
         reason = f"figure {name} draws what {key} writes, and this config does not ask for it: add {key}, or drop the figure"

@@ -8,7 +8,10 @@ every IF2 iteration's estimates, with ``estimation/<cell>.swarm.npy``, IF2's par
 asked for more ``iterations`` extends its chains (each iteration's random numbers depend only on
 its chain and its index, so either way the numbers are those of one uninterrupted run). Then the
 tables: chains.csv, posterior.csv, priors.csv, and likelihood_spread.csv where a flagged cell's
-spread was measured (PMMH); if2.csv, maximum_likelihood.csv (IF2); and the figures.
+spread was measured (PMMH); if2.csv, maximum_likelihood.csv (IF2); forecasts.csv where
+``outputs.forecasts`` asks (PMMH); and the figures. A finished folder whose chains already hold
+the iterations asked, run with a config that differs in what only reads them (forecasts, figures,
+the name), runs nothing again: :func:`pfx.run.estimation_outputs.update_outputs` makes those outputs.
 
 A run does in two phases what it does to a folder. First it reads and checks everything it
 will build on, writing nothing: each cell's progress files (refused if damaged), the iterations
@@ -39,11 +42,12 @@ from pfx.analysis.estimation_flags import if2_advice, pmmh_advice, replicate_fla
 from pfx.config.estimation_tables import CHAINS, IF2, LIKELIHOOD_SPREAD, MAXIMUM_LIKELIHOOD, PARTICLE_COUNT
 from pfx.config.plan import Cell, Plan
 from pfx.config.plugins import PLUGIN_COPIES
+from pfx.config.profile_settings import profile_as_if2
 from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
-from pfx.estimation.posterior_forecasts import posterior_forecasts
+from pfx.estimation.profile import profile_tables
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
@@ -56,6 +60,7 @@ from pfx.result_folder import (
     write_csv,
     write_text,
 )
+from pfx.run.estimation_outputs import posterior_forecast_table, update_outputs
 from pfx.run.estimation_progress import (
     PROGRESS,
     damaged,
@@ -118,6 +123,10 @@ def run_estimation(plan: Plan, out: Path, *, fresh: bool, report: Callable[[str]
         # Read again: until this run held the lock, another one may have been writing the folder.
         state = inspect_folder(plan, out, fresh, locked=True)
         work = _prepare(plan, out, state, {item.cell.key: item for item in work}, progress)
+        if state.complete and all(item.first > plan.experiment.estimation.iterations for item in work):
+            # every chain holds the iterations asked: only what reads them (forecasts.csv, figures) is made
+            update_outputs(plan, out, work, state.manifest, report, write_config)
+            return out
         earlier_record = {} if fresh else {name: (out / name).read_bytes() for name in RECORD if (out / name).is_file()}
         if fresh:
             clear_outputs(out, TABLES + RECORD)
@@ -209,7 +218,9 @@ def _prepare(plan: Plan, out: Path, state: FolderState, earlier: dict[str, CellW
     finished = (state.manifest or {}).get("estimation", {}).get("iterations") if state.complete else None
     for cell in plan.cells:
         before = earlier.get(cell.key)
-        target = before.target if before else EstimationTarget(cell, estimation, dataset(cell, plan.experiment.seed))
+        # a profile runs as IF2 (its grid values x starts the replicates): pfx.config.profile_settings
+        target = before.target if before else EstimationTarget(cell, profile_as_if2(estimation),
+                                                               dataset(cell, plan.experiment.seed))
         pilot, measured = (particle_count(plan, target, out, state, before, progress) if is_auto(plan, cell)
                            else (None, False))
         if pilot is not None:
@@ -410,27 +421,6 @@ def _if2_rows(estimates: np.ndarray, iteration: int, log_likelihood: np.ndarray,
 
 # -- the tables ---------------------------------------------------------------------------------------------
 
-def _posterior_forecasts(plan: Plan, work: list[CellWork], forecasts, out: Path,
-                         report: Callable[[str], None]) -> pd.DataFrame:
-    """forecasts.csv after PMMH: every particle-filter cell's forecasts from its posterior draws
-    (:mod:`pfx.estimation.posterior_forecasts`), the cell's labels first; a draw whose filter
-    failed is left out, and the run says so in one line per cell."""
-    frames = []
-    for item in work:
-        if not item.cell.filter.uses_particles:
-            continue
-        rows = item.rows[item.rows["iteration"] <= plan.experiment.estimation.iterations]
-        table, draws, left_out = posterior_forecasts(item.target, rows, forecasts, plan.experiment.seed,
-                                                     item.cell.stream_key)
-        if left_out:
-            report(f"{out}: cell {item.cell.key}: forecasts from {draws - len(left_out)} of {draws} posterior "
-                   f"draws; {len(left_out)} left out, the filter failing at their parameters ({left_out[0]})")
-        if not table.empty:
-            frames.append(pd.concat([pd.DataFrame({"cell": item.cell.key, **item.cell.labels}, index=table.index),
-                                     table], axis=1))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
-
-
 def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str], None]) -> None:
     """The tables of every cell, from its rows (labels first, as in trials.csv)."""
     estimation = plan.experiment.estimation
@@ -453,7 +443,8 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
                 spreads.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=spread.index), spread],
                                          axis=1)[LIKELIHOOD_SPREAD.columns(labels, columns)])
             advice = pmmh_advice(summary, estimation.iterations, None if spread is None else spread.iloc[0],
-                                 chosen_by_pilot=item.pilot is not None)
+                                 chosen_by_pilot=item.pilot is not None, chains=rows, adapt=estimation.adapt,
+                                 adapt_after=estimation.adapt_after)
             if advice:
                 report(f"{out}: cell {cell.key}: {advice}")
             summaries.append(pd.concat([pd.DataFrame({"cell": cell.key, **cell.labels}, index=summary.index),
@@ -467,7 +458,8 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
                                   "log_likelihood": log_likelihood, "log_likelihood_se": standard_error,
                                   "flag": replicate_flags(log_likelihood, standard_error, len(columns))})
             finals.append(final[MAXIMUM_LIKELIHOOD.columns(labels, columns)])
-            advice = if2_advice(final["flag"], len(columns))
+            # (a profile's replicates at other grid values lie below the best by design: no advice)
+            advice = if2_advice(final["flag"], len(columns)) if estimation.method == "if2" else ""
             if advice and np.isfinite(log_likelihood).any():      # none finite: the line below says it
                 report(f"{out}: cell {cell.key}: {advice}")
             if not np.isfinite(log_likelihood).any():
@@ -482,7 +474,7 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
         write_csv(prior_grid(estimation, draws), out / "priors.csv")
         forecasts = plan.experiment.outputs.forecasts
         if forecasts.requested:            # from posterior draws, each with its own filter
-            write_csv(_posterior_forecasts(plan, work, forecasts, out, report), out / "forecasts.csv")
+            write_csv(posterior_forecast_table(plan, work, forecasts, out, report), out / "forecasts.csv")
         if spreads:
             write_csv(pd.concat(spreads, ignore_index=True), out / LIKELIHOOD_SPREAD.file)
         else:                   # an extended run whose chains are no longer flagged: no stale measurement
@@ -490,3 +482,6 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
     else:
         write_csv(table[IF2.columns(labels, columns)], out / "if2.csv")
         write_csv(pd.concat(finals, ignore_index=True), out / "maximum_likelihood.csv")
+        if estimation.method == "profile":        # the grid's estimates, and MCAP's interval (pfx.estimation.profile)
+            for name, frame in profile_tables(pd.concat(finals, ignore_index=True), estimation, labels).items():
+                write_csv(frame, out / name)
