@@ -151,7 +151,7 @@ def test_one_estimation_of_each_method_runs(plain, tmp_path):
         result = _run(plain, "run", str(config), "--out", str(tmp_path / _name(config)), "--quiet",
                       "--set", "estimation.iterations=6", *shorter)
         assert result.returncode == 0, result.stderr[-3000:]
-    table = {"pmmh": "posterior.csv", "if2": "maximum_likelihood.csv"}
+    table = {"pmmh": "posterior.csv", "if2": "maximum_likelihood.csv", "profile": "profile.csv"}
     for config, method in methods.items():
         folder = tmp_path / _name(ROOT / "configs" / "examples" / config)
         assert (folder / table[method]).is_file(), f"{config}: no {table[method]}"
