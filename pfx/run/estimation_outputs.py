@@ -30,7 +30,7 @@ import yaml
 from pfx.config.plan import Plan
 from pfx.estimation.posterior_forecasts import posterior_forecasts
 from pfx.result_folder import write_csv, write_manifest
-from pfx.run.folder_record import plugins_record
+from pfx.run.folder_record import drop_stale_figures, plugins_record
 
 FORECASTS = "forecasts.csv"
 FORECASTS_KEY = "outputs.forecasts"      # the key whose table forecast figures read (pfx.figures.registry.asks_for)
@@ -75,13 +75,7 @@ def update_outputs(plan: Plan, out: Path, work: list, manifest: dict, report: Ca
     elif not forecasts.requested:
         (out / FORECASTS).unlink(missing_ok=True)
     seconds = time.perf_counter() - started
-    figures, formats = list(outputs.figures), list(outputs.formats)
-    old_figures, old_formats = manifest.get("figures", []), manifest.get("formats", ["png"])
-    removed = [name for name in old_figures if name not in figures]
-    for path in (out / "figures").glob("*") if (out / "figures").is_dir() else []:
-        name, extension = path.stem, path.suffix.lstrip(".")
-        if name in removed or (name in figures and extension not in formats and extension != "gif"):
-            path.unlink()
+    figures, formats, old_figures, old_formats, removed = drop_stale_figures(out, manifest, outputs)
     write_config(plan, out)
     manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
                     config_hash=plan.config_hash, figures=figures, formats=formats, **plugins_record(plan))

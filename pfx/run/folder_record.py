@@ -18,7 +18,7 @@ import subprocess
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 import yaml
@@ -133,6 +133,31 @@ def plugins_record(plan: Plan | StudyPlan) -> dict:
     if not plan.plugins:
         return {}
     return {"plugins": [plugin.record(copy) for plugin, copy in zip(plan.plugins, copy_paths(plan.plugins))]}
+
+
+class FigureChange(NamedTuple):
+    """The figures and formats a config asks for, those a folder's manifest had, and the
+    figures dropped."""
+
+    figures: list
+    formats: list
+    old_figures: list
+    old_formats: list
+    removed: list
+
+
+def drop_stale_figures(out: Path, manifest: dict, outputs) -> FigureChange:
+    """Before a finished folder's record is brought up to a config that changed only its outputs:
+    delete the figure files the config no longer asks for (a figure dropped, or a format; a
+    GIF animation stays)."""
+    figures, formats = list(outputs.figures), list(outputs.formats)
+    old_figures, old_formats = manifest.get("figures", []), manifest.get("formats", ["png"])
+    removed = [name for name in old_figures if name not in figures]
+    for path in (out / "figures").glob("*") if (out / "figures").is_dir() else []:
+        name, extension = path.stem, path.suffix.lstrip(".")
+        if name in removed or (name in figures and extension not in formats and extension != "gif"):
+            path.unlink()
+    return FigureChange(figures, formats, old_figures, old_formats, removed)
 
 
 def run_manifest(plan: Plan, started: str) -> dict:

@@ -56,7 +56,7 @@ from pfx.result_folder import (
 )
 from pfx.run.batch import BatchResult, run_batch
 from pfx.run.executors import Executor, make_executor
-from pfx.run.folder_record import now, plugins_record, provenance, run_manifest, write_record_config
+from pfx.run.folder_record import drop_stale_figures, now, plugins_record, provenance, run_manifest, write_record_config
 from pfx.run.interrupts import raise_if_requested
 from pfx.run.memory import check_fits, default_budget, trials_per_batch
 from pfx.run.progress_bar import progress_bar
@@ -202,13 +202,7 @@ def update_record(plan: Plan | StudyPlan, out: Path, manifest: dict, report: Cal
         report(up_to_date_note(out, plan.config_hash))
         return
     outputs = plan.experiment.outputs
-    figures, formats = list(outputs.figures), list(outputs.formats)
-    old_figures, old_formats = manifest.get("figures", []), manifest.get("formats", ["png"])
-    removed = [name for name in old_figures if name not in figures]
-    for path in (out / "figures").glob("*") if (out / "figures").is_dir() else []:
-        name, extension = path.stem, path.suffix.lstrip(".")
-        if name in removed or (name in figures and extension not in formats and extension != "gif"):
-            path.unlink()
+    figures, formats, old_figures, old_formats, removed = drop_stale_figures(out, manifest, outputs)
     manifest.update(name=plan.experiment.name, description=plan.experiment.description, config_file=plan.file,
                     config_hash=plan.config_hash, figures=figures, formats=formats, **plugins_record(plan))
     write_record_config(plan, out)
