@@ -186,6 +186,19 @@ def exact_interval(lower, upper):
     return top.x, *ends
 
 
+def test_a_profile_runs_on_the_jax_backend_with_its_parameter_held_at_each_grid_value(tmp_path):
+    """The profiled parameter walks with sd 0 inside IF2's compiled passes too: every replicate's
+    estimate of it is its grid value, and the others move."""
+    pytest.importorskip("jax")
+    config = profile_config(grid=(8000.0, 15000.0, 22000.0), iterations=3, particles=50)
+    config["filter"]["backend"] = "jax"
+    table = pfx.run(config, out=tmp_path / "jax").tables["profile"]
+    held = [column for column in table.columns if "measurement" in column][0]
+    assert sorted(table.groupby("grid_point")[held].unique().map(tuple)) == [(8000.0,), (15000.0,), (22000.0,)]
+    moved = [column for column in table.columns if "process" in column][0]
+    assert not np.allclose(table[moved].to_numpy()[:3], [500.0, 1500.0, 4000.0])
+
+
 def test_the_mcap_interval_covers_the_exact_profile_interval(profile_run):
     """The exact 95% interval lies inside MCAP's interval, each end within 3 SE_mc (MCAP's
     Monte Carlo standard error of the maximum's location, by which its whole interval may
