@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from scipy import optimize, stats
 
 import pfx
@@ -184,6 +185,21 @@ def exact_interval(lower, upper):
     ends = [optimize.brentq(lambda value: profile(value) - level, *bracket, xtol=1.0)
             for bracket in ((lower, top.x), (top.x, upper))]
     return top.x, *ends
+
+
+def test_the_run_says_the_interval_and_its_flag_in_one_line(tmp_path, pfx_in_process):
+    """The run prints each cell's maximum and interval as profile_interval.csv holds them; a grid
+    too narrow for the interval (both ends at its edges) says so on the same line."""
+    config = profile_config(grid=(14000.0, 15000.0, 16000.0), iterations=3, particles=50)
+    (tmp_path / "profile.yaml").write_text(yaml.safe_dump(config))
+    result = pfx_in_process("run", str(tmp_path / "profile.yaml"), "--out", str(tmp_path / "out"))
+    assert result.returncode == 0, result.output
+    interval = pd.read_csv(tmp_path / "out" / "profile_interval.csv").iloc[0]
+    lines = [line for line in result.stderr.splitlines() if "profile of" in line]
+    assert len(lines) == 1, result.stderr
+    if np.isfinite(interval["lower"]):
+        assert f"[{interval['lower']:.4g}, {interval['upper']:.4g}]" in lines[0]
+    assert interval["flag"] and interval["flag"] in lines[0]
 
 
 def test_a_profile_runs_on_the_jax_backend_with_its_parameter_held_at_each_grid_value(tmp_path):

@@ -147,6 +147,20 @@ def monte_carlo_adjusted_profile(x, y, level: float = 0.95, span: float = 0.75) 
                            float(np.sqrt(1 / (2 * a))) * scale, float(np.sqrt(se_mc_squared)) * scale, flag)
 
 
+PROFILE_INTERVAL_FILE = "profile_interval.csv"
+
+
+def profile_line(row) -> str:
+    """The run's one line for a cell's row of profile_interval.csv: the maximum and the interval,
+    or why there is none, and its flag (an end at the grid's edge)."""
+    level = f"{100 * row.level:g}%"
+    if not np.isfinite(row.lower):
+        return f"profile of {row.parameter}: maximum near {row.maximum:.4g}; {row.flag}"
+    line = (f"profile of {row.parameter}: maximum {row.maximum:.4g}, {level} interval [{row.lower:.4g}, "
+            f"{row.upper:.4g}] (MCAP: cutoff {row.cutoff:.3g} below the smoothed maximum, SE_mc {row.se_monte_carlo:.3g})")
+    return line + (f"; {row.flag}" if row.flag else "")
+
+
 def profile_tables(finals: pd.DataFrame, estimation, labels: list[str]) -> dict[str, pd.DataFrame]:
     """profile.csv, profile_interval.csv and profile_smoothed.csv from maximum_likelihood.csv's
     rows ``finals`` (a row per replicate: replicate ``g * chains + k`` is start k at grid value g,
@@ -168,5 +182,5 @@ def profile_tables(finals: pd.DataFrame, estimation, labels: list[str]) -> dict[
         curves.append(pd.DataFrame({**head, "value": fit.values, "smoothed_log_likelihood": fit.smoothed}))
     cell_columns = ["cell", *labels]
     return {PROFILE.file: pd.concat(rows, ignore_index=True),
-            "profile_interval.csv": pd.DataFrame(intervals)[[*cell_columns, *PROFILE_INTERVAL_COLUMNS]],
+            PROFILE_INTERVAL_FILE: pd.DataFrame(intervals)[[*cell_columns, *PROFILE_INTERVAL_COLUMNS]],
             "profile_smoothed.csv": pd.concat(curves, ignore_index=True)[[*cell_columns, *PROFILE_SMOOTHED_COLUMNS]]}

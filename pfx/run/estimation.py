@@ -47,7 +47,7 @@ from pfx.errors import ConfigError
 from pfx.estimation.if2 import IteratedFiltering
 from pfx.estimation.particle_count import ParticleChoice
 from pfx.estimation.pmmh import Chains, ParticleMarginalMetropolisHastings
-from pfx.estimation.profile import profile_tables
+from pfx.estimation.profile import PROFILE_INTERVAL_FILE, profile_line, profile_tables
 from pfx.estimation.summary import posterior_summary, prior_grid, spread_at_posterior_mean
 from pfx.estimation.target import EstimationTarget, dataset
 from pfx.folder_lock import folder_lock
@@ -485,3 +485,6 @@ def _assemble(plan: Plan, out: Path, work: list[CellWork], report: Callable[[str
         if estimation.method == "profile":        # the grid's estimates, and MCAP's interval (pfx.estimation.profile)
             for name, frame in profile_tables(pd.concat(finals, ignore_index=True), estimation, labels).items():
                 write_csv(frame, out / name)
+                if name == PROFILE_INTERVAL_FILE:
+                    for row in frame.itertuples(index=False):
+                        report(f"{out}: cell {row.cell}: {profile_line(row)}")
