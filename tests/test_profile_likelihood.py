@@ -197,6 +197,7 @@ def test_the_run_says_the_interval_and_its_flag_in_one_line(tmp_path, pfx_in_pro
     interval = pd.read_csv(tmp_path / "out" / "profile_interval.csv").iloc[0]
     lines = [line for line in result.stderr.splitlines() if "profile of" in line]
     assert len(lines) == 1, result.stderr
+    assert "Warning" not in result.stderr, result.stderr      # a fit without curvature is refused, not divided by 0
     if np.isfinite(interval["lower"]):
         assert f"[{interval['lower']:.4g}, {interval['upper']:.4g}]" in lines[0]
     assert interval["flag"] and interval["flag"] in lines[0]

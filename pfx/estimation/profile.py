@@ -97,7 +97,7 @@ def quadratic_near_maximum(x: np.ndarray, y: np.ndarray, maximum: float, span: f
     distance = np.abs(x - maximum)
     nearest = max(int(np.floor(span * len(x))), 1)
     included = distance < np.sort(distance)[nearest - 1]
-    if np.count_nonzero(included) < 2:
+    if np.count_nonzero(included) < 2 or distance[included].max() == 0:     # all at one value: no curvature
         return None
     weight = np.zeros(len(x))
     weight[included] = _tricube(distance[included] / distance[included].max())
