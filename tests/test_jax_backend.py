@@ -80,12 +80,18 @@ def test_likelihood_estimate_is_unbiased():
 @pytest.mark.parametrize("name", sorted(JAX_RESAMPLERS))
 def test_offspring_counts_are_unbiased(name, precision):
     """E[N_j] = N w_j for every particle, over 20,000 resamplings of fixed weights (some zero:
-    never chosen), within 4.5 standard errors per particle (20 particles, 8 cases)."""
+    never chosen), within 4.5 standard errors per particle (20 particles, 10 cases); for
+    han_lee_iv, kept to show its bias, E[N_j] is the exact biased mean the NumPy backend's has
+    (resampling.han_lee_iv_expected_counts), as far from N w_j as it is there."""
     count, rows = 20, 20_000
     weights = np.random.default_rng(11).exponential(size=count)
     weights[[3, 4, 17]] = 0.0
     weights = (weights / weights.sum()).astype(precision)
     expected = count * weights.astype(float) / weights.astype(float).sum()
+    if name == "han_lee_iv":
+        from pfx.filters.particle.resampling import han_lee_iv_expected_counts
+
+        expected = han_lee_iv_expected_counts(weights.astype(float) / weights.astype(float).sum())
     with jax.enable_x64(True):
         indices = JAX_RESAMPLERS[name](jnp.asarray(np.tile(weights, (rows, 1))), KeyStreams.from_seeds(range(rows)))
     indices = np.asarray(indices)
@@ -159,7 +165,7 @@ def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept():
 
 def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
     model = random_walk(steps=5)
-    cases = {"resampler": {"resampler": "han_lee_iv"}, "move": {"move": {"kind": "mcmc"}},
+    cases = {"weighting": {"weighting": {"kind": "euclidean"}}, "move": {"move": {"kind": "mcmc"}},
              "proposal": {"proposal": "locally_optimal"}, "auxiliary": {"auxiliary": True},
              "backend": {"kind": "kf"}}
     for key, settings in cases.items():
@@ -334,7 +340,7 @@ def test_an_extended_jax_run_equals_a_fresh_one(tmp_path, tiny_config_dict, pfx_
     pfx.run(config, out=tmp_path / "fresh")
     tables = [pd.read_csv(tmp_path / name / "trials.csv").drop(columns=["run_time_s"]) for name in ("extended", "fresh")]
     pd.testing.assert_frame_equal(*tables, check_exact=True)
-    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set", "filter.resampler=han_lee_iv",
+    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set", "filter.proposal=ekf",
                              "--out", str(tmp_path / "refused"))
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert "filter.resampler" in refused.stderr and "backend: numpy" in refused.stderr
+    assert "filter.proposal" in refused.stderr and "backend: numpy" in refused.stderr

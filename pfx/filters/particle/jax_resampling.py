@@ -88,6 +88,14 @@ def residual(weights, random: KeyStreams):
     return jnp.where(positions < copied, jnp.minimum(from_copies, count - 1), extra).astype(jnp.int32)
 
 
+def han_lee_iv(weights, random: KeyStreams):
+    """han-lee Algorithm IV verbatim, as the NumPy backend runs it: the N smallest of N + 1
+    sorted uniforms (BIASED: :func:`pfx.filters.particle.resampling.han_lee_iv_expected_counts`)."""
+    count = weights.shape[-1]
+    points = jnp.sort(_float64_uniforms(random, (count + 1,)), axis=-1)[:, :count]
+    return inverse_cdf(cumulative_weights(weights), points)
+
+
 # the resamplers the JAX backend runs, by the names a config gives (filter.resampler)
 JAX_RESAMPLERS = {"systematic": systematic, "stratified": stratified, "multinomial": multinomial,
-                  "residual": residual}
+                  "residual": residual, "han_lee_iv": han_lee_iv}

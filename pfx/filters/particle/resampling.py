@@ -173,8 +173,7 @@ RESAMPLERS: Registry[Resampler] = Registry("resampler")
 for _function in (multinomial, stratified, systematic, residual):
     RESAMPLERS.add(_function.__name__, Resampler(_function, unbiased=True, backends=Backends(BOTH)),
                    _function.__doc__.splitlines()[0])
-RESAMPLERS.add("han_lee_iv", Resampler(han_lee_iv, unbiased=False, backends=Backends(
-    what="the resampler", why="it is the biased one, kept to show its bias")),
+RESAMPLERS.add("han_lee_iv", Resampler(han_lee_iv, unbiased=False, backends=Backends(BOTH)),
                "BIASED: han-lee Algorithm IV as printed (N smallest of N+1 sorted uniforms)")
 
 
