@@ -129,3 +129,54 @@ def test_the_jax_resamplers_are_those_that_declare_jax():
 
     declaring = {name for name, resampler in registry("resamplers").items() if resampler.backends.runs_on(JAX)}
     assert set(JAX_RESAMPLERS) == declaring
+
+
+@pytest.mark.parametrize("weighting", [{"kind": "euclidean", "scale": 1.5}, {"kind": "manhattan"},
+                                       {"kind": "mahalanobis", "form": "paper"},
+                                       {"kind": "mahalanobis", "form": "innovation"}],
+                         ids=["euclidean", "manhattan", "mahalanobis-paper", "mahalanobis-innovation"])
+def test_a_weighting_gives_the_same_increments_on_both_backends(weighting):
+    """The weightings lifted to jax are one function: traced as the compiled step traces it, on the
+    same cloud, weights (some zero) and measurement, jax's increments equal numpy's to 1e-12."""
+    pytest.importorskip("jax")
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from pfx.config.components import registry
+
+    model = pfx.model("linear_gaussian", steps=5, transition_matrix=[[0.9, 0.1], [0.0, 0.9]],
+                      measurement_matrix=[[1.0, 0.0], [0.5, 1.0]], process_noise={"variance": 1.0},
+                      measurement_noise={"variance": [1.0, 2.0]},
+                      initial={"kind": "gaussian", "mean": [0.0, 0.0], "covariance": 1.0})
+    generator = np.random.default_rng(3)
+    particles = generator.normal(size=(3, 40, 2))
+    weights = generator.exponential(size=(3, 40))
+    weights[:, :5] = 0.0
+    weights /= weights.sum(axis=1, keepdims=True)
+    measurement = generator.normal(size=(3, 1, 2))
+    component = registry("weightings")[weighting["kind"]](**weighting)
+    on_numpy = component.log_weights(model, measurement, particles, weights)
+    with jax.enable_x64(True):
+        traced = jax.jit(lambda z, x, w: component.log_weights(model, z, x, w))      # as the compiled step calls it
+        on_jax = np.asarray(traced(jnp.asarray(measurement), jnp.asarray(particles), jnp.asarray(weights)))
+    np.testing.assert_allclose(on_jax, on_numpy, rtol=1e-12, atol=1e-12)
+
+
+def test_an_isotropic_euclidean_weighting_filters_as_the_likelihood_on_jax():
+    """On a model with one measurement of variance R, the euclidean weighting with scale sqrt(R) is
+    the log-likelihood less a constant: the normalised weights, hence the estimates and the
+    ancestors, are the gaussian weighting's from the same keys, on the jax backend."""
+    pytest.importorskip("jax")
+    import numpy as np
+
+    model = pfx.model("linear_gaussian", steps=12, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
+                      process_noise={"variance": 1.0}, measurement_noise={"variance": 2.0},
+                      initial={"kind": "gaussian", "mean": [0.0], "covariance": 1.0})
+    measurements = np.random.default_rng(5).normal(size=(12, 1))
+    runs = {kind: pfx.filter(model, measurements, trials=4, particles=64, backend="jax", seed=2, genealogy=True,
+                             weighting=settings)
+            for kind, settings in (("gaussian", {"kind": "gaussian"}),
+                                   ("euclidean", {"kind": "euclidean", "scale": float(np.sqrt(2.0))}))}
+    np.testing.assert_allclose(runs["euclidean"].estimates, runs["gaussian"].estimates, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(runs["euclidean"].ancestors, runs["gaussian"].ancestors)

@@ -326,13 +326,16 @@ class JaxParticleFilter:
         return state, lost, log_weights
 
     def update_weights(self, log_weights, state, inputs: StepInputs):
-        r"""log w_k = log w_{k-1} + log p(z_k | x_k), normalised by log-sum-exp; L_k the normaliser
+        r"""log w_k = log w_{k-1} + log p(z_k | x_k) (or the configured weighting's increment),
+        normalised by log-sum-exp; L_k the normaliser
         (0 for a trial without a measurement); a trial whose weights all underflow is degenerate
         and restarts from uniform weights; a zero-weight particle stays at zero whatever its
         likelihood evaluates to."""
         count = self.particles
         measurement = inputs.measurement.astype(self.dtype)[:, None, :]
-        likelihood = jnp.asarray(self.model.log_likelihood(measurement, state))
+        # the configured weighting (filter.weighting; the likelihood by default) reads the
+        # predicted cloud's weights, as on numpy (lost particles at zero)
+        likelihood = jnp.asarray(self.bound.weighting.log_weights(self.model, measurement, state, jnp.exp(log_weights)))
         _check_shape(self.model, "log_likelihood", likelihood, log_weights.shape)
         observed = inputs.observed
         increment = jnp.where(observed[:, None], likelihood.astype(self.dtype), 0.0)

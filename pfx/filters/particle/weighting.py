@@ -32,6 +32,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from pfx.filters.backends import BOTH, Backends
+from pfx.numerics.arrays import namespace
 from pfx.registry import Registry
 
 
@@ -83,12 +84,14 @@ class EuclideanWeighting(_Weighting):
     """Gaussian kernel of the Euclidean (L2) innovation distance, isotropic."""
 
     kind: Literal["euclidean"] = "euclidean"
+    backends: ClassVar[Backends] = Backends(BOTH)
     scale: Optional[StrictFloat] = Field(None, gt=0, description="kernel std s (default: sqrt of mean diag R)")
 
     def log_weights(self, model, measurement, particles, weights):
+        xp = namespace(particles)
         innovation = measurement - model.measurement_mean(particles)
         variance = self.scale ** 2 if self.scale else _mean_measurement_variance(model)
-        return -0.5 * np.sum(innovation * innovation, axis=-1) / variance
+        return -0.5 * xp.sum(innovation * innovation, axis=-1) / variance
 
 
 @WEIGHTINGS.register_kind
@@ -96,12 +99,14 @@ class ManhattanWeighting(_Weighting):
     """Laplace kernel of the Manhattan (L1) innovation distance."""
 
     kind: Literal["manhattan"] = "manhattan"
+    backends: ClassVar[Backends] = Backends(BOTH)
     scale: Optional[StrictFloat] = Field(None, gt=0, description="kernel scale b (default: sqrt(mean diag R / 2))")
 
     def log_weights(self, model, measurement, particles, weights):
+        xp = namespace(particles)
         innovation = measurement - model.measurement_mean(particles)
         scale = self.scale or np.sqrt(_mean_measurement_variance(model) / 2.0)
-        return -np.sum(np.abs(innovation), axis=-1) / scale
+        return -xp.sum(xp.abs(innovation), axis=-1) / scale
 
 
 @WEIGHTINGS.register_kind
@@ -109,6 +114,7 @@ class MahalanobisWeighting(_Weighting):
     """Mahalanobis weighting of park-mpf: form paper (eq. 6 as printed) or innovation."""
 
     kind: Literal["mahalanobis"] = "mahalanobis"
+    backends: ClassVar[Backends] = Backends(BOTH)
     form: Literal["paper", "innovation"] = Field(
         "paper", description="paper: eq. (6) as printed; innovation: S = R + Cov(h(x))")
 
@@ -116,25 +122,26 @@ class MahalanobisWeighting(_Weighting):
         return f"mahalanobis-{self.form}"
 
     def log_weights(self, model, measurement, particles, weights):
+        xp = namespace(particles, weights)
         predicted = model.measurement_mean(particles)                     # (R, N, m)
         # Particles with zero weight or an overflowing prediction take no part in the statistics.
-        usable = np.isfinite(predicted).all(axis=-1) & (weights > 0)
-        weights = np.where(usable, weights, 0.0)
+        usable = xp.isfinite(predicted).all(axis=-1) & (weights > 0)
+        weights = xp.where(usable, weights, 0.0)
         weights = weights / weights.sum(axis=-1, keepdims=True)
-        predicted = np.where(usable[..., None], predicted, 0.0)
-        mean = np.einsum("rn,rnm->rm", weights, predicted)[:, None, :]
+        predicted = xp.where(usable[..., None], predicted, 0.0)
+        mean = xp.einsum("rn,rnm->rm", weights, predicted)[:, None, :]
         centred = predicted - mean
-        cloud = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred)    # (R, m, m)
+        cloud = xp.einsum("rn,rnm,rnk->rmk", weights, centred, centred)    # (R, m, m)
         noise = model.measurement_noise.covariance()
         innovation = measurement - predicted
         if self.form == "innovation":
-            metric = np.linalg.inv(cloud + noise)
+            metric = xp.linalg.inv(cloud + noise)
         else:
             # A collapsed cloud has zero covariance; a vanishing fraction of R keeps it invertible.
-            inverse = np.linalg.inv(cloud + 1e-9 * noise)
+            inverse = xp.linalg.inv(cloud + 1e-9 * noise)
             metric = inverse @ inverse
-        log_weights = -0.5 * np.einsum("rnm,rmk,rnk->rn", innovation, metric, innovation)
-        return np.where(usable, log_weights, -np.inf)
+        log_weights = -0.5 * xp.einsum("rnm,rmk,rnk->rn", innovation, metric, innovation)
+        return xp.where(usable, log_weights, -np.inf)
 
 
 Weighting = WEIGHTINGS.kind_union()
