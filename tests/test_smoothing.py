@@ -146,13 +146,18 @@ def _z_scores(estimates: np.ndarray, exact: np.ndarray) -> np.ndarray:
     return difference.mean(axis=0) / (difference.std(axis=0, ddof=1) / np.sqrt(len(difference)))
 
 
-@pytest.fixture(scope="module")
-def linear_runs():
+@pytest.fixture(scope="module", params=["numpy", "jax"])
+def linear_runs(request):
+    """Each smoother after the filter of each backend (on jax the scan records the clouds and the
+    ancestors the smoothers read)."""
+    if request.param == "jax":
+        pytest.importorskip("jax")
     model = _walk(steps=STEPS)
     truth, measurements = simulate_truth(model, TrialStreams.from_seeds(range(100, 100 + TRIALS)))
     smoothers = [{"kind": "ffbs", "trajectories": 200}, {"kind": "ffbs_rejection", "trajectories": 200},
                  {"kind": "fixed_lag", "lag": 3}, "genealogy"]
-    result = pfx.filter(model, measurements, seeds=range(500, 500 + TRIALS), particles=PARTICLES, smoothers=smoothers)
+    result = pfx.filter(model, measurements, seeds=range(500, 500 + TRIALS), particles=PARTICLES, smoothers=smoothers,
+                        backend=request.param)
     return model, measurements, result
 
 

@@ -41,7 +41,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from pfx.filters.backends import Backends
+from pfx.filters.backends import BOTH, Backends
 from pfx.registry import Registry, with_article
 
 
@@ -63,8 +63,9 @@ class Smoother(BaseModel):
     #: what it needs the particle filter to record: the weighted clouds, and each particle's ancestor
     needs_history: ClassVar[bool] = True
     needs_genealogy: ClassVar[bool] = False
-    #: where it runs (pfx.filters.backends)
-    backends: ClassVar[Backends] = Backends(what="smoothers", why="it reads the NumPy engine's recorded history")
+    #: where it runs (pfx.filters.backends): after either backend's filter, on the host, on the
+    #: clouds and ancestors the filter recorded (the jax backend records them as outputs of its scan)
+    backends: ClassVar[Backends] = Backends(BOTH)
 
     @property
     def label(self) -> str:
