@@ -60,7 +60,6 @@ from pfx.errors import ConfigError, ModelNumericalError, located_value_error
 from pfx.estimation.likelihood_spread import Spread
 from pfx.estimation.particle_count import choose_particle_count
 from pfx.filters import FILTERS
-from pfx.filters.particle.jax_support import not_recorded
 from pfx.filters.trace import FilterTrace, Predictive
 from pfx.models import MODELS
 from pfx.models.base import Model
@@ -122,8 +121,8 @@ class Filter:
         """Run on ``measurements``, (T, m) for one trial (or ``trials`` of them on the same data)
         or (trials, T, m); a row of NaN is a missing measurement. ``seeds``: one filter seed per
         trial; else trial t's is derived from ``seed`` (default 0). ``genealogy``: record the
-        ancestor indices (particle kinds). ``consistency``: the posterior covariances and NIS (not
-        on the jax backend, which does not record them yet: refused, as a config's is). ``traced``:
+        ancestor indices (particle kinds). ``consistency``: the posterior covariances and NIS (on
+        either backend). ``traced``:
         the spread and posterior standard deviations of every trial (steps.csv's traced-trial
         columns). ``scores``: the one-step-ahead predictive law of the measurement and its proper
         scores (``metrics.scores``: docs/scores.md), in the result's ``predictive``.
@@ -137,9 +136,6 @@ class Filter:
         arguments.check_horizon(self.model, data.shape[1])
         count = len(data)
         seeds = seeds if seeds is not None else [filter_seed(root, 0, t) for t in range(count)]
-        if consistency and self.settings.backend == "jax":      # a config's metrics.consistency is refused so too
-            raise ConfigError(not_recorded("consistency", "consistency=True", "backend='numpy'"), file=CALLER,
-                              key="consistency")
         options = {"consistency": consistency}
         if traced and self.planned.takes_trace_rows:
             options["trace_rows"] = np.arange(count)

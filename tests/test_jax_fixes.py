@@ -10,8 +10,10 @@
   ``precision: float32`` under a shared ``backend: jax`` runs on jax in single precision; one
   that would run float32 on numpy is still refused, naming the arm's key.
 * **consistency on jax.** ``pfx.filter(..., backend="jax", consistency=True)`` returned without
-  the covariances and NIS; it is refused naming ``consistency``, in the words a config's
-  ``metrics.consistency`` is refused in. Every other flag of ``pfx.filter`` is honoured on jax.
+  the covariances and NIS; the jax backend now records them, through both doors: the Python
+  call's trace has them, and a config's ``metrics.consistency`` writes NEES and NIS
+  (tests/test_jax_diagnostics.py checks their values). Every flag of ``pfx.filter`` is honoured
+  on jax.
 """
 
 from __future__ import annotations
@@ -113,22 +115,14 @@ def test_float32_is_refused_exactly_where_a_cell_would_run_it_on_numpy(tiny_conf
 
 # -- consistency on jax ------------------------------------------------------------------------------------
 
-def test_consistency_on_jax_is_refused_naming_the_argument_as_the_config_path_refuses_it(tmp_path,
-                                                                                          tiny_config_dict):
-    bound = pfx.particle_filter(walk(), backend="jax", particles=50)
-    with pytest.raises(ConfigError) as from_python:
-        bound(measurements(), consistency=True)
-    assert (from_python.value.file, from_python.value.key) == ("<python>", "consistency")
+def test_consistency_on_jax_is_recorded_through_the_argument_and_the_config_key(tmp_path, tiny_config_dict):
+    trace = pfx.filter(walk(), measurements(), trials=2, backend="jax", particles=50, consistency=True).trace
+    assert trace.nis.shape == (2, 8) and trace.covariances.shape == (2, 8, 1, 1)
+    assert np.isfinite(trace.nis).all() and (trace.covariances > 0).all()
     config = jax_config(tiny_config_dict)
     config["metrics"] = {"consistency": True}
-    with pytest.raises(ConfigError) as from_config:
-        pfx.run(config, out=tmp_path / "out")
-    assert from_config.value.key == "metrics.consistency"
-    said = "the jax backend does not record the posterior covariances and NIS yet"     # one wording, both doors
-    assert from_python.value.reason.startswith(said) and from_config.value.reason.startswith(said)
-    assert "consistency=True" in from_python.value.reason and "backend='numpy'" in from_python.value.reason
-    with pytest.raises(ConfigError, match="consistency"):                              # and in one go
-        pfx.filter(walk(), measurements(), backend="jax", consistency=True)
+    trials = pfx.run(config, out=tmp_path / "out").trials
+    assert trials[["nees_mean", "nis_mean"]].notna().all().all() and (trials["nis_mean"] > 0).all()
 
 
 def test_no_flag_of_pfx_filter_is_dropped_on_jax():

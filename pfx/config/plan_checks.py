@@ -39,7 +39,6 @@ from pfx.config.plugins import LoadedPlugin
 from pfx.config.profile_settings import profile_as_if2
 from pfx.config.scores import check_measurement_draws, check_scores, scores_notes
 from pfx.errors import ConfigError
-from pfx.filters.particle.jax_support import not_recorded
 from pfx.models import MODELS
 from pfx.models.base import Model
 from pfx.models.contract_checks import reproducibility_fault
@@ -122,8 +121,8 @@ def plan_notes(plan) -> list[str]:
 def check_backends(cells: list, experiment, arms: dict, file: str) -> None:
     """``backend`` is a particle-filter setting, as ``resampler`` is: an arm of another kind
     ignores the shared section's, but one that asks for jax itself is refused, as is a config
-    whose jax reaches no particle filter. What the jax backend cannot record yet is refused by
-    its key, and so is estimation the compiled filter cannot run (docs/backends.md)."""
+    whose jax reaches no particle filter. Estimation the compiled filter cannot run is refused
+    by its key (docs/backends.md)."""
     for cell in cells:
         arm = cell.labels["arm"]
         if not cell.filter.uses_particles and ((arms.get(arm) or {}).get("backend") == "jax"):
@@ -140,12 +139,6 @@ def check_backends(cells: list, experiment, arms: dict, file: str) -> None:
     if experiment.estimation is not None:
         for cell in on_jax:
             _check_compiled_estimation(experiment.estimation, cell, file)
-    if any(cell.metrics.consistency for cell in on_jax):
-        raise ConfigError(not_recorded("consistency", "metrics.consistency", "filter.backend: numpy"), file=file,
-                          key="metrics.consistency")
-    if experiment.outputs.particles is not None and experiment.outputs.particles.steps:
-        raise ConfigError(not_recorded("particles", "outputs.particles", "filter.backend: numpy"), file=file,
-                          key="outputs.particles")
 
 
 def check_estimation(estimation, cell, file: str, several: bool) -> None:

@@ -37,42 +37,51 @@ filter, and is kept.
 Where the covariance passes, the square is computed exactly as before this test existed
 (``numpy.linalg.solve`` with :math:`P` itself), so that the values of every covariance that
 was never in doubt stay the same to the last bit.
+
+Both functions are written once in the array namespace (:mod:`pfx.numerics.arrays`): on NumPy
+arrays they compute the numbers above, on JAX arrays the same test and square inside the jax
+backend's compiled step (in float64, as on NumPy). A compiled program has fixed shapes, so
+no covariance is left out by a mask: one that fails the finiteness and variance checks is
+replaced by the identity before its correlations are computed (no NaN, infinity or zero
+reaches the arithmetic), and the others' correlations are the same numbers either way.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pfx.numerics.arrays import namespace
+
 # The smallest eigenvalue a covariance's correlation matrix may have for its inverse to be
 # trusted (module docstring): half the digits of a double.
 SMALLEST_CORRELATION_EIGENVALUE = float(np.sqrt(np.finfo(float).eps))
 
 
-def reliably_invertible(covariances: np.ndarray) -> np.ndarray:
+def reliably_invertible(covariances):
     """True where a covariance can be inverted reliably (module docstring): (..., d, d) -> (...)."""
-    covariances = np.asarray(covariances, dtype=float)
-    variances = np.diagonal(covariances, axis1=-2, axis2=-1)
-    passed = (np.isfinite(covariances).all(axis=(-2, -1))
-              & (variances >= np.finfo(float).tiny).all(axis=-1))
-    correlations = np.broadcast_to(np.eye(covariances.shape[-1]), covariances.shape).copy()
-    if passed.any():
-        scale = np.sqrt(variances[passed])
-        kept = covariances[passed]
-        symmetric = 0.5 * (kept + np.swapaxes(kept, -1, -2))
-        correlations[passed] = symmetric / (scale[..., :, None] * scale[..., None, :])
-    smallest = np.linalg.eigvalsh(correlations)[..., 0]
+    xp = namespace(covariances)
+    covariances = xp.asarray(covariances, dtype=xp.float64)
+    variances = xp.diagonal(covariances, axis1=-2, axis2=-1)
+    passed = (xp.all(xp.isfinite(covariances), axis=(-2, -1))
+              & xp.all(variances >= np.finfo(float).tiny, axis=-1))
+    kept = xp.where(passed[..., None, None], covariances, xp.eye(covariances.shape[-1]))
+    scale = xp.sqrt(xp.diagonal(kept, axis1=-2, axis2=-1))
+    symmetric = 0.5 * (kept + xp.swapaxes(kept, -1, -2))
+    correlations = symmetric / (scale[..., :, None] * scale[..., None, :])    # the identity where not passed
+    smallest = xp.linalg.eigvalsh(correlations)[..., 0]
     return passed & (smallest > SMALLEST_CORRELATION_EIGENVALUE)
 
 
-def normalised_squares(vectors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+def normalised_squares(vectors, covariances):
     """:math:`v^\\top P^{-1} v` for every leading index: (..., d), (..., d, d) -> (...), NaN where
     :math:`P` cannot be inverted reliably (:func:`reliably_invertible`)."""
-    vectors = np.asarray(vectors, dtype=float)
-    covariances = np.asarray(covariances, dtype=float)
+    xp = namespace(vectors, covariances)
+    vectors = xp.asarray(vectors, dtype=xp.float64)
+    covariances = xp.asarray(covariances, dtype=xp.float64)
     reliable = reliably_invertible(covariances)
     # The others are replaced by the identity, so that the solver never meets them.
-    usable = np.where(reliable[..., None, None], covariances, np.eye(covariances.shape[-1]))
+    usable = xp.where(reliable[..., None, None], covariances, xp.eye(covariances.shape[-1]))
     with np.errstate(over="ignore", invalid="ignore"):
-        solved = np.linalg.solve(usable, vectors[..., None])[..., 0]
-        squares = np.einsum("...d,...d->...", vectors, solved)
-    return np.where(reliable, squares, np.nan)
+        solved = xp.linalg.solve(usable, vectors[..., None])[..., 0]
+        squares = xp.einsum("...d,...d->...", vectors, solved)
+    return xp.where(reliable, squares, np.nan)

@@ -17,7 +17,8 @@ values so that XLA can compile the whole run, on a CPU or a GPU:
 * ``outputs`` (:class:`StepOutputs`) are the trace's columns at step k: the estimate, the ESS,
   whether the trial resampled, whether its weights underflowed, the log-likelihood increment,
   and what a :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a
-  diagnostic not asked for is not computed).
+  diagnostic not asked for is not computed; :mod:`pfx.filters.particle.jax_diagnostics`
+  computes them from the step's clouds and makes the trace's fields of them).
 
 Three things differ in form from the NumPy engine, not in what they compute:
 
@@ -50,11 +51,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError
+from pfx.filters.particle.jax_diagnostics import Flags, StageClouds, by_trial, fill_trace, step_diagnostics
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
 from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
 from pfx.filters.particle.predictive import predictive_step
-from pfx.filters.trace import FilterTrace, Predictive
-from pfx.numerics.angles import circular_mean, wrap_difference
+from pfx.filters.trace import FilterTrace
+from pfx.numerics.angles import circular_mean
 from pfx.numerics.key_streams import KeyStreams
 from pfx.numerics.parameter_checks import broken_rule_message, collecting, merge_codes
 from pfx.numerics.seeding import SCORE_STREAM
@@ -103,6 +105,10 @@ class StepOutputs(NamedTuple):
     predictive: Any = None    # the predictive law's moments and scores (pfx.filters.particle.predictive)
     forecast_particles: Any = None     # (r, N, d) the forecast rows' weighted cloud (pfx.filters.particle.forecasting)
     forecast_log_weights: Any = None   # (r, N)
+    covariance: Any = None    # (R, d, d) the weighted posterior covariance before resampling, float64
+    nis: Any = None           # (R,) the predicted cloud's NIS, float64
+    snapshots: Any = None     # {stage: ((r, N, d), (r, N))} the snapshot rows' clouds and weights
+    prior_snapshot: Any = None    # (r, N, d) the snapshot rows' prior cloud: set once, after the scan
 
 
 class JaxParticleFilter:
@@ -174,7 +180,7 @@ class JaxParticleFilter:
         if getattr(random, "seeds", None) is None:
             raise RuntimeError("the jax backend needs the trials' seeds (TrialStreams.from_seeds)")
         trials, steps, _ = measurements.shape
-        flags = Flags.of(recording)
+        flags = Flags.of(recording, steps)
         with jax.enable_x64(True):
             program = self._programs.get(flags)
             if program is None:
@@ -204,11 +210,8 @@ class JaxParticleFilter:
 
     def _trace(self, cloud: Cloud, outputs: StepOutputs, recording, trials: int, steps: int,
                observed: np.ndarray) -> FilterTrace:
-        # JAX's arrays read as read-only NumPy views, and pfx writes into the trace (here, the
-        # untraced rows; later, the metrics): every array the trace keeps is a copy of its own
-        def by_trial(values):        # (T, R, ...) -> (R, T, ...)
-            return None if values is None else np.array(np.swapaxes(np.asarray(values), 0, 1), order="C")
-
+        # every array the trace keeps is a copy of its own (by_trial): pfx writes into the trace
+        # (here, the untraced rows; later, the metrics)
         spread = by_trial(outputs.spread)
         deviations = by_trial(outputs.standard_deviations)
         rows = recording.trace_rows
@@ -230,13 +233,7 @@ class JaxParticleFilter:
             ancestors=by_trial(outputs.ancestors),
             particles=None if outputs.particles is None else by_trial(outputs.particles).astype(float),
             log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
-        if outputs.predictive is not None:
-            trace.predictive = _predictive(outputs.predictive, by_trial, observed)
-        if recording.forecast is not None:          # the origins' clouds, for the host's forecasts
-            for step in sorted(recording.forecast.origins):
-                if 1 <= step <= steps:
-                    recording.forecast.clouds[step] = (np.array(outputs.forecast_particles[step - 1], dtype=float),
-                                                       np.array(outputs.forecast_log_weights[step - 1], dtype=float))
+        fill_trace(trace, outputs, recording, observed, self.particles)
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
@@ -255,8 +252,11 @@ class JaxParticleFilter:
                       lost_particles=jnp.zeros(trials, jnp.int32),
                       ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)))
         scores = random.derived(SCORE_STREAM) if flags.scores else None
-        return jax.lax.scan(lambda carried, at_step: self.step(carried, at_step, random, flags, scores),
-                            cloud, inputs)
+        cloud, outputs = jax.lax.scan(lambda carried, at_step: self.step(carried, at_step, random, flags, scores),
+                                      cloud, inputs)
+        if "prior" in flags.snapshot_stages:         # the prior's cloud is kept once, not per step
+            outputs = outputs._replace(prior_snapshot=state[np.asarray(flags.snapshot_rows)])
+        return cloud, outputs
 
     def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "Flags",
              scores: Optional[KeyStreams] = None):
@@ -264,11 +264,12 @@ class JaxParticleFilter:
         ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
         random = random.at(inputs.step)
         with collecting(len(random)) as transition_checks:
-            predicted, lost, log_weights = self.predict(cloud, inputs, random)
-        predictive = self.predictive(predicted, log_weights, inputs, scores.at(inputs.step)) \
+            predicted, lost, predicted_log_weights = self.predict(cloud, inputs, random)
+        predictive = self.predictive(predicted, predicted_log_weights, inputs, scores.at(inputs.step)) \
             if scores is not None else None
-        every_particle_lost = jnp.all(jnp.isneginf(log_weights), axis=-1)
-        log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(log_weights, predicted, inputs)
+        every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
+        log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
+            predicted_log_weights, predicted, inputs)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
         estimate = self.estimate(weights, predicted)
         resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled = self.resample(
@@ -277,18 +278,15 @@ class JaxParticleFilter:
                     | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
         if transition_checks.recorded:          # a model whose transition checks no law adds nothing
             failures = failures | (transition_checks.codes << BROKEN_RULE_SHIFT)
+        clouds = StageClouds(predicted=predicted, predicted_log_weights=predicted_log_weights, log_weights=log_weights,
+                             weights=weights, estimate=estimate, resampled=resampled_state,
+                             resampled_weights=resampled_weights)
         outputs = StepOutputs(
             estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
             failures=failures.astype(jnp.int16),
-            spread=self.spread(resampled_weights, resampled_state) if flags.spread else None,
-            within_radius=self.within_radius(resampled_weights, resampled_state, flags)
-            if flags.radius is not None else None,
-            standard_deviations=self.standard_deviations(weights, predicted, estimate) if flags.deviations else None,
             ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
-            particles=predicted if flags.history else None, log_weights=log_weights if flags.history else None,
             predictive=None if predictive is None else {**predictive, "log_score": -increment},
-            forecast_particles=None if flags.forecast_rows is None else predicted[jnp.asarray(flags.forecast_rows)],
-            forecast_log_weights=None if flags.forecast_rows is None else log_weights[jnp.asarray(flags.forecast_rows)])
+            **step_diagnostics(self.model, flags, clouds, inputs))
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
                         lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
@@ -378,76 +376,16 @@ class JaxParticleFilter:
         weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
         return state, log_weights, weights, chosen, resampled
 
-    # -- diagnostics (static flags) ------------------------------------------------------------
+    # -- the predictive scores (a static flag; the other diagnostics: jax_diagnostics) ---------
 
     def predictive(self, state, log_weights, inputs: StepInputs, random: KeyStreams) -> dict:
         """The predictive law of z_k from the predicted cloud and its weights, and its scores
-        (:func:`pfx.filters.particle.predictive.predictive_step`); NaN where z_k is missing is
-        set on the host (:meth:`_trace`)."""
+        (:func:`pfx.filters.particle.predictive.predictive_step`), from the score streams; NaN
+        where z_k is missing is set on the host
+        (:func:`~pfx.filters.particle.jax_diagnostics.fill_trace`)."""
         measurement = inputs.measurement.astype(state.dtype)
         values = predictive_step(self.model, state, log_weights, measurement, random)
         return {name: value for name, value in values.items() if value is not None}
-
-    def spread(self, weights, state):
-        """Weighted RMS distance of the positions from their weighted mean (after resampling)."""
-        positions = state[..., list(self.model.position_components)]
-        centre = jnp.einsum("rn,rnd->rd", weights, positions)[:, None, :]
-        squared = jnp.sum((positions - centre) ** 2, axis=-1)
-        return jnp.sqrt(jnp.sum(weights * squared, axis=-1))
-
-    def within_radius(self, weights, state, flags: "Flags"):
-        """The share of particles (by weight, or by count) within the radius of the mean."""
-        radius, weighted = flags.radius
-        positions = state[..., list(self.model.position_components)]
-        if not weighted:
-            weights = jnp.full_like(weights, 1.0 / weights.shape[-1])
-        centre = jnp.einsum("rn,rnd->rd", weights, positions)[:, None, :]
-        inside = jnp.sum((positions - centre) ** 2, axis=-1) <= radius ** 2
-        return jnp.sum(weights * inside, axis=-1)
-
-    def standard_deviations(self, weights, state, estimate):
-        """Each component's weighted posterior sd before resampling (angles: wrapped deviations)."""
-        centred = state - estimate[:, None, :]
-        angular = list(self.model.angular_components)
-        if angular:
-            centred = centred.at[..., angular].set(wrap_difference(centred[..., angular], self.model.full_turn))
-        return jnp.sqrt(jnp.einsum("rn,rnd->rd", weights, centred * centred))
-
-
-class Flags(NamedTuple):
-    """The diagnostics a run computes (static: each set of flags is its own compiled program)."""
-
-    spread: bool
-    radius: Optional[tuple]
-    deviations: bool
-    genealogy: bool
-    history: bool
-    scores: bool = False
-    forecast_rows: Optional[tuple] = None
-
-    @classmethod
-    def of(cls, recording) -> "Flags":
-        traced = recording.trace_rows is not None and len(recording.trace_rows) > 0
-        criterion = recording.spread_criterion
-        return cls(spread=traced or criterion is not None,
-                   radius=None if criterion is None else (float(criterion.radius), bool(criterion.weighted)),
-                   deviations=traced, genealogy=recording.genealogy, history=recording.history,
-                   scores=recording.scores,
-                   forecast_rows=None if recording.forecast is None else tuple(int(r) for r in recording.forecast.rows))
-
-
-def _predictive(outputs: dict, by_trial, observed: np.ndarray) -> Predictive:
-    """The trace's :class:`~pfx.filters.trace.Predictive` from the scan's outputs, (R, T, ...) in
-    float64, NaN at the steps without a measurement."""
-    def field(name):
-        if name not in outputs:
-            return None
-        values = by_trial(outputs[name]).astype(float)
-        mask = observed.reshape(observed.shape + (1,) * (values.ndim - 2))
-        return np.where(mask, values, np.nan)
-
-    return Predictive(mean=field("mean"), sd=field("sd"), crps=field("crps"), pit=field("pit"),
-                      energy_score=field("energy_score"), log_score=field("log_score"))
 
 
 def _overrides(model, method: str) -> bool:

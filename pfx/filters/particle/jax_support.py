@@ -17,12 +17,6 @@ from pfx.filters.backends import JAX, declared
 from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.resampling import RESAMPLERS
 
-# What the JAX backend runs but does not record yet, by what asks for it. A config is refused by
-# its key (pfx.config.plan_checks), a call of pfx.filter by its argument (pfx.filtering), in
-# these words, rather than run without what was asked for.
-NOT_RECORDED = {"consistency": "record the posterior covariances and NIS",
-                "particles": "keep particle clouds (particles.csv)"}
-
 
 def jax_installed() -> bool:
     return importlib.util.find_spec("jax") is not None
@@ -80,8 +74,3 @@ def measurement_draw_fault(model, precision: str = "float64") -> Optional[str]:
             return (text.splitlines()[0] if text else type(error).__name__)[:160]
     return None
 
-
-def not_recorded(what: str, drop: str, numpy: str) -> str:
-    """The refusal of ``what`` (a key of :data:`NOT_RECORDED`) on the JAX backend, saying what to
-    drop (``drop``: the key or argument) or how to run on the NumPy backend instead (``numpy``)."""
-    return f"the jax backend does not {NOT_RECORDED[what]} yet; drop {drop} or set {numpy}"

@@ -11,6 +11,12 @@ for costs nothing.
 * :class:`StandardDeviationRecorder`: the posterior standard deviation of each component;
 * :class:`ConsistencyRecorder`: the weighted posterior covariance and the NIS (for NEES and NIS);
 * :class:`SnapshotRecorder`: the particle clouds a :class:`SnapshotRequest` asks for.
+
+What the jax backend computes alike is written here once: the posterior covariance and the NIS
+(:func:`posterior_covariance`, :func:`innovation_squared`) in the array namespace
+(:mod:`pfx.numerics.arrays`), and which clouds a request keeps, in what form
+(:meth:`SnapshotRequest.wants`, :meth:`SnapshotRequest.add`);
+:mod:`pfx.filters.particle.jax_diagnostics` calls them inside and after its compiled scan.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import numpy as np
 
 from pfx.filters.particle.cloud import active_uniform, weighted_mean
 from pfx.numerics.angles import wrap_difference
+from pfx.numerics.arrays import namespace
 from pfx.numerics.quadratic_forms import normalised_squares
 
 
@@ -40,10 +47,18 @@ class SnapshotRequest:
     stages: frozenset
     clouds: list = field(default_factory=list)
 
+    def wants(self, stage: str, step: int) -> bool:
+        """Whether the cloud of ``stage`` at ``step`` is kept (the prior's whenever step 0 is asked for)."""
+        return (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps)
+
     def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
-        if (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps):
-            self.clouds.append({"stage": stage, "step": step, "rows": self.rows,
-                                "state": state[self.rows].copy(), "weights": weights[self.rows].copy()})
+        """Keep the requested rows of the batch's cloud (``state`` (trials, N, d), ``weights``), if wanted."""
+        if self.wants(stage, step):
+            self.add(stage, step, state[self.rows].copy(), weights[self.rows].copy())
+
+    def add(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
+        """Append the requested rows' cloud, (len(rows), N, d) and (len(rows), N), as kept."""
+        self.clouds.append({"stage": stage, "step": step, "rows": self.rows, "state": state, "weights": weights})
 
 
 @dataclass
@@ -127,10 +142,9 @@ class ConsistencyRecorder(Recorder):
             trace.covariances = np.empty((run.trials, run.steps, dimension, dimension))
             trace.nis = np.empty((run.trials, run.steps))
         elif stage == "predicted":
-            trace.nis[:, t] = _innovation_squared(self.model, run.measurements[:, t], run.state, run.weights)
+            trace.nis[:, t] = innovation_squared(self.model, run.measurements[:, t], run.state, run.weights)
         elif stage == "weighted":
-            centred = run.state - trace.estimates[:, t, None, :]
-            trace.covariances[:, t] = np.einsum("rn,rnd,rne->rde", run.weights, centred, centred)
+            trace.covariances[:, t] = posterior_covariance(run.weights, run.state, trace.estimates[:, t])
 
 
 class SnapshotRecorder(Recorder):
@@ -143,16 +157,26 @@ class SnapshotRecorder(Recorder):
         self.request.keep(stage, step, run.state, run.weights)
 
 
-def _innovation_squared(model, measurement: np.ndarray, state: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def innovation_squared(model, measurement, state, weights):
     """NIS of the predicted cloud: nu' S^-1 nu, nu = z - E_w[h(x)], S = Cov_w(h(x)) + R; NaN where
-    S cannot be inverted reliably (:mod:`pfx.numerics.quadratic_forms`)."""
+    S cannot be inverted reliably (:mod:`pfx.numerics.quadratic_forms`). ``measurement`` (trials,
+    m), ``state`` (trials, N, d) and ``weights`` (trials, N): NumPy or JAX arrays."""
+    xp = namespace(state, weights)
     with np.errstate(over="ignore", invalid="ignore"):
         predicted = model.measurement_mean(state)
-        mean = np.einsum("rn,rnm->rm", weights, predicted)
+        mean = xp.einsum("rn,rnm->rm", weights, predicted)
         centred = predicted - mean[:, None, :]
-        innovation_covariance = np.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
+        innovation_covariance = xp.einsum("rn,rnm,rnk->rmk", weights, centred, centred) \
             + model.measurement_noise.covariance()
         return normalised_squares(measurement - mean, innovation_covariance)
+
+
+def posterior_covariance(weights, state, estimate):
+    """The weighted covariance of the cloud about the estimate, (trials, N), (trials, N, d),
+    (trials, d) -> (trials, d, d): NumPy or JAX arrays. The deviations from the estimate are
+    taken as they are, an angular component's too (the standard deviations wrap theirs)."""
+    centred = state - estimate[:, None, :]
+    return namespace(state, weights).einsum("rn,rnd,rne->rde", weights, centred, centred)
 
 
 def _spread(weights: np.ndarray, positions: np.ndarray) -> np.ndarray:
