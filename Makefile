@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 INSTALLED := $(VENV)/.installed
 
-.PHONY: install test reproduce-papers reproduce-benchmarks bench gpu-check clean
+.PHONY: install test check-plain-install reproduce-papers reproduce-benchmarks bench gpu-check clean
 
 $(INSTALLED): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,11 +19,20 @@ install: $(INSTALLED)
 # The house rules first (seconds): lint and import order (ruff), the layering (import-linter).
 # Then the suite on one pytest-xdist worker per logical CPU (-n logical; -n auto counts physical
 # cores, 1 on a machine whose 2 vCPUs share one). `pytest tests/test_x.py` runs one file in one
-# process; `pytest -m "not slow"` leaves out the few full-size statistical checks.
+# process; `pytest -m "not slow"` leaves out the few full-size statistical checks. The plain
+# install's checks build an environment of their own: `make check-plain-install` runs them, and CI
+# runs it after `make test`.
 test: $(INSTALLED)
 	$(BIN)/ruff check pfx tests
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q -n logical
+	$(BIN)/python -m pytest -q -n logical -m "not plain_install"
+
+# What a plain `pip install .` (no extras) runs, in its own environment .venv-plain (built once,
+# then only pfx is reinstalled): every module imports but an extra's backends, every example
+# config runs, and the jax backend and the Dask executors are refused naming their extra
+# (tests/test_plain_install.py).
+check-plain-install: $(INSTALLED)
+	$(BIN)/python -m pytest -q -m plain_install tests/test_plain_install.py
 
 reproduce-papers: $(INSTALLED)
 	$(BIN)/pfx reproduce

@@ -87,7 +87,10 @@ class PackageCopy:
     def __init__(self, root: Path):
         self.root = root
         self.src = root / "src"
-        shutil.copytree(PACKAGE, self.src / "pfx", ignore=shutil.ignore_patterns("__pycache__"))
+        # With the bytecode: copytree keeps each file's time, so Python (and numba's cache) take a
+        # compiled module for the same source as valid, and a module a story edits is compiled again.
+        # Without it, each copy's first import compiles the whole package, seconds each time.
+        shutil.copytree(PACKAGE, self.src / "pfx")
         for page in GENERATED_PAGES:
             (root / page).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(REPO_ROOT / page, root / page)

@@ -18,6 +18,9 @@ bytecode, as Python compiles what it imports) and kept; each test
 session reinstalls pfx itself into it (``pip install --no-deps --no-build-isolation .``, with the
 build requirements installed there once), so the code tested is the working tree's, built and
 installed as ``pip install .`` builds it (package data included).
+
+They run apart from ``make test`` (marker ``plain_install``): ``make check-plain-install`` runs them,
+and CI's ``.ci/run`` runs that after the suite, so every change is still checked on a plain install.
 """
 
 from __future__ import annotations
@@ -30,6 +33,9 @@ import venv
 from pathlib import Path
 
 import pytest
+
+# `make test` leaves these out; `make check-plain-install` runs them, and CI runs that after it.
+pytestmark = pytest.mark.plain_install
 
 ROOT = Path(__file__).resolve().parent.parent
 PLAIN = ROOT / ".venv-plain"
