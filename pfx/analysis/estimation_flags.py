@@ -83,7 +83,6 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 R_HAT_LIMIT = 1.01
 ESS_PER_CHAIN = 100
@@ -322,6 +321,8 @@ def _more_iterations(posterior: pd.DataFrame, chains: int, draws_per_chain: int,
 def likelihood_ratio_tolerance(parameters: int) -> float:
     """½ χ²_p(0.95): how far below the maximum a log-likelihood may be and its point still lie in
     the 95% likelihood-ratio confidence region (1.9207 for p = 1)."""
+    from scipy.stats import chi2
+
     return 0.5 * float(chi2.ppf(LIKELIHOOD_RATIO_LEVEL, parameters))
 
 

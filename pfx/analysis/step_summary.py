@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfx.analysis.summary import MINIMUM_VALUES, cut_to_range
+from pfx.analysis.summary import MINIMUM_VALUES, cut_to_range, t_quantile
 from pfx.analysis.value_ranges import ANY_VALUE, NONNEGATIVE, ValueRange
 
 QUANTITIES = ("error_distance", "ess", "nees", "nis")
@@ -115,10 +115,8 @@ def _interval(quantity: str, mean: np.ndarray, std: np.ndarray, trials,
               value_range: ValueRange = NONNEGATIVE) -> dict[str, np.ndarray]:
     """mean, std and the 95% t-interval of the mean (cut to ``value_range``, by default at zero;
     empty below MINIMUM_VALUES)."""
-    from scipy import stats
-
     enough = np.asarray(trials) >= MINIMUM_VALUES
-    quantile = np.where(enough, stats.t.ppf(0.975, np.maximum(trials, 2) - 1), np.nan)
+    quantile = np.where(enough, t_quantile(0.975, np.maximum(trials, 2) - 1), np.nan)
     half = quantile * std / np.sqrt(trials)
     low, high = cut_to_range(mean - half, mean + half, value_range)
     return {f"{quantity}_mean": mean, f"{quantity}_std": std,

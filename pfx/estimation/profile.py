@@ -43,7 +43,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from pfx.config.estimation_tables import PROFILE, PROFILE_INTERVAL_COLUMNS, PROFILE_SMOOTHED_COLUMNS
 
@@ -116,6 +115,8 @@ def quadratic_near_maximum(x: np.ndarray, y: np.ndarray, maximum: float, span: f
 def monte_carlo_adjusted_profile(x, y, level: float = 0.95, span: float = 0.75) -> AdjustedProfile:
     """MCAP of the profile estimates ``y`` at parameter values ``x`` (module docstring); the
     points whose log-likelihood is not finite are left out."""
+    from scipy import stats
+
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     finite = np.isfinite(y)
     x, y = x[finite], y[finite]

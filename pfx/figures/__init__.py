@@ -4,6 +4,12 @@ Each figure is a function ``figure(result: ResultFolder) -> matplotlib Figure | 
 registered under the name configs use in ``outputs.figures``. To add one, write the function
 in a module here and register it; ``pfx figures RESULT_DIR`` re-renders every figure the
 folder's config asks for.
+
+Every command imports these modules (a config's ``outputs.figures`` is checked against the
+registry's names), so they import matplotlib only inside the functions that draw: a command that
+draws no figure never imports it (about half a second; ``tests/test_import_cost.py``).
+:func:`~pfx.figures.registry.render_figures` selects matplotlib's file backend (Agg) before the
+first figure is drawn.
 """
 
 # One import per figure module (each registers its figures).

@@ -20,7 +20,9 @@ for ``logit``, with :math:`s` the logistic function). Without a transform named,
 takes the one its prior's support asks for.
 
 The laws are scipy.stats distributions (log-densities and quantiles); draws come from an
-explicit :class:`numpy.random.Generator` (a chain's own stream), never a global one.
+explicit :class:`numpy.random.Generator` (a chain's own stream), never a global one. scipy.stats
+is imported when a law is first built, not with this module: every config is checked against
+these models, and importing scipy.stats costs every ``pfx`` command about half a second.
 :meth:`Transform.to_natural` also takes JAX arrays: IF2 on the jax backend maps every
 particle's parameters to the natural scale inside its compiled pass (:mod:`pfx.estimation.compiled_if2`).
 """
@@ -32,7 +34,6 @@ from typing import Annotated, Any, Literal, Optional, Union
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StrictFloat, model_validator
-from scipy import stats
 from scipy.special import expit, logit
 
 from pfx.numerics.arrays import is_jax_array, namespace, special_functions
@@ -86,6 +87,8 @@ class UniformPrior(_Prior):
         return self
 
     def distribution(self):
+        from scipy import stats
+
         return stats.uniform(loc=self.lower, scale=self.upper - self.lower)
 
 
@@ -97,6 +100,8 @@ class NormalPrior(_Prior):
     sd: StrictFloat = Field(gt=0, description="standard deviation")
 
     def distribution(self):
+        from scipy import stats
+
         return stats.norm(loc=self.mean, scale=self.sd)
 
 
@@ -108,6 +113,8 @@ class LogNormalPrior(_Prior):
     sd: StrictFloat = Field(gt=0, description="standard deviation of log theta")
 
     def distribution(self):
+        from scipy import stats
+
         return stats.lognorm(s=self.sd, scale=math.exp(self.mean))
 
 
@@ -119,6 +126,8 @@ class GammaPrior(_Prior):
     rate: StrictFloat = Field(1.0, gt=0, description="rate b (1 / scale)")
 
     def distribution(self):
+        from scipy import stats
+
         return stats.gamma(a=self.shape, scale=1.0 / self.rate)
 
 
@@ -130,6 +139,8 @@ class InverseGammaPrior(_Prior):
     scale: StrictFloat = Field(1.0, gt=0, description="scale b")
 
     def distribution(self):
+        from scipy import stats
+
         return stats.invgamma(a=self.shape, scale=self.scale)
 
 
@@ -149,6 +160,8 @@ class BetaPrior(_Prior):
         return self
 
     def distribution(self):
+        from scipy import stats
+
         return stats.beta(self.a, self.b, loc=self.lower, scale=self.upper - self.lower)
 
 

@@ -48,7 +48,6 @@ from typing import ClassVar, Literal
 import numpy as np
 import pandas as pd
 from pydantic import Field, StrictFloat, StrictInt, model_validator
-from scipy import stats
 
 from pfx.studies.base import STUDIES, Study
 
@@ -93,14 +92,20 @@ class ImportanceSampling(Study):
 
     def target_density(self, x: np.ndarray) -> np.ndarray:
         """f(x) = sum_k pi_k N(x; m_k, s_k^2)."""
+        from scipy import stats
+
         return sum(w * stats.norm.pdf(x, m, s)
                    for w, m, s in zip(self.target_weights, self.target_means, self.target_stds))
 
     def target_cdf(self, x: np.ndarray) -> np.ndarray:
+        from scipy import stats
+
         return sum(w * stats.norm.cdf(x, m, s)
                    for w, m, s in zip(self.target_weights, self.target_means, self.target_stds))
 
     def proposal_density(self, x: np.ndarray) -> np.ndarray:
+        from scipy import stats
+
         return stats.norm.pdf(x, self.proposal_mean, self.proposal_std)
 
     def target_moments(self) -> tuple[float, float]:

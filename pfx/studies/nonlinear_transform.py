@@ -43,7 +43,6 @@ import pandas as pd
 from numpy.polynomial import Polynomial
 from numpy.polynomial.hermite_e import hermegauss
 from pydantic import Field, StrictFloat, StrictInt, model_validator
-from scipy import optimize, stats
 
 from pfx.studies.base import STUDIES, Study
 
@@ -95,6 +94,8 @@ class NonlinearTransform(Study):
 
     def exact_density(self, y: np.ndarray) -> np.ndarray:
         """p_Y(y) = sum over real roots x_r of g(x) = y of p_X(x_r) / |g'(x_r)|."""
+        from scipy import stats
+
         slope = self.polynomial.deriv()
         out = np.zeros(len(y))
         for i, level in enumerate(y):
@@ -105,6 +106,8 @@ class NonlinearTransform(Study):
 
     def exact_cdf(self, y: np.ndarray) -> np.ndarray:
         """P(g(X) <= y): the probability of the x-intervals on which g stays below y."""
+        from scipy import stats
+
         g = self.polynomial
         out = np.empty(len(y))
         for i, level in enumerate(y):
@@ -120,6 +123,8 @@ class NonlinearTransform(Study):
 
     def exact_quantile(self, probability: float) -> float:
         """The y with P(g(X) <= y) = probability (bisection on the exact CDF)."""
+        from scipy import optimize
+
         reach = self.polynomial(self.input_mean + self.input_std * np.linspace(-9.0, 9.0, 2001))
         return float(optimize.brentq(lambda level: self.exact_cdf(np.array([level]))[0] - probability,
                                      reach.min(), reach.max(), xtol=1e-12))
@@ -140,6 +145,8 @@ class NonlinearTransform(Study):
     # -- the study --------------------------------------------------------------------------
 
     def tables(self, random: np.random.Generator) -> dict[str, pd.DataFrame]:
+        from scipy import stats
+
         g = self.polynomial
         x = random.normal(self.input_mean, self.input_std, size=self.samples)
         y = g(x)
@@ -199,6 +206,8 @@ def chi_square(counts: np.ndarray, probabilities: np.ndarray) -> dict[str, float
     Bins are merged left to right until each group expects at least 5 draws (a last short
     group joins the one before it); degrees of freedom = groups - 1.
     """
+    from scipy import stats
+
     total = counts.sum()
     expected = probabilities * total
     groups_observed, groups_expected = [], []

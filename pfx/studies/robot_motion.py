@@ -65,7 +65,6 @@ from typing import ClassVar
 import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
-from scipy import stats
 
 from pfx.motion.distributions import MotionNoise
 from pfx.studies.base import Study
@@ -260,6 +259,8 @@ def histogram_agreement(counts: np.ndarray, probabilities: np.ndarray, random: n
     :math:`\tfrac12 \sum_b |n_b/n - p_b|` is returned beside its mean and 99th percentile over
     multinomial draws from ``probabilities`` of the same size (sampling noise alone).
     """
+    from scipy import stats
+
     n = int(counts.sum())
     probabilities = probabilities / probabilities.sum()
     expected = n * probabilities
