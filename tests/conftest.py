@@ -11,7 +11,7 @@ depends on no other test. One worker runs all of a module's tests, so a module f
   ``sys.argv``, the working folder, ``CI=1``, a fresh process's warning filters and plugin
   registries; stdout and stderr captured; the exit status from ``SystemExit``, and an uncaught exception printed as a
   traceback with status 1, as Python does. It returns a :class:`PfxResult` like ``run_pfx`` and
-  costs no interpreter start (about 2 s of CPU each). Use it wherever a subprocess proves
+  costs no interpreter start (1.5 to 2 s of CPU each, most of it imports). Use it wherever a subprocess proves
   nothing more: messages, exit statuses, what is written.
 * ``run_pfx(*args, cwd=..., timeout=...)`` runs ``python -m pfx ARGS`` in a real subprocess and
   returns a :class:`PfxResult` (``returncode, stdout, stderr = result`` also works). Keep it for

@@ -165,7 +165,7 @@ def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept():
 
 def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
     model = random_walk(steps=5)
-    cases = {"injection": {"injection": {"kind": "augmented"}}, "move": {"move": {"kind": "mcmc"}},
+    cases = {"adaptive": {"adaptive": {"kind": "kld", "bin_size": [0.5]}, "particles": 200},
              "proposal": {"proposal": "locally_optimal"}, "auxiliary": {"auxiliary": True},
              "backend": {"kind": "kf"}}
     for key, settings in cases.items():

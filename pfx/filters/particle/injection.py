@@ -21,6 +21,12 @@ at the previous step, and the estimate of the predictive likelihood
 that the previous measurements already ruled out). The averages are kept as logarithms
 (log-sum-exp of the two terms), so a likelihood of :math:`e^{-800}` neither underflows nor
 stops the averages. A step without a measurement leaves them unchanged.
+
+The averages' update and the probability are functions of arrays (:func:`observed_averages`,
+:func:`injection_probability`), NumPy or JAX: the NumPy engine keeps them in an
+:class:`InjectionState` and draws only in the trials with :math:`p > 0`; the jax engine carries
+them through its scan and draws in every trial, replacing only in those that resampled
+(:mod:`pfx.filters.particle.jax_after_resampling`).
 """
 
 from __future__ import annotations
@@ -30,7 +36,8 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
-from pfx.filters.backends import Backends
+from pfx.filters.backends import BOTH, Backends
+from pfx.numerics.arrays import namespace
 from pfx.numerics.seeding import TrialStreams
 
 
@@ -38,7 +45,7 @@ class AugmentedMCL(BaseModel):
     """Augmented MCL: inject prior draws at rate max(0, 1 - w_fast / w_slow)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    backends: ClassVar[Backends] = Backends(what="particle injection", why="it is written for the NumPy engine's step")
+    backends: ClassVar[Backends] = Backends(BOTH)
     kind: Literal["augmented"] = "augmented"
     alpha_slow: StrictFloat = Field(0.001, ge=0, lt=1, description="decay rate of the slow average (book: 0.001)")
     alpha_fast: StrictFloat = Field(0.1, gt=0, le=1, description="decay rate of the fast average (book: 0.1)")
@@ -65,21 +72,12 @@ class InjectionState:
     def observe(self, log_average: np.ndarray, observed=None) -> None:
         """w <- (1 - alpha) w + alpha w_avg for both averages, in logs; ``observed`` (bool per
         trial, or None: all) masks the trials that had a measurement."""
-        with np.errstate(divide="ignore"):
-            slow = _blend(self.log_slow, log_average, self.settings.alpha_slow)
-            fast = _blend(self.log_fast, log_average, self.settings.alpha_fast)
-        if observed is None:
-            self.log_slow, self.log_fast = slow, fast
-        else:
-            self.log_slow = np.where(observed, slow, self.log_slow)
-            self.log_fast = np.where(observed, fast, self.log_fast)
+        self.log_slow, self.log_fast = observed_averages(self.settings, self.log_slow, self.log_fast, log_average,
+                                                         observed)
 
     def probability(self, rows) -> np.ndarray:
         """p = max(0, 1 - w_fast / w_slow) for the given rows (0 while w_slow = 0)."""
-        slow, fast = self.log_slow[rows], self.log_fast[rows]
-        with np.errstate(invalid="ignore", over="ignore"):
-            ratio = np.exp(fast - slow)
-        return np.where(np.isneginf(slow), 0.0, np.maximum(0.0, 1.0 - ratio))
+        return injection_probability(self.log_slow[rows], self.log_fast[rows])
 
     def inject(self, state: np.ndarray, active: np.ndarray, rows: np.ndarray, random: TrialStreams,
                prior) -> np.ndarray:
@@ -106,8 +104,32 @@ class InjectionState:
         return replaced_rows
 
 
+# -- the mathematics, once for both engines (NumPy or JAX arrays: pfx.numerics.arrays.namespace) --
+
+def observed_averages(settings: AugmentedMCL, log_slow, log_fast, log_average, observed=None):
+    """(log w_slow, log w_fast) after a step whose log-normaliser is ``log_average`` (R,):
+    w <- (1 - alpha) w + alpha w_avg for both, in logs; the trials where ``observed`` (bool per
+    trial, or None: all) is False keep theirs."""
+    xp = namespace(log_slow, log_average)
+    with np.errstate(divide="ignore"):
+        slow = _blend(log_slow, log_average, settings.alpha_slow)
+        fast = _blend(log_fast, log_average, settings.alpha_fast)
+    if observed is None:
+        return slow, fast
+    return xp.where(observed, slow, log_slow), xp.where(observed, fast, log_fast)
+
+
+def injection_probability(log_slow, log_fast):
+    """p = max(0, 1 - w_fast / w_slow) per trial (0 while w_slow = 0)."""
+    xp = namespace(log_slow, log_fast)
+    with np.errstate(invalid="ignore", over="ignore"):
+        ratio = xp.exp(log_fast - log_slow)
+    return xp.where(xp.isneginf(log_slow), 0.0, xp.maximum(0.0, 1.0 - ratio))
+
+
 def _blend(log_average: np.ndarray, log_value: np.ndarray, alpha: float) -> np.ndarray:
     """log((1 - alpha) e^a + alpha e^v), exactly -inf where both terms vanish."""
-    keep = np.log1p(-alpha) + log_average if alpha < 1.0 else np.full_like(log_average, -np.inf)
-    add = np.log(alpha) + log_value if alpha > 0.0 else np.full_like(log_value, -np.inf)
-    return np.logaddexp(keep, add)
+    xp = namespace(log_average, log_value)
+    keep = np.log1p(-alpha) + log_average if alpha < 1.0 else xp.full_like(log_average, -np.inf)
+    add = np.log(alpha) + log_value if alpha > 0.0 else xp.full_like(log_value, -np.inf)
+    return xp.logaddexp(keep, add)

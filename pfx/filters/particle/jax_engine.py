@@ -24,7 +24,9 @@ Three things differ in form from the NumPy engine, not in what they compute:
 
 * **masks, not subsets**: every trial draws its resampling points and is resampled; the trials
   whose ESS is above the threshold keep their particles by a select. (The NumPy engine touches
-  only the trials that resample.)
+  only the trials that resample.) The move, the diffusion and the injection after resampling
+  are the stage of :mod:`pfx.filters.particle.jax_after_resampling`, which carries the
+  injection's running averages and the move's acceptance tally in the cloud.
 * **error flags, not exceptions**: a trial whose particles all left the model's domain, a NaN
   or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``, and a law's
   parameter out of its domain in the transition (a negative Poisson rate:
@@ -51,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError
+from pfx.filters.particle.jax_after_resampling import AfterResampling
 from pfx.filters.particle.jax_diagnostics import Flags, StageClouds, by_trial, fill_trace, step_diagnostics
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
 from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
@@ -75,6 +78,7 @@ class Cloud(NamedTuple):
     log_likelihood: Any       # (R,), float64
     lost_particles: Any       # (R,), int
     ancestors: Any            # (R, N): each particle's index in the previous step's weighted cloud
+    after: Any = None         # the post-resampling stage's running values (jax_after_resampling.Carried)
 
 
 class StepInputs(NamedTuple):
@@ -109,6 +113,7 @@ class StepOutputs(NamedTuple):
     nis: Any = None           # (R,) the predicted cloud's NIS, float64
     snapshots: Any = None     # {stage: ((r, N, d), (r, N))} the snapshot rows' clouds and weights
     prior_snapshot: Any = None    # (r, N, d) the snapshot rows' prior cloud: set once, after the scan
+    injected: Any = None      # (R,) the particles replaced by prior draws (filter.injection)
 
 
 class JaxParticleFilter:
@@ -122,6 +127,7 @@ class JaxParticleFilter:
         self.resampler = JAX_RESAMPLERS[bound.resampling.resampler.function.__name__]
         self.threshold = bound.resampling.threshold
         self.particles = bound.particles
+        self.after_resampling = AfterResampling(bound, self.dtype)
         self._programs: dict = {}
 
     def check_model(self) -> None:
@@ -154,6 +160,10 @@ class JaxParticleFilter:
             probes = (*probes, ("sample_substep", lambda random, state: model.sample_substep(
                 state, None if control is None else jnp.asarray(control), jnp.asarray(model.substep_time(1, 0)),
                 random)))
+        move = self.bound.move
+        if move is not None and move.needs_parents:          # the mcmc move evaluates p(x_k | x_k-1)
+            probes = (*probes, ("transition density (for move: mcmc)",
+                                lambda random, state: move.density.log_density(state, state)))
         with jax.enable_x64(True):
             keys = jnp.zeros((trials, 2), jnp.uint32)
             state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
@@ -234,6 +244,7 @@ class JaxParticleFilter:
             particles=None if outputs.particles is None else by_trial(outputs.particles).astype(float),
             log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
         fill_trace(trace, outputs, recording, observed, self.particles)
+        self.after_resampling.fill_trace(trace, cloud.after, outputs.injected)
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
@@ -250,7 +261,8 @@ class JaxParticleFilter:
                       log_weights=jnp.full((trials, count), -np.log(count), self.dtype),
                       log_likelihood=jnp.zeros(trials, jnp.float64),
                       lost_particles=jnp.zeros(trials, jnp.int32),
-                      ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)))
+                      ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)),
+                      after=self.after_resampling.start(trials))
         scores = random.derived(SCORE_STREAM) if flags.scores else None
         cloud, outputs = jax.lax.scan(lambda carried, at_step: self.step(carried, at_step, random, flags, scores),
                                       cloud, inputs)
@@ -270,10 +282,11 @@ class JaxParticleFilter:
         every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
         log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
             predicted_log_weights, predicted, inputs)
+        after = self.after_resampling.observe(cloud.after, increment, inputs.observed)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
         estimate = self.estimate(weights, predicted)
-        resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled = self.resample(
-            predicted, log_weights, weights, ess, random)
+        resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, after, injected = \
+            self.resample(predicted, log_weights, weights, ess, random, cloud.particles, after, inputs)
         failures = (jnp.where(every_particle_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad_likelihood, BAD_LIKELIHOOD, 0)
                     | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
         if transition_checks.recorded:          # a model whose transition checks no law adds nothing
@@ -285,12 +298,12 @@ class JaxParticleFilter:
             estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
             failures=failures.astype(jnp.int16),
             ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
-            predictive=None if predictive is None else {**predictive, "log_score": -increment},
+            predictive=None if predictive is None else {**predictive, "log_score": -increment}, injected=injected,
             **step_diagnostics(self.model, flags, clouds, inputs))
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
                         lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
-                        ancestors=ancestors)
+                        ancestors=ancestors, after=after)
         return carried, outputs
 
     def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, model=None):
@@ -357,24 +370,28 @@ class JaxParticleFilter:
             mean = mean.at[:, angular].set(circular_mean(weights, state[..., angular], self.model.full_turn))
         return mean
 
-    def resample(self, state, log_weights, weights, ess, random: KeyStreams):
+    def resample(self, state, log_weights, weights, ess, random: KeyStreams, previous, after, inputs: StepInputs):
         """The trials whose ESS is below the threshold (every trial at 1, none at 0) take their
-        resampled particles, moved apart by the diffusion (``filter.diffusion``), and uniform
-        weights; the others keep theirs (a select: every trial drew)."""
+        resampled particles, then the move, the diffusion and the injection
+        (:mod:`pfx.filters.particle.jax_after_resampling`; ``previous``: x_{k-1}, ``after``: its
+        carried values), and uniform weights; the others keep theirs (a select: every trial
+        drew). Returns the cloud, the ancestors, which trials resampled, ``after`` updated and
+        the particles injected per trial (None without injection)."""
         trials, count = weights.shape
         identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
-        if self.threshold <= 0.0:        # sis: never
-            return state, log_weights, weights, identity, jnp.zeros(trials, bool)
+        if self.threshold <= 0.0:        # sis, or a threshold of 0: never (so nothing moved or injected)
+            nothing = jnp.zeros(trials, jnp.int32) if self.bound.injection is not None else None
+            return state, log_weights, weights, identity, jnp.zeros(trials, bool), after, nothing
         resampled = jnp.ones(trials, bool) if self.threshold >= 1.0 else ess < self.threshold * count
         indices = self.resampler(weights, random)
         chosen = jnp.where(resampled[:, None], indices, identity)
         offspring = jnp.take_along_axis(state, chosen[..., None], axis=1)
-        if self.bound.diffusion.kind != "none":          # moves the resampled trials' particles apart
-            offspring = jnp.asarray(self.bound.diffusion.apply(offspring, random), self.dtype)
+        offspring, ancestors, after, injected = self.after_resampling.apply(
+            after, offspring, chosen, resampled, (previous, state, log_weights, weights), inputs, random)
         state = jnp.where(resampled[:, None, None], offspring, state)
         log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_weights.dtype), log_weights)
         weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
-        return state, log_weights, weights, chosen, resampled
+        return state, log_weights, weights, ancestors, resampled, after, injected
 
     # -- the predictive scores (a static flag; the other diagnostics: jax_diagnostics) ---------
 

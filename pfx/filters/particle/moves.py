@@ -82,6 +82,13 @@ Only the trials that resampled at a step are moved, with draws from their own st
 
 A move and a diffusion both rejuvenate the resampled cloud, so a move other than ``none``
 with a diffusion other than ``none`` is refused; so is a move on ``sis``, which never resamples.
+
+Both moves are written once against the array namespace (:func:`pfx.numerics.arrays.namespace`):
+the NumPy engine calls them on the resampled trials, the jax engine on every trial, keeping the
+moved particles where a trial resampled (:mod:`pfx.filters.particle.jax_after_resampling`). On
+jax a singular covariance is repaired as on NumPy (:func:`square_root`'s clipped eigenvalues),
+never raised, and the mcmc move's Metropolis steps are one compiled loop
+(:func:`pfx.numerics.arrays.repeat`).
 """
 
 from __future__ import annotations
@@ -94,6 +101,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 
 from pfx.filters.backends import BOTH, Backends
+from pfx.numerics.arrays import namespace, repeat
 from pfx.numerics.seeding import TrialStreams
 from pfx.registry import Registry
 
@@ -111,13 +119,18 @@ class MoveContext:
     parents: Optional[np.ndarray]      # (R, N, d) x_{k-1} of each resampled particle's parent
     indices: np.ndarray                # (R, N) each resampled particle's parent, an index into cloud
     log_weights: np.ndarray            # (R, N) the cloud's log-weights (-inf: lost, or inactive)
+    # (R, N, d) f(x_{k-1}, u_k, 0) of each parent, for a move that needs parents; None: the move
+    # computes it (model.mean_transition, on the host's step number); the jax engine gives it,
+    # from the compiled step's control and substep times
+    parent_means: Optional[np.ndarray] = None
 
 
 def weighted_covariance(weights: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-    """sum_j w_j (x_j - xbar)(x_j - xbar)' per trial: (R, N), (R, N, d) -> (R, d, d)."""
-    mean = np.matmul(weights[:, None, :], cloud)
+    """sum_j w_j (x_j - xbar)(x_j - xbar)' per trial: (R, N), (R, N, d) -> (R, d, d); NumPy or JAX."""
+    xp = namespace(weights, cloud)
+    mean = xp.matmul(weights[:, None, :], cloud)
     centred = cloud - mean
-    return np.matmul(centred.transpose(0, 2, 1) * weights[:, None, :], centred)
+    return xp.matmul(centred.transpose(0, 2, 1) * weights[:, None, :], centred)
 
 
 # 1 - max_j w_j below this: one particle holds all the mass to round-off (DAPPER's weight_degeneracy)
@@ -134,31 +147,43 @@ def unbiased_weighted_covariance(weights: np.ndarray, cloud: np.ndarray, members
     covariance). In a trial where :math:`1 - \max_j w_j <` ``DEGENERATE_WEIGHTS`` the weights are
     replaced by 1/M over its M ``members`` (the unweighted covariance of the cloud), since
     otherwise :math:`\hat\Sigma` is zero to round-off; a trial with a single member has
-    :math:`\hat\Sigma = 0` (no spread to estimate).
+    :math:`\hat\Sigma = 0` (no spread to estimate). NumPy or JAX (which cannot skip the
+    fallback where no trial needs it: it computes it and selects).
     """
+    xp = namespace(weights, cloud)
     degenerate = 1.0 - weights.max(axis=-1) < DEGENERATE_WEIGHTS
-    if degenerate.any():
-        uniform = members / np.maximum(members.sum(axis=-1, keepdims=True), 1)
-        weights = np.where(degenerate[:, None], uniform, weights)
-    spread = 1.0 - np.sum(weights * weights, axis=-1)
-    unbiasing = np.divide(1.0, spread, out=np.zeros_like(spread), where=spread > 0)
+    if xp is not np or degenerate.any():
+        uniform = members / xp.maximum(members.sum(axis=-1, keepdims=True), 1)
+        weights = xp.where(degenerate[:, None], uniform.astype(weights.dtype), weights)
+    spread = 1.0 - xp.sum(weights * weights, axis=-1)
+    if xp is np:
+        unbiasing = np.divide(1.0, spread, out=np.zeros_like(spread), where=spread > 0)
+    else:           # a select: 1 / spread where positive, 0 where not (a division by 0 never taken)
+        unbiasing = xp.where(spread > 0, 1.0 / xp.where(spread > 0, spread, 1.0), 0.0)
     return weighted_covariance(weights, cloud) * unbiasing[:, None, None]
 
 
 def shared_parents(indices: np.ndarray) -> np.ndarray:
-    """(R, N) True where a resampled particle's parent index appears more than once in its row."""
+    """(R, N) True where a resampled particle's parent index appears more than once in its row;
+    NumPy (a bincount) or JAX (a scatter-add, the bincount of a fixed shape)."""
     trials, n = indices.shape
-    flat = indices + n * np.arange(trials)[:, None]
-    offspring = np.bincount(flat.ravel(), minlength=trials * n).reshape(trials, n)
-    return np.take_along_axis(offspring, indices, axis=-1) > 1
+    xp = namespace(indices)
+    if xp is np:
+        flat = indices + n * np.arange(trials)[:, None]
+        offspring = np.bincount(flat.ravel(), minlength=trials * n).reshape(trials, n)
+    else:
+        offspring = xp.zeros((trials, n), xp.int32).at[xp.arange(trials)[:, None], indices].add(1)
+    return xp.take_along_axis(offspring, indices, axis=-1) > 1
 
 
 def square_root(covariance: np.ndarray) -> np.ndarray:
     """D with D D' = covariance, per trial, from the eigendecomposition (a collapsed cloud has a
     singular covariance, which a Cholesky factorisation refuses; its negative round-off
-    eigenvalues are clipped to 0)."""
-    values, vectors = np.linalg.eigh(covariance)
-    return vectors * np.sqrt(np.clip(values, 0.0, None))[:, None, :]
+    eigenvalues are clipped to 0). NumPy or JAX alike: nothing raises, so a compiled step
+    repairs a singular covariance by the same clip (a zero covariance: D = 0, no move)."""
+    xp = namespace(covariance)
+    values, vectors = xp.linalg.eigh(covariance)
+    return vectors * xp.sqrt(xp.clip(values, 0.0, None))[:, None, :]
 
 
 def unit_ball_volume(dimension: int) -> float:
@@ -201,6 +226,7 @@ class Regularisation(_Move):
     """Regularised particle filter: x <- x + h D eps, D D' the unbiased weighted covariance before resampling (Musso et al. 2001)."""
 
     kind: Literal["regularise"] = "regularise"
+    backends: ClassVar[Backends] = Backends(BOTH)
     kernel: Literal["gaussian", "epanechnikov"] = Field("gaussian", description="the kernel eps is drawn from")
     bandwidth: Union[Literal["optimal", "scott"], Annotated[StrictFloat, Field(gt=0)]] = Field(
         "optimal", description="h before bandwidth_scale: `optimal` (A N^(-1/(d+4))), `scott` (N^(-1/(d+4)), "
@@ -236,22 +262,26 @@ class Regularisation(_Move):
         return self.bandwidth_scale * base
 
     def draw_kernel(self, random: TrialStreams, particles: int, dimension: int) -> np.ndarray:
-        """eps_i, (R, N, d): standard normal, or Epanechnikov on the unit ball (module docstring)."""
+        """eps_i, (R, N, d): standard normal, or Epanechnikov on the unit ball (module docstring);
+        from TrialStreams or KeyStreams."""
         normal = random.standard_normal((particles, dimension))
         if self.kernel == "gaussian":
             return normal
         exponential = random.standard_exponential((particles, 2))
-        return normal / np.sqrt(np.sum(normal * normal, axis=-1, keepdims=True)
+        xp = namespace(normal)
+        return normal / xp.sqrt(xp.sum(normal * normal, axis=-1, keepdims=True)
                                 + 2.0 * exponential.sum(axis=-1, keepdims=True))
 
     def apply(self, context, random):
+        """NumPy or JAX (the context's arrays and the streams of either engine)."""
         _, n, d = context.resampled.shape
-        members = np.isfinite(context.log_weights)
+        xp = namespace(context.resampled)
+        members = xp.isfinite(context.log_weights)
         root = square_root(unbiased_weighted_covariance(context.weights, context.cloud, members))
         eps = self.draw_kernel(random, n, d)      # every particle's, moved or not: one count per step
-        moved = context.resampled + self.bandwidth_for(n, d) * np.matmul(eps, root.transpose(0, 2, 1))
+        moved = context.resampled + self.bandwidth_for(n, d) * xp.matmul(eps, root.transpose(0, 2, 1))
         if self.jitter == "duplicates":
-            moved = np.where(shared_parents(context.indices)[..., None], moved, context.resampled)
+            moved = xp.where(shared_parents(context.indices)[..., None], moved, context.resampled)
         return moved, None
 
 
@@ -260,6 +290,7 @@ class ResampleMove(_Move):
     """Resample-move: random-walk Metropolis steps leaving p(z_k | x_k) p(x_k | parent) invariant (Gilks & Berzuini 2001)."""
 
     kind: Literal["mcmc"] = "mcmc"
+    backends: ClassVar[Backends] = Backends(BOTH)
     steps: StrictInt = Field(1, ge=1, le=10_000, description="Metropolis steps per particle after each resampling")
     scale: Optional[StrictFloat] = Field(
         None, gt=0, description="s in the proposal N(x, s^2 Sigma), Sigma the weighted covariance before "
@@ -298,34 +329,41 @@ class BoundResampleMove:
         return self.settings.kind
 
     def apply(self, context, random):
+        """NumPy or JAX: on JAX the Metropolis steps are one compiled loop (:func:`~pfx.numerics.arrays.repeat`,
+        new keys at every pass) and the context gives the parents' predictions."""
         model, density, steps = context.model, self.density, self.settings.steps
         trials, n, d = context.resampled.shape
+        xp = namespace(context.resampled)
         scale = self.settings.scale if self.settings.scale is not None else 2.38 / math.sqrt(d)
         factor = scale * square_root(weighted_covariance(context.weights, context.cloud)).transpose(0, 2, 1)
-        parents = context.parents
-        predicted_mean = model.mean_transition(parents, context.step)
+        predicted_mean = context.parent_means
+        if predicted_mean is None:
+            predicted_mean = model.mean_transition(context.parents, context.step)
         measurement = context.measurement[:, None, :]
-        observed = ~np.isnan(context.measurement).any(axis=-1)
+        observed = ~xp.isnan(context.measurement).any(axis=-1)
+        # NumPy skips the likelihood where no trial has a measurement; a compiled step cannot ask
+        weigh = xp is not np or observed.any()
 
         def log_target(state):
             """log p(z | x) + log p(x | parent), up to a constant; -inf where undefined."""
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 value = density.log_density(state, predicted_mean)
-                if observed.any():
-                    value = value + np.where(observed[:, None], model.log_likelihood(measurement, state), 0.0)
-            return np.where(np.isnan(value), -np.inf, value)
+                if weigh:
+                    value = value + xp.where(observed[:, None], model.log_likelihood(measurement, state), 0.0)
+            return xp.where(xp.isnan(value), -xp.inf, value)
+
+        def metropolis_step(carried):
+            state, current, accepted = carried
+            proposal = state + xp.matmul(random.standard_normal((n, d)), factor)
+            proposed = log_target(proposal)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                accept = xp.log(random.uniform((n,))) < proposed - current    # NaN (-inf - -inf): reject
+            return (xp.where(accept[..., None], proposal, state), xp.where(accept, proposed, current),
+                    accepted + accept.sum(axis=-1))
 
         state = context.resampled
         current = log_target(state)
-        accepted = np.zeros(trials)
-        for _ in range(steps):
-            proposal = state + np.matmul(random.standard_normal((n, d)), factor)
-            proposed = log_target(proposal)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                accept = np.log(random.uniform((n,))) < proposed - current    # NaN (-inf - -inf): reject
-            state = np.where(accept[..., None], proposal, state)
-            current = np.where(accept, proposed, current)
-            accepted += accept.sum(axis=-1)
+        state, current, accepted = repeat(steps, metropolis_step, (state, current, xp.zeros(trials, current.dtype)))
         return state, accepted / (n * steps)
 
 
