@@ -166,7 +166,7 @@ def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept():
 def test_the_jax_backend_refuses_what_it_does_not_run_by_key():
     model = random_walk(steps=5)
     cases = {"adaptive": {"adaptive": {"kind": "kld", "bin_size": [0.5]}, "particles": 200},
-             "proposal": {"proposal": "locally_optimal"}, "auxiliary": {"auxiliary": True},
+             "proposal": {"proposal": "ukf"}, "auxiliary": {"auxiliary": True},
              "backend": {"kind": "kf"}}
     for key, settings in cases.items():
         kind = settings.pop("kind", "particle")
@@ -341,7 +341,7 @@ def test_an_extended_jax_run_equals_a_fresh_one(tmp_path, tiny_config_dict, pfx_
     pfx.run(config, out=tmp_path / "fresh")
     tables = [pd.read_csv(tmp_path / name / "trials.csv").drop(columns=["run_time_s"]) for name in ("extended", "fresh")]
     pd.testing.assert_frame_equal(*tables, check_exact=True)
-    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set", "filter.proposal=ekf",
+    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set", "filter.proposal=ukf",
                              "--out", str(tmp_path / "refused"))
     assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
     assert "filter.proposal" in refused.stderr and "backend: numpy" in refused.stderr

@@ -26,6 +26,7 @@ import numpy as np
 
 from pfx.filters.kalman.measurement_form import measurement_angles
 from pfx.filters.kalman.recursion import transpose
+from pfx.numerics.arrays import namespace
 
 FD_STEP = float(np.finfo(float).eps ** (1.0 / 3.0))   # ~6.06e-6: optimal relative step, central differences
 
@@ -42,17 +43,19 @@ def finite_difference_jacobian(function: Callable[[np.ndarray], np.ndarray], poi
     the division: the angular outputs' wrap, so that an angle crossing its branch cut between
     the two points is a small difference, not a turn.
     """
-    point = np.asarray(point, dtype=float)
+    xp = namespace(point)                  # NumPy or JAX alike (a guided proposal on jax)
+    if xp is np:
+        point = np.asarray(point, dtype=float)
     n = point.shape[-1]
-    size = np.abs(point)
+    size = xp.abs(point)
     if scale is not None:
-        size = np.maximum(size, scale)
-    step = FD_STEP * np.where(size > 0, size, 1.0)
+        size = xp.maximum(size, scale)
+    step = FD_STEP * xp.where(size > 0, size, 1.0)
     offsets = step[..., None, :] * np.eye(n)                       # row j: h_j e_j
     plus = point[..., None, :] + offsets
     minus = point[..., None, :] - offsets
-    values = function(np.concatenate([plus, minus], axis=-2))
-    width = np.diagonal(plus - minus, axis1=-2, axis2=-1)           # (x_j + h_j) - (x_j - h_j)
+    values = function(xp.concatenate([plus, minus], axis=-2))
+    width = xp.diagonal(plus - minus, axis1=-2, axis2=-1)           # (x_j + h_j) - (x_j - h_j)
     differences = values[..., :n, :] - values[..., n:, :]
     if wrap is not None:
         differences = wrap(differences)
@@ -85,7 +88,8 @@ def measurement_jacobian(model, mean: np.ndarray, covariance: Optional[np.ndarra
     measurement components, wrapped: :mod:`~pfx.filters.kalman.measurement_form`)."""
     analytic = model.measurement_jacobian(mean)
     if analytic is not None:
-        return np.broadcast_to(analytic, mean.shape[:-1] + (model.measurement_dimension, mean.shape[-1]))
+        xp = namespace(mean, analytic)
+        return xp.broadcast_to(analytic, mean.shape[:-1] + (model.measurement_dimension, mean.shape[-1]))
     angles = measurement_angles(model)
     return finite_difference_jacobian(model.measurement_mean, mean, _state_scale(covariance),
                                       None if angles is None else angles.wrap)

@@ -14,6 +14,9 @@ values so that XLA can compile the whole run, on a CPU or a GPU:
   the control u_k and the substep times;
 * the random numbers come from the trials' threefry keys folded with k
   (:class:`~pfx.numerics.key_streams.KeyStreams`): nothing random is carried;
+* a guided proposal (``filter.proposal``) replaces the transition by the proposals module's
+  own drawing (:meth:`JaxParticleFilter.propose`), and its weight adjustment joins the
+  likelihood in the weight update;
 * ``outputs`` (:class:`StepOutputs`) are the trace's columns at step k: the estimate, the ESS,
   whether the trial resampled, whether its weights underflowed, the log-likelihood increment,
   and what a :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a
@@ -164,6 +167,12 @@ class JaxParticleFilter:
         if move is not None and move.needs_parents:          # the mcmc move evaluates p(x_k | x_k-1)
             probes = (*probes, ("transition density (for move: mcmc)",
                                 lambda random, state: move.density.log_density(state, state)))
+        proposal = self.bound.proposal
+        if proposal is not None:      # the ekf proposal calls measurement_mean and measurement_jacobian
+            probes = (*probes, (f"{proposal.settings.kind} proposal (measurement_mean, measurement_jacobian)",
+                                lambda random, state: proposal.propose_from(
+                                    state, jnp.zeros((trials, model.measurement_dimension), self.dtype),
+                                    jnp.ones(trials, bool), random)))
         with jax.enable_x64(True):
             keys = jnp.zeros((trials, 2), jnp.uint32)
             state = jax.ShapeDtypeStruct((trials, count, model.state_dimension), self.dtype)
@@ -275,13 +284,17 @@ class JaxParticleFilter:
         """Step k: predict, weight and normalise, estimate, resample (module docstring); with
         ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
         random = random.at(inputs.step)
+        adjustment = None
         with collecting(len(random)) as transition_checks:
-            predicted, lost, predicted_log_weights = self.predict(cloud, inputs, random)
+            if self.bound.proposal is None:
+                predicted, lost, predicted_log_weights = self.predict(cloud, inputs, random)
+            else:
+                predicted, lost, predicted_log_weights, adjustment = self.propose(cloud, inputs, random)
         predictive = self.predictive(predicted, predicted_log_weights, inputs, scores.at(inputs.step)) \
             if scores is not None else None
         every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
         log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
-            predicted_log_weights, predicted, inputs)
+            predicted_log_weights, predicted, inputs, adjustment)
         after = self.after_resampling.observe(cloud.after, increment, inputs.observed)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
         estimate = self.estimate(weights, predicted)
@@ -330,13 +343,27 @@ class JaxParticleFilter:
             merge_codes(codes)
         state = jnp.asarray(state)
         _check_shape(model, f"the transition ({model.transition_method()})", state, cloud.particles.shape)
+        return self._park_lost(state, cloud.log_weights)
+
+    def _park_lost(self, state, log_weights):
         state = state.astype(self.dtype)
         lost = ~jnp.all(jnp.isfinite(state), axis=-1)
         state = jnp.where(lost[..., None], 0.0, state)
-        log_weights = jnp.where(lost, -jnp.inf, cloud.log_weights)
-        return state, lost, log_weights
+        return state, lost, jnp.where(lost, -jnp.inf, log_weights)
 
-    def update_weights(self, log_weights, state, inputs: StepInputs):
+    def propose(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams):
+        """x_k from the guided proposal (``filter.proposal``): the NumPy engine's own
+        :meth:`~pfx.filters.particle.proposals.BoundGaussianProposal.propose_from`, on every trial
+        (a trial without a measurement draws from the transition, adjustment 0), around the
+        predictions made from the compiled step's control and substep times; (x_k, lost,
+        log-weights, the weight adjustment log p(x_k | x_k-1) - log q)."""
+        predicted = self.after_resampling.parent_means(cloud.particles, inputs)
+        state, adjustment = self.bound.proposal.propose_from(
+            predicted, inputs.measurement.astype(self.dtype), inputs.observed, random)
+        _check_shape(self.model, "the proposal", state, cloud.particles.shape)
+        return (*self._park_lost(jnp.asarray(state), cloud.log_weights), jnp.asarray(adjustment, self.dtype))
+
+    def update_weights(self, log_weights, state, inputs: StepInputs, adjustment=None):
         r"""log w_k = log w_{k-1} + log p(z_k | x_k) (or the configured weighting's increment),
         normalised by log-sum-exp; L_k the normaliser
         (0 for a trial without a measurement); a trial whose weights all underflow is degenerate
@@ -349,7 +376,10 @@ class JaxParticleFilter:
         likelihood = jnp.asarray(self.bound.weighting.log_weights(self.model, measurement, state, jnp.exp(log_weights)))
         _check_shape(self.model, "log_likelihood", likelihood, log_weights.shape)
         observed = inputs.observed
-        increment = jnp.where(observed[:, None], likelihood.astype(self.dtype), 0.0)
+        likelihood = likelihood.astype(self.dtype)
+        if adjustment is not None:        # a guided proposal's log p(x_k | x_k-1) - log q, 0 where unobserved
+            likelihood = likelihood + adjustment
+        increment = jnp.where(observed[:, None], likelihood, 0.0)
         updated = jnp.where(jnp.isneginf(log_weights), -jnp.inf, log_weights + increment)
         peak = jnp.max(updated, axis=-1, keepdims=True)
         shifted = updated - jnp.where(jnp.isfinite(peak), peak, 0.0)

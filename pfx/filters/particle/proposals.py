@@ -60,6 +60,16 @@ model's likelihood (they divide by q), but a proposal built on a law that is not
 would lead the particles astray: a model whose own ``log_likelihood`` is not of that form
 (another noise family, an undeclared bearing that wraps) is refused by the guided proposals
 here, before the run, and pointed to the bootstrap proposal.
+
+The drawing is written once, against the array namespace (:mod:`pfx.numerics.arrays`):
+:meth:`BoundGaussianProposal.propose_from` runs on NumPy arrays in the NumPy engine and on JAX
+arrays in the compiled step (:mod:`pfx.filters.particle.jax_engine`), which applies it to every
+trial with ``observed`` a mask. ``locally_optimal`` and ``ekf`` run on both backends; ``ukf``
+(its sigma points and repaired square root are NumPy code) on numpy only. On JAX a Cholesky
+factorisation does not raise where the covariance is not positive definite (round-off, in
+float32): it returns NaN, and that particle's factor falls back to Q's by a select; the draw is
+then :math:`N(m_i, Q)` and :math:`\log q` is computed from the factor used, so the weight stays
+an exact importance weight.
 """
 
 from __future__ import annotations
@@ -81,6 +91,7 @@ from pfx.filters.kalman.unscented import (
     unscented_sigma_points,
 )
 from pfx.laws.transition_density import LOG_TWO_PI, AdditiveTransition
+from pfx.numerics.arrays import constant_like, namespace
 from pfx.registry import Registry
 
 
@@ -195,43 +206,65 @@ class BoundGaussianProposal(BoundProposal):
         self.density = density
 
     def propose(self, previous, step, measurement, observed, random):
-        model, density = self.model, self.density
-        noise, noise_factor = density.covariance, density.factor
+        """The NumPy engine's call: the predictions f(x_{k-1}, u_k, 0) from the step number, then
+        :meth:`propose_from`."""
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            predicted = model.mean_transition(previous, step)
-            # A particle whose prediction left the model's domain keeps a NaN state (the engine
-            # parks it at weight zero); the others must not see its NaN in the batched algebra.
-            finite = np.isfinite(predicted).all(axis=-1)
-            safe = np.where(finite[..., None], predicted, 0.0)
-            if observed is not None:          # a missing measurement: any finite stand-in; see below
-                measurement = np.where(observed[:, None], measurement, 0.0)
-            mean, factor = self.settings.moments(model, safe, noise, measurement[:, None, :])
-            if observed is not None:          # missing measurement: the transition, no adjustment
-                mean = np.where(observed[:, None, None], mean, safe)
-                factor = np.where(observed[:, None, None, None], factor, noise_factor)
-            standard = random.standard_normal(previous.shape[1:])       # (R, N, d)
-            state = mean + np.einsum("...ij,...j->...i", factor, standard)
-            d = state.shape[-1]
-            log_proposal = -0.5 * np.sum(standard * standard, axis=-1) \
-                - np.sum(np.log(np.diagonal(factor, axis1=-2, axis2=-1)), axis=-1) - 0.5 * d * LOG_TWO_PI
-            log_transition = density.log_density(state, safe)
-            adjustment = log_transition - log_proposal
-            if observed is not None:
-                adjustment = np.where(observed[:, None], adjustment, 0.0)
-            state = np.where(finite[..., None], state, np.nan)
+            predicted = self.model.mean_transition(previous, step)
+            return self.propose_from(predicted, measurement, observed, random)
+
+    def propose_from(self, predicted, measurement, observed, random):
+        """Draw x_k ~ N(m_i, P_i) around the predictions ``predicted`` (R, N, d); (x_k, the weight
+        adjustment (R, N)). NumPy or JAX alike (:mod:`pfx.numerics.arrays`): the jax engine calls
+        it with the predictions it makes from the compiled step's control and substep times, and
+        ``observed`` always a mask (R,); NumPy passes None when every trial has its measurement."""
+        model, density = self.model, self.density
+        xp = namespace(predicted)
+        noise, noise_factor = density.covariance, constant_like(density.factor, predicted)
+        # A particle whose prediction left the model's domain keeps a NaN state (the engine
+        # parks it at weight zero); the others must not see its NaN in the batched algebra.
+        finite = xp.isfinite(predicted).all(axis=-1)
+        safe = xp.where(finite[..., None], predicted, 0.0)
+        if observed is not None:          # a missing measurement: any finite stand-in; see below
+            measurement = xp.where(observed[:, None], measurement, 0.0)
+        mean, factor = self.settings.moments(model, safe, noise, measurement[:, None, :])
+        if xp is not np:                  # jax cannot raise: a failed factorisation falls back to Q's
+            factor = xp.where(xp.isfinite(factor).all(axis=(-2, -1), keepdims=True), factor, noise_factor)
+            mean, factor = xp.asarray(mean, predicted.dtype), xp.asarray(factor, predicted.dtype)
+        if observed is not None:          # missing measurement: the transition, no adjustment
+            mean = xp.where(observed[:, None, None], mean, safe)
+            factor = xp.where(observed[:, None, None, None], factor, noise_factor)
+        standard = random.standard_normal(predicted.shape[1:])       # (R, N, d)
+        state = mean + xp.einsum("...ij,...j->...i", factor, standard)
+        d = state.shape[-1]
+        log_proposal = -0.5 * xp.sum(standard * standard, axis=-1) \
+            - xp.sum(xp.log(xp.diagonal(factor, axis1=-2, axis2=-1)), axis=-1) - 0.5 * d * LOG_TWO_PI
+        log_transition = density.log_density(state, safe)
+        adjustment = log_transition - log_proposal
+        if observed is not None:
+            adjustment = xp.where(observed[:, None], adjustment, 0.0)
+        state = xp.where(finite[..., None], state, xp.nan)
         return state, adjustment
+
+
+def cholesky_factor(covariance):
+    """C with C C' = the symmetrised ``covariance``: NumPy's Cholesky (which raises where it is
+    not positive definite), or JAX's, which returns NaN there instead, for
+    :meth:`BoundGaussianProposal.propose_from` to repair by a select."""
+    xp = namespace(covariance)
+    return xp.linalg.cholesky(0.5 * (covariance + transpose(covariance)))
 
 
 def kalman_update(predicted, noise, jacobian, innovation, measurement_noise):
     """The Kalman update from N(f, Q) with innovation z - h(f): (m, C) with
-    P = (I - K H) Q (I - K H)' + K R K' = C C'."""
+    P = (I - K H) Q (I - K H)' + K R K' = C C'. NumPy or JAX alike."""
+    xp = namespace(predicted, jacobian, innovation)
     cross = noise @ transpose(jacobian)                                        # Q H'
     innovation_covariance = jacobian @ cross + measurement_noise               # H Q H' + R
-    gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))  # Q H' S^-1 (S symmetric)
-    mean = predicted + np.einsum("...dm,...m->...d", gain, innovation)
+    gain = transpose(xp.linalg.solve(innovation_covariance, transpose(cross)))  # Q H' S^-1 (S symmetric)
+    mean = predicted + xp.einsum("...dm,...m->...d", gain, innovation)
     reduction = np.eye(predicted.shape[-1]) - gain @ jacobian
     covariance = reduction @ noise @ transpose(reduction) + gain @ measurement_noise @ transpose(gain)
-    return mean, np.linalg.cholesky(0.5 * (covariance + transpose(covariance)))
+    return mean, cholesky_factor(covariance)
 
 
 @PROPOSALS.register_kind
@@ -239,6 +272,7 @@ class LocallyOptimalProposal(_GaussianProposal):
     """p(x_k | x_k-1, z_k) in closed form: linear-gaussian measurement, additive gaussian process noise."""
 
     kind: Literal["locally_optimal"] = "locally_optimal"
+    backends: ClassVar[Backends] = Backends(BOTH)
 
     def check(self, model):
         gaussian_transition(model)
@@ -259,7 +293,7 @@ class LocallyOptimalProposal(_GaussianProposal):
         gain = np.linalg.solve(H @ noise @ H.T + R, H @ noise).T               # Q H' (H Q H' + R)^-1
         reduction = np.eye(H.shape[1]) - gain @ H
         covariance = reduction @ noise @ reduction.T + gain @ R @ gain.T         # Joseph's form of P
-        factor = np.linalg.cholesky(0.5 * (covariance + covariance.T))
+        factor = cholesky_factor(covariance)       # a constant, on the host, on either backend
         return predicted + measurement_innovation(model, measurement, predicted @ H.T) @ gain.T, factor
 
 
@@ -268,6 +302,7 @@ class ExtendedKalmanProposal(_GaussianProposal):
     """One EKF update per particle from N(f(x_k-1), Q): the PF-EKF."""
 
     kind: Literal["ekf"] = "ekf"
+    backends: ClassVar[Backends] = Backends(BOTH)
 
     def moments(self, model, predicted, noise, measurement):
         jacobian = measurement_jacobian(model, predicted, noise)

@@ -1,0 +1,172 @@
+"""The guided proposals lifted to the jax backend (pfx/filters/particle/proposals.py's
+``propose_from``, called by pfx/filters/particle/jax_engine.py's ``propose``).
+
+On a linear-Gaussian model the locally optimal proposal is known in closed form and the EKF
+proposal is exact, so, as tests/test_proposals.py checks on numpy:
+
+* deterministically, on jax: log p(z | x) + the weight adjustment is log N(z; H f_i, H Q H' + R)
+  for every particle, whatever x was drawn; the ekf proposal (the model's Jacobian, or central
+  differences traced on jax) draws the locally optimal proposal's particles; a trial without a
+  measurement gets adjustment 0; a covariance whose factorisation fails falls back to Q's factor,
+  and the weight is still p(x | x_prev) / q exactly;
+* statistically, on both backends (fixed seeds): over n runs on one data set, the posterior
+  means' standardised errors against the Kalman filter lie within 4 standard errors of 0, and the
+  likelihood estimate is unbiased: mean(l) + var(l)/2 within 4 standard errors of 0 for
+  l = log L_hat - log p (the log domain's -s^2/2 bias accounted for: tests/test_proposals.py's
+  ``unbiased_log_likelihood``);
+* a missing measurement is a predict-only step on jax too; a config asking for the proposal on
+  ``filter.backend: jax`` runs through the CLI and writes trials.csv.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+from test_proposals import (
+    assert_agrees_with_the_kalman_filter,
+    constant_velocity,
+    kalman,
+    one_data_set,
+    proposal,
+    run_particle,
+)
+
+from pfx.models.linear_gaussian import LinearGaussian
+
+jax = pytest.importorskip("jax")
+jnp = pytest.importorskip("jax.numpy")
+
+from pfx.filters.particle.proposals import ExtendedKalmanProposal, cholesky_factor  # noqa: E402
+from pfx.numerics.key_streams import KeyStreams  # noqa: E402
+
+RUNS = 100            # independent filter runs on one data set
+
+
+class NumericalJacobian(LinearGaussian):
+    """The linear-Gaussian model without its analytic measurement Jacobian: the ekf proposal
+    takes central differences of measurement_mean."""
+
+    def measurement_jacobian(self, mean):
+        return None
+
+
+def propose_on_jax(bound, previous, measurement, observed, seeds=(5, 6, 7)):
+    """The proposal as the compiled step calls it: JAX arrays, float64, the trials' keys."""
+    with jax.enable_x64(True):
+        predicted = jnp.asarray(previous) @ jnp.asarray(bound.model.matrices[0]).T
+        random = KeyStreams.from_seeds(list(seeds), jnp.float64)
+        state, adjustment = jax.jit(lambda p, z, o: bound.propose_from(p, z, o, random))(
+            predicted, jnp.asarray(measurement), jnp.asarray(observed))
+        return np.asarray(state), np.asarray(adjustment), np.asarray(predicted)
+
+
+def previous_cloud():
+    return np.random.default_rng(1).standard_normal((3, 50, 2))
+
+
+def test_on_jax_the_locally_optimal_weight_is_the_predictive_density_and_ekf_draws_the_same():
+    model = constant_velocity(0.01)
+    previous, measurement = previous_cloud(), np.array([[0.3], [-1.0], [2.0]])
+    observed = np.array([True, True, True])
+    A, H = model.matrices
+    Q, R = model.process_noise.covariance(), model.measurement_noise.covariance()
+    predictive = stats.norm.logpdf(measurement[:, None, 0], (previous @ A.T @ H.T)[..., 0],
+                                   np.sqrt((H @ Q @ H.T + R)[0, 0]))
+    drawn = {}
+    for name, on in (("locally_optimal", model), ("ekf", model), ("ekf-differences", NumericalJacobian(**dict(model)))):
+        state, adjustment, _ = propose_on_jax(proposal(name.split("-")[0]).bind(on), previous, measurement, observed)
+        weight = model.log_likelihood(measurement[:, None, :], state) + adjustment
+        np.testing.assert_allclose(weight, predictive, rtol=1e-9, atol=1e-9)
+        drawn[name] = state
+    np.testing.assert_allclose(drawn["ekf"], drawn["locally_optimal"], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(drawn["ekf-differences"], drawn["locally_optimal"], rtol=1e-6, atol=1e-6)
+
+
+def test_on_jax_a_trial_without_a_measurement_draws_from_the_transition_with_no_adjustment():
+    model = constant_velocity(0.01)
+    bound = proposal("locally_optimal").bind(model)
+    state, adjustment, predicted = propose_on_jax(bound, previous_cloud(), np.array([[0.3], [0.0], [2.0]]),
+                                                  np.array([True, False, True]))
+    assert (adjustment[1] == 0.0).all() and (adjustment[[0, 2]] != 0.0).all()
+    # the transition's spread (Q = diag(0.5, 0.2)), not the proposal's (position variance ~0.01)
+    deviation = state[1] - predicted[1]
+    assert 0.4 < deviation[:, 0].var() < 0.7, deviation[:, 0].var()
+
+
+class BrokenCovariance(ExtendedKalmanProposal):
+    """The ekf proposal with a covariance that is not positive definite (its factorisation fails)."""
+
+    def moments(self, model, predicted, noise, measurement):
+        mean, _ = super().moments(model, predicted, noise, measurement)
+        return mean, cholesky_factor(-jnp.ones(predicted.shape[:-1] + (1, 1)) * np.eye(predicted.shape[-1]))
+
+
+def test_on_jax_a_failed_factorisation_falls_back_to_the_transition_covariance():
+    model = constant_velocity(0.01)
+    bound = BrokenCovariance().bind(model)
+    previous, measurement = previous_cloud(), np.array([[0.3], [-1.0], [2.0]])
+    state, adjustment, predicted = propose_on_jax(bound, previous, measurement, np.ones(3, bool))
+    assert np.isfinite(state).all() and np.isfinite(adjustment).all()
+    mean, _ = proposal("ekf").moments(model, predicted, model.process_noise.covariance(), measurement[:, None, :])
+    Q = model.process_noise.covariance()
+    # the weight is p(x | x_prev) / q with q = N(m_i, Q): the draw's own law, exactly
+    expected = stats.multivariate_normal(cov=Q).logpdf(state - predicted) \
+        - stats.multivariate_normal(cov=Q).logpdf(state - mean)
+    np.testing.assert_allclose(adjustment, expected, rtol=1e-9, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def informative():
+    model = constant_velocity(0.01)
+    measurements = one_data_set(model, RUNS)
+    return model, measurements, kalman(model, measurements)
+
+
+@pytest.mark.parametrize("backend", ["numpy", "jax"])
+@pytest.mark.parametrize("name", ["locally_optimal", "ekf"])
+def test_guided_posterior_means_and_likelihood_match_the_kalman_filter_on_both_backends(informative, name, backend):
+    model, measurements, exact = informative
+    trace = run_particle(model, measurements, particles=RUNS, proposal=name, backend=backend)
+    assert_agrees_with_the_kalman_filter(trace, exact)
+
+
+def test_a_missing_measurement_is_predict_only_on_jax():
+    model = constant_velocity(0.5, steps=3)
+    measurements = one_data_set(model, 4)
+    blank = measurements.copy()
+    blank[:, 2] = np.nan
+    truncated = run_particle(model, measurements[:, :2], particles=50, proposal="ekf", backend="jax")
+    with_blank = run_particle(model, blank, particles=50, proposal="ekf", backend="jax")
+    np.testing.assert_allclose(with_blank.log_likelihood, truncated.log_likelihood, rtol=1e-12)
+    np.testing.assert_array_equal(with_blank.log_likelihood_increments[:, 2], 0.0)
+    assert np.isfinite(with_blank.estimates).all()
+
+
+def test_a_config_with_a_guided_proposal_runs_on_jax_through_the_cli(tmp_path, tiny_config_dict, write_config,
+                                                                      pfx_in_process):
+    config = tiny_config_dict()
+    config["filter"].update(backend="jax", proposal="locally_optimal")
+    completed = pfx_in_process("run", str(write_config(config)), "--out", str(tmp_path / "out"))
+    assert completed.returncode == 0, completed.stderr
+    trials = pd.read_csv(tmp_path / "out" / "trials.csv")
+    assert (trials["backend"] == "jax").all() and np.isfinite(trials["log_likelihood"]).all()
+
+
+class NumpyOnlyJacobian(LinearGaussian):
+    """A measurement Jacobian written for NumPy only (np.asarray of the state)."""
+
+    def measurement_jacobian(self, mean):
+        return np.broadcast_to(np.asarray(mean)[..., None, :1] * 0.0 + 1.0, mean.shape[:-1] + (1, 2)) * [1.0, 0.0]
+
+
+def test_a_numpy_only_measurement_jacobian_is_refused_at_plan_time_in_one_line():
+    import pfx
+    from pfx.errors import ConfigError
+
+    model = NumpyOnlyJacobian(**dict(constant_velocity(0.5, steps=3)))
+    with pytest.raises(ConfigError) as caught:
+        pfx.particle_filter(model, backend="jax", proposal="ekf")
+    message = str(caught.value)
+    assert "ekf proposal" in message and "backend: numpy" in message and "\n" not in message, message
