@@ -1,14 +1,14 @@
 """The guided proposals lifted to the jax backend (pfx/filters/particle/proposals.py's
 ``propose_from``, called by pfx/filters/particle/jax_engine.py's ``propose``).
 
-On a linear-Gaussian model the locally optimal proposal is known in closed form and the EKF
-proposal is exact, so, as tests/test_proposals.py checks on numpy:
+On a linear-Gaussian model the locally optimal proposal is known in closed form and the EKF and
+UKF proposals are exact, so, as tests/test_proposals.py checks on numpy:
 
 * deterministically, on jax: log p(z | x) + the weight adjustment is log N(z; H f_i, H Q H' + R)
   for every particle, whatever x was drawn; the ekf proposal (the model's Jacobian, or central
-  differences traced on jax) draws the locally optimal proposal's particles; a trial without a
-  measurement gets adjustment 0; a covariance whose factorisation fails falls back to Q's factor,
-  and the weight is still p(x | x_prev) / q exactly;
+  differences traced on jax) and the ukf proposal draw the locally optimal proposal's particles;
+  a trial without a measurement gets adjustment 0; a covariance whose factorisation fails falls
+  back to Q's factor, and the weight is still p(x | x_prev) / q exactly;
 * statistically, on both backends (fixed seeds): over n runs on one data set, the posterior
   means' standardised errors against the Kalman filter lie within 4 standard errors of 0, and the
   likelihood estimate is unbiased: mean(l) + var(l)/2 within 4 standard errors of 0 for
@@ -16,9 +16,17 @@ proposal is exact, so, as tests/test_proposals.py checks on numpy:
   ``unbiased_log_likelihood``);
 * a missing measurement is a predict-only step on jax too; a config asking for the proposal on
   ``filter.backend: jax`` runs through the CLI and writes trials.csv.
+
+The ukf proposal's sigma points and moments (pfx/filters/kalman/unscented.py) are the same code
+on both backends: compiled on jax in float64, its mean and factor equal NumPy's for the same
+predicted cloud on nonlinear models (ranges to beacons; a bearing, wrapped). Where P_i is not
+positive definite NumPy repairs it (``robust_square_root``) and JAX's factor is NaN, which
+``propose_from`` replaces by Q's.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -33,7 +41,9 @@ from test_proposals import (
     run_particle,
 )
 
+from pfx.models.base import bind_law
 from pfx.models.linear_gaussian import LinearGaussian
+from pfx.numerics.seeding import TrialStreams
 
 jax = pytest.importorskip("jax")
 jnp = pytest.importorskip("jax.numpy")
@@ -66,7 +76,7 @@ def previous_cloud():
     return np.random.default_rng(1).standard_normal((3, 50, 2))
 
 
-def test_on_jax_the_locally_optimal_weight_is_the_predictive_density_and_ekf_draws_the_same():
+def test_on_jax_the_locally_optimal_weight_is_the_predictive_density_and_ekf_ukf_draw_the_same():
     model = constant_velocity(0.01)
     previous, measurement = previous_cloud(), np.array([[0.3], [-1.0], [2.0]])
     observed = np.array([True, True, True])
@@ -75,12 +85,14 @@ def test_on_jax_the_locally_optimal_weight_is_the_predictive_density_and_ekf_dra
     predictive = stats.norm.logpdf(measurement[:, None, 0], (previous @ A.T @ H.T)[..., 0],
                                    np.sqrt((H @ Q @ H.T + R)[0, 0]))
     drawn = {}
-    for name, on in (("locally_optimal", model), ("ekf", model), ("ekf-differences", NumericalJacobian(**dict(model)))):
+    for name, on in (("locally_optimal", model), ("ekf", model), ("ekf-differences", NumericalJacobian(**dict(model))),
+                     ("ukf", model)):
         state, adjustment, _ = propose_on_jax(proposal(name.split("-")[0]).bind(on), previous, measurement, observed)
         weight = model.log_likelihood(measurement[:, None, :], state) + adjustment
         np.testing.assert_allclose(weight, predictive, rtol=1e-9, atol=1e-9)
         drawn[name] = state
     np.testing.assert_allclose(drawn["ekf"], drawn["locally_optimal"], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(drawn["ukf"], drawn["locally_optimal"], rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(drawn["ekf-differences"], drawn["locally_optimal"], rtol=1e-6, atol=1e-6)
 
 
@@ -125,7 +137,7 @@ def informative():
 
 
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
-@pytest.mark.parametrize("name", ["locally_optimal", "ekf"])
+@pytest.mark.parametrize("name", ["locally_optimal", "ekf", "ukf"])
 def test_guided_posterior_means_and_likelihood_match_the_kalman_filter_on_both_backends(informative, name, backend):
     model, measurements, exact = informative
     trace = run_particle(model, measurements, particles=RUNS, proposal=name, backend=backend)
@@ -144,10 +156,11 @@ def test_a_missing_measurement_is_predict_only_on_jax():
     assert np.isfinite(with_blank.estimates).all()
 
 
+@pytest.mark.parametrize("guided", ["locally_optimal", {"kind": "ukf"}], ids=["locally_optimal", "ukf"])
 def test_a_config_with_a_guided_proposal_runs_on_jax_through_the_cli(tmp_path, tiny_config_dict, write_config,
-                                                                      pfx_in_process):
+                                                                      pfx_in_process, guided):
     config = tiny_config_dict()
-    config["filter"].update(backend="jax", proposal="locally_optimal")
+    config["filter"].update(backend="jax", proposal=guided)
     completed = pfx_in_process("run", str(write_config(config)), "--out", str(tmp_path / "out"))
     assert completed.returncode == 0, completed.stderr
     trials = pd.read_csv(tmp_path / "out" / "trials.csv")
@@ -170,3 +183,54 @@ def test_a_numpy_only_measurement_jacobian_is_refused_at_plan_time_in_one_line()
         pfx.particle_filter(model, backend="jax", proposal="ekf")
     message = str(caught.value)
     assert "ekf proposal" in message and "backend: numpy" in message and "\n" not in message, message
+
+
+# -- the ukf proposal: the same unscented update on both backends -----------------------------------
+
+def _beacons():
+    import pfx
+
+    return pfx.model("range_beacons", steps=5, beacons=[[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]])
+
+
+def _bearings():
+    import pfx
+
+    pfx.load_plugin(str(Path(__file__).resolve().parents[1] / "examples" / "plugins" / "bearings_only.py"))
+    return pfx.model("bearings_only")
+
+
+@pytest.mark.usefixtures("fresh_plugins")
+@pytest.mark.parametrize("make_model,settings", [(_beacons, {"alpha": 0.5, "kappa": 1.0}), (_bearings, {})],
+                         ids=["range_beacons", "bearings_only"])
+def test_on_jax_the_ukf_proposal_moments_equal_numpys_for_the_same_cloud(make_model, settings):
+    model = make_model()
+    unscented = proposal({"kind": "ukf", **settings})
+    prior = bind_law(model.default_prior(), model.state_dimension, "initial")
+    # the moments alone are compared: any positive definite Q will do (the bearings-only model's
+    # own L Q L' has rank 2 of 4, so the proposal's bind would refuse that model)
+    noise = prior.covariance_matrix()
+    predicted = np.asarray(prior.sample(TrialStreams.from_seeds([3, 4]), (40,)), dtype=float)      # (2, 40, d)
+    measurement = np.asarray(model.measurement_mean(predicted[:, :1]), dtype=float) \
+        + 0.1 * np.random.default_rng(3).standard_normal((2, 1, model.measurement_dimension))
+    numpy_mean, numpy_factor = unscented.moments(model, predicted, noise, measurement)
+    with jax.enable_x64(True):
+        jax_mean, jax_factor = jax.jit(lambda x, z: unscented.moments(model, x, noise, z))(
+            jnp.asarray(predicted), jnp.asarray(measurement))
+    assert np.isfinite(numpy_factor).all()
+    np.testing.assert_allclose(np.asarray(jax_mean), numpy_mean, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(jax_factor), numpy_factor, rtol=1e-10, atol=1e-10)
+
+
+def test_the_ukf_proposals_square_root_repairs_on_numpy_and_is_nan_on_jax_where_cholesky_fails():
+    from pfx.filters.kalman.unscented import robust_square_root
+    from pfx.filters.particle.proposals import proposal_square_root
+
+    covariances = np.array([[[2.0, 0.5], [0.5, 1.0]],
+                            [[1.0, 1.0], [1.0, 1.0 - 1e-13]]])     # indefinite by round-off
+    repaired, _ = robust_square_root(covariances, {"jitter": 0, "clipped": 0})
+    np.testing.assert_array_equal(proposal_square_root(covariances), repaired)
+    with jax.enable_x64(True):
+        traced = np.asarray(jax.jit(proposal_square_root)(jnp.asarray(covariances)))
+    np.testing.assert_allclose(traced[0], np.linalg.cholesky(covariances[0]), rtol=1e-12)
+    assert np.isnan(traced[1]).any()         # propose_from replaces it by Q's factor

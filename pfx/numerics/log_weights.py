@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pfx.numerics.arrays import is_jax_array, namespace
+
 
 def log_normalise(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Row-wise log-sum-exp normalisation; returns (normalised log-weights, log normaliser).
@@ -35,8 +37,11 @@ def normalise_weights(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     :math:`\log w_i = \log \tilde w_i - m - \log S`, :math:`w_i = e^{\log \tilde w_i - m} / S`
     (the exponentials are computed once, for the sum and the weights) and
     :math:`L = m + \log S`. A row whose entries are all -inf has L = -inf, log-weights
-    unchanged and weights 0.
+    unchanged and weights 0. A JAX array (traced: no shortcut that depends on the values) takes
+    :func:`masked_normalise`, the same arithmetic.
     """
+    if is_jax_array(log_weights):
+        return masked_normalise(log_weights)
     with np.errstate(under="ignore", over="ignore", invalid="ignore", divide="ignore"):
         return normalise_rows(log_weights)
 
@@ -56,16 +61,26 @@ def normalise_rows(log_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
         shifted -= log_total
         weights /= total
         return shifted, weights, normaliser
-    finite_peak = np.where(np.isfinite(peak), peak, 0.0)
+    return masked_normalise(log_weights, peak)
+
+
+def masked_normalise(log_weights, peak=None):
+    """:func:`normalise_weights` for rows that may be all -inf or hold +inf, on NumPy or JAX
+    arrays (``peak``: the rows' maxima, if already taken); a finite row's numbers are those
+    of the common case."""
+    xp = namespace(log_weights)
+    if peak is None:
+        peak = xp.max(log_weights, axis=-1, keepdims=True)
+    finite_peak = xp.where(xp.isfinite(peak), peak, 0.0)
     shifted = log_weights - finite_peak
-    weights = np.exp(shifted)
-    total = np.sum(weights, axis=-1, keepdims=True)
-    log_total = np.log(total)
-    usable = np.isfinite(log_total)
+    weights = xp.exp(shifted)
+    total = xp.sum(weights, axis=-1, keepdims=True)
+    log_total = xp.log(total)
+    usable = xp.isfinite(log_total)
     # Subtract the shift and log(total) separately: peak + log(total) loses log(total) to
     # rounding when |peak| > ~1e16.
-    shifted -= np.where(usable, log_total, 0.0)
-    weights /= np.where(usable, total, 1.0)
+    shifted = shifted - xp.where(usable, log_total, 0.0)
+    weights = weights / xp.where(usable, total, 1.0)
     return shifted, weights, (log_total + finite_peak)[..., 0]
 
 

@@ -74,6 +74,13 @@ The repaired matrix :math:`S S^\top` replaces the covariance (it is the one repo
 on). Components of exactly zero variance (a point prior) are left out of the factor, so their
 sigma points coincide with the mean. The KF and EKF are not repaired: Joseph's form keeps them
 positive semi-definite, and an EKF's failure should show, not be hidden.
+
+**On JAX arrays.** :func:`unscented_sigma_points` and :func:`unscented_moments` are written
+against the array namespace (:mod:`pfx.numerics.arrays`), so that the particle filter's
+unscented proposal (:mod:`pfx.filters.particle.proposals`) runs them in the jax backend's
+compiled step, with the same numbers on NumPy. The repair above is NumPy's alone (it catches
+NumPy's exception and writes rows in place): the UKF runs on numpy, and the proposal on jax
+falls back to the transition's factor where Cholesky fails (see there).
 """
 
 from __future__ import annotations
@@ -88,6 +95,7 @@ from pfx.filters.kalman.linearisation import process_noise_in_state
 from pfx.filters.kalman.measurement_form import MeasurementAngles, measurement_angles, measurement_innovation
 from pfx.filters.kalman.recursion import check_finite, gaussian_recursion, innovation_terms, symmetric, transpose
 from pfx.filters.trace import FilterTrace
+from pfx.numerics.arrays import namespace
 
 JITTERS = tuple(10.0 ** -e for e in range(12, 5, -1))  # 1e-12 .. 1e-6, relative to each variance
 EIGENVALUE_FLOOR = 1e-12                               # relative to the largest eigenvalue
@@ -227,7 +235,9 @@ def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, cur
     ``curvature`` = beta - alpha^2. ``point_angles`` and ``value_angles`` name angular
     components of each (measurements: :mod:`~pfx.filters.kalman.measurement_form`): their
     deviations D_i = Y_i - Y_0 are wrapped into half a turn either side, so that their mean
-    Y_0 + W sum_i D_i is taken on the circle (module docstring)."""
+    Y_0 + W sum_i D_i is taken on the circle (module docstring). NumPy or JAX alike
+    (:mod:`pfx.numerics.arrays`): the unscented proposal runs it in the jax backend's step."""
+    xp = namespace(points, values)
     d_points = points[:, 1:] - points[:, :1]
     d_values = values[:, 1:] - values[:, :1]
     if point_angles is not None:
@@ -236,16 +246,18 @@ def unscented_moments(points: np.ndarray, values: np.ndarray, weight: float, cur
         d_values = value_angles.wrap(d_values)
     shift_points = weight * d_points.sum(axis=1)
     shift_values = weight * d_values.sum(axis=1)
-    cross = weight * np.einsum("rip,riq->rpq", d_points, d_values) \
-        + curvature * np.einsum("rp,rq->rpq", shift_points, shift_values)
+    cross = weight * xp.einsum("rip,riq->rpq", d_points, d_values) \
+        + curvature * xp.einsum("rp,rq->rpq", shift_points, shift_values)
     return values[:, 0] + shift_values, cross
 
 
 def unscented_sigma_points(mean: np.ndarray, square_root: np.ndarray, spread: float) -> np.ndarray:
     """The 2d + 1 sigma points of N(mean, S S') per row: mean, mean + c S[:, j], mean - c S[:, j]
-    (c = ``spread``); mean (R, d), S (R, d, d) or one (d, d) for every row; returns (R, 2d + 1, d)."""
+    (c = ``spread``); mean (R, d), S (R, d, d) or one (d, d) for every row; returns (R, 2d + 1, d).
+    NumPy or JAX alike."""
+    xp = namespace(mean, square_root)
     offsets = spread * transpose(square_root)                     # row j: c S[:, j]
-    return np.concatenate([mean[:, None], mean[:, None] + offsets, mean[:, None] - offsets], axis=1)
+    return xp.concatenate([mean[:, None], mean[:, None] + offsets, mean[:, None] - offsets], axis=1)
 
 
 def robust_square_root(covariance: np.ndarray, repairs: dict) -> tuple[np.ndarray, np.ndarray]:

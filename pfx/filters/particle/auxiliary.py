@@ -37,11 +37,12 @@ by the same :math:`e^{g}`); a point prediction that is NaN (outside the model's 
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Optional
 
 import numpy as np
 
-from pfx.filters.backends import Backends
+from pfx.filters.backends import BOTH, Backends
+from pfx.numerics.arrays import namespace
 from pfx.numerics.log_weights import normalise_weights
 
 
@@ -50,10 +51,13 @@ class AuxiliaryFirstStage:
 
     It computes and returns; the engine applies (adds the increment to the log-likelihood, takes
     the weights, resamples the trials the ESS rule picks with its resampling stage, and gathers
-    the ancestors' look-ahead :math:`g_{a_i}` for the second stage).
+    the ancestors' look-ahead :math:`g_{a_i}` for the second stage). :meth:`first_stage` is
+    written once for both backends: the NumPy engine reaches it through :meth:`weights`, the
+    JAX engine (:mod:`pfx.filters.particle.jax_look_ahead`) with the look-ahead it computes in
+    its compiled step.
     """
 
-    backends = Backends(what="the auxiliary particle filter", why="it is written for the NumPy engine's step")
+    backends = Backends(BOTH)
 
     def weights(self, model, log_weights: np.ndarray, previous: np.ndarray, step: int,
                 measurement: np.ndarray, observed: Optional[np.ndarray]):
@@ -66,14 +70,25 @@ class AuxiliaryFirstStage:
             if observed is not None:
                 measurement = np.where(observed[:, None, None], measurement, 0.0)
             look_ahead = model.look_ahead_log_weight(previous, step, measurement)
-        look_ahead = np.where(np.isnan(look_ahead), -np.inf, look_ahead)
+        return self.first_stage(log_weights, look_ahead, observed)
+
+    def first_stage(self, log_weights: Any, look_ahead: Any, observed: Optional[Any]):
+        """(log lambda, lambda, L1, g) from the normalised ``log_weights`` (R, N), the model's
+        look-ahead (R, N) as it evaluated (NaN where a point prediction left the model's domain)
+        and ``observed`` (R,) (None: every trial): the edge cases of the module docstring, as
+        selects, on NumPy or JAX arrays."""
+        xp = namespace(log_weights, look_ahead)
+        look_ahead = xp.where(xp.isnan(look_ahead), -xp.inf, look_ahead)
         if observed is not None:
-            look_ahead[~observed] = 0.0
+            look_ahead = xp.where(observed[:, None], look_ahead, 0.0)
         log_first, first, normaliser = normalise_weights(log_weights + look_ahead)
-        underflow = ~np.isfinite(normaliser)
-        if underflow.any():
-            look_ahead[underflow] = 0.0
-            log_first[underflow], first[underflow], normaliser[underflow] = normalise_weights(log_weights[underflow])
+        underflow = ~xp.isfinite(normaliser)
+        if xp is not np or underflow.any():       # NumPy skips the fallback where no trial needs it
+            look_ahead = xp.where(underflow[:, None], 0.0, look_ahead)
+            log_prior, prior, prior_normaliser = normalise_weights(log_weights)
+            log_first = xp.where(underflow[:, None], log_prior, log_first)
+            first = xp.where(underflow[:, None], prior, first)
+            normaliser = xp.where(underflow, prior_normaliser, normaliser)
         if observed is not None:
-            normaliser = np.where(observed, normaliser, 0.0)
+            normaliser = xp.where(observed, normaliser, 0.0)
         return log_first, first, normaliser, look_ahead

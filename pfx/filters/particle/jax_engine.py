@@ -17,6 +17,10 @@ values so that XLA can compile the whole run, on a CPU or a GPU:
 * a guided proposal (``filter.proposal``) replaces the transition by the proposals module's
   own drawing (:meth:`JaxParticleFilter.propose`), and its weight adjustment joins the
   likelihood in the weight update;
+* the auxiliary filter (``filter.auxiliary``) runs its first stage before the prediction
+  (:mod:`pfx.filters.particle.jax_look_ahead`: resampling by the look-ahead weights, whose
+  normaliser joins the step's increment), adds its :math:`-g_{a_i}` to the weight adjustment
+  and does not resample at the end of the step;
 * ``outputs`` (:class:`StepOutputs`) are the trace's columns at step k: the estimate, the ESS,
   whether the trial resampled, whether its weights underflowed, the log-likelihood increment,
   and what a :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a
@@ -58,6 +62,7 @@ import numpy as np
 from pfx.errors import ModelContractError, ModelNumericalError
 from pfx.filters.particle.jax_after_resampling import AfterResampling
 from pfx.filters.particle.jax_diagnostics import Flags, StageClouds, by_trial, fill_trace, step_diagnostics
+from pfx.filters.particle.jax_look_ahead import JaxLookAhead
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
 from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
 from pfx.filters.particle.predictive import predictive_step
@@ -131,6 +136,9 @@ class JaxParticleFilter:
         self.threshold = bound.resampling.threshold
         self.particles = bound.particles
         self.after_resampling = AfterResampling(bound, self.dtype)
+        # the auxiliary filter's first stage (filter.auxiliary), or None
+        self.look_ahead = None if bound.auxiliary is None else \
+            JaxLookAhead(self, own_look_ahead=_overrides(bound.model, "look_ahead_log_weight"))
         self._programs: dict = {}
 
     def check_model(self) -> None:
@@ -186,6 +194,8 @@ class JaxParticleFilter:
                         "write it against the array namespace, xp = pfx.namespace(state), without writing into "
                         "arrays (docs/plugins.md, 'Writing a model for both backends'), or set backend: numpy"
                     ) from None
+        if self.look_ahead is not None:
+            self.look_ahead.check_model()
 
     def __getstate__(self) -> dict:
         # compiled programs belong to this process: a copy sent to a worker compiles its own
@@ -284,22 +294,32 @@ class JaxParticleFilter:
         """Step k: predict, weight and normalise, estimate, resample (module docstring); with
         ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
         random = random.at(inputs.step)
-        adjustment = None
+        adjustment = first = None
+        if self.look_ahead is not None:      # the auxiliary filter's first stage: resample by the look-ahead
+            cloud, first = self.look_ahead.apply(cloud, inputs, random)
+            adjustment = first.adjustment
         with collecting(len(random)) as transition_checks:
             if self.bound.proposal is None:
                 predicted, lost, predicted_log_weights = self.predict(cloud, inputs, random)
             else:
-                predicted, lost, predicted_log_weights, adjustment = self.propose(cloud, inputs, random)
-        predictive = self.predictive(predicted, predicted_log_weights, inputs, scores.at(inputs.step)) \
-            if scores is not None else None
+                predicted, lost, predicted_log_weights, correction = self.propose(cloud, inputs, random)
+                adjustment = correction if adjustment is None else correction + adjustment
+        predictive = self.predictive(predicted, _carried_weights(predicted_log_weights, adjustment), inputs,
+                                     scores.at(inputs.step)) if scores is not None else None
         every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
         log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
             predicted_log_weights, predicted, inputs, adjustment)
+        if first is not None:                # L_k = L1_k + L2_k
+            increment = first.increment + increment.astype(jnp.float64)
         after = self.after_resampling.observe(cloud.after, increment, inputs.observed)
         ess = 1.0 / jnp.sum(weights * weights, axis=-1)
         estimate = self.estimate(weights, predicted)
-        resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, after, injected = \
-            self.resample(predicted, log_weights, weights, ess, random, cloud.particles, after, inputs)
+        if first is None:
+            resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, after, injected = \
+                self.resample(predicted, log_weights, weights, ess, random, cloud.particles, after, inputs)
+        else:                                # no resampling at the end of an auxiliary step (as on numpy)
+            resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, injected = \
+                predicted, log_weights, weights, first.ancestors, first.resampled, None
         failures = (jnp.where(every_particle_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad_likelihood, BAD_LIKELIHOOD, 0)
                     | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
         if transition_checks.recorded:          # a model whose transition checks no law adds nothing
@@ -310,7 +330,8 @@ class JaxParticleFilter:
         outputs = StepOutputs(
             estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
             failures=failures.astype(jnp.int16),
-            ancestors=cloud.ancestors if flags.genealogy else None,       # those that made this step's particles
+            # those that made this step's particles: the last resampling's, the first stage's if auxiliary
+            ancestors=(cloud.ancestors if first is None else first.ancestors) if flags.genealogy else None,
             predictive=None if predictive is None else {**predictive, "log_score": -increment}, injected=injected,
             **step_diagnostics(self.model, flags, clouds, inputs))
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
@@ -409,10 +430,10 @@ class JaxParticleFilter:
         the particles injected per trial (None without injection)."""
         trials, count = weights.shape
         identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
-        if self.threshold <= 0.0:        # sis, or a threshold of 0: never (so nothing moved or injected)
+        resampled = self.picks(ess)
+        if resampled is None:            # sis, or a threshold of 0: never (so nothing moved or injected)
             nothing = jnp.zeros(trials, jnp.int32) if self.bound.injection is not None else None
             return state, log_weights, weights, identity, jnp.zeros(trials, bool), after, nothing
-        resampled = jnp.ones(trials, bool) if self.threshold >= 1.0 else ess < self.threshold * count
         indices = self.resampler(weights, random)
         chosen = jnp.where(resampled[:, None], indices, identity)
         offspring = jnp.take_along_axis(state, chosen[..., None], axis=1)
@@ -422,6 +443,13 @@ class JaxParticleFilter:
         log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_weights.dtype), log_weights)
         weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
         return state, log_weights, weights, ancestors, resampled, after, injected
+
+    def picks(self, ess):
+        """The ESS rule: which trials resample (R,) bool, every one at threshold 1; None at
+        threshold 0 (none ever does, so none need draw)."""
+        if self.threshold <= 0.0:
+            return None
+        return jnp.ones(ess.shape, bool) if self.threshold >= 1.0 else ess < self.threshold * self.particles
 
     # -- the predictive scores (a static flag; the other diagnostics: jax_diagnostics) ---------
 
@@ -433,6 +461,14 @@ class JaxParticleFilter:
         measurement = inputs.measurement.astype(state.dtype)
         values = predictive_step(self.model, state, log_weights, measurement, random)
         return {name: value for name, value in values.items() if value is not None}
+
+
+def _carried_weights(log_weights, adjustment):
+    """The log-weights the predicted particles carry (:mod:`pfx.filters.particle.predictive`):
+    with the weight adjustment, where there is one; a particle at weight zero stays there."""
+    if adjustment is None:
+        return log_weights
+    return jnp.where(jnp.isneginf(log_weights), -jnp.inf, log_weights + adjustment)
 
 
 def _overrides(model, method: str) -> bool:

@@ -43,9 +43,10 @@ The Kalman updates are :math:`S_i = H_i Q H_i^\top + R`, :math:`K_i = Q H_i^\top
 :math:`P_i = (I - K_i H_i) Q (I - K_i H_i)^\top + K_i R K_i^\top`; the locally optimal proposal is
 the same update with the exact H (the two forms of m and P are equal by the matrix inversion
 lemma). The unscented one takes :math:`h(f_i)`, :math:`S_i` and the cross-covariance from the
-2d + 1 sigma points of :math:`N(f_i, Q)` and :math:`P_i = Q - K_i S_i K_i^\top` (repaired like the
-UKF's covariances where Cholesky fails). The draw is :math:`x = m_i + C_i \epsilon`,
-:math:`C_i C_i^\top = P_i`, :math:`\epsilon \sim N(0, I)` from the trial's stream, so that
+2d + 1 sigma points of :math:`N(f_i, Q)` and :math:`P_i = Q - K_i S_i K_i^\top` (on NumPy,
+repaired like the UKF's covariances where Cholesky fails; on JAX, see below). The draw is
+:math:`x = m_i + C_i \epsilon`, :math:`C_i C_i^\top = P_i`, :math:`\epsilon \sim N(0, I)` from the
+trial's stream, so that
 :math:`\log q = -\tfrac12 \epsilon^\top \epsilon - \log |C_i| - \tfrac d2 \log 2\pi` exactly.
 
 A trial whose measurement is missing at step k draws from the transition
@@ -64,12 +65,15 @@ here, before the run, and pointed to the bootstrap proposal.
 The drawing is written once, against the array namespace (:mod:`pfx.numerics.arrays`):
 :meth:`BoundGaussianProposal.propose_from` runs on NumPy arrays in the NumPy engine and on JAX
 arrays in the compiled step (:mod:`pfx.filters.particle.jax_engine`), which applies it to every
-trial with ``observed`` a mask. ``locally_optimal`` and ``ekf`` run on both backends; ``ukf``
-(its sigma points and repaired square root are NumPy code) on numpy only. On JAX a Cholesky
+trial with ``observed`` a mask. All three guided proposals run on both backends (the unscented
+transform's sigma points and moments are written against the namespace too). On JAX a Cholesky
 factorisation does not raise where the covariance is not positive definite (round-off, in
 float32): it returns NaN, and that particle's factor falls back to Q's by a select; the draw is
 then :math:`N(m_i, Q)` and :math:`\log q` is computed from the factor used, so the weight stays
-an exact importance weight.
+an exact importance weight. That is also what ``ukf`` does on JAX where NumPy repairs
+:math:`P_i` (jitter, clipped eigenvalues: :func:`pfx.filters.kalman.unscented.robust_square_root`,
+which catches NumPy's exception and writes rows in place); :func:`proposal_square_root` is the
+one place the two backends part.
 """
 
 from __future__ import annotations
@@ -254,6 +258,17 @@ def cholesky_factor(covariance):
     return xp.linalg.cholesky(0.5 * (covariance + transpose(covariance)))
 
 
+def proposal_square_root(covariance):
+    """A factor C of each covariance (..., d, d), C C' = P: on NumPy the UKF's
+    :func:`~pfx.filters.kalman.unscented.robust_square_root`, repaired where Cholesky fails (its
+    repair counts are dropped: a proposal has no diagnostics to report them in); on JAX :func:`cholesky_factor`, NaN there, for :meth:`BoundGaussianProposal.propose_from` to
+    replace by Q's factor (a traced step cannot catch an exception or write a row in place)."""
+    if namespace(covariance) is np:
+        factor, _ = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
+        return factor
+    return cholesky_factor(covariance)
+
+
 def kalman_update(predicted, noise, jacobian, innovation, measurement_noise):
     """The Kalman update from N(f, Q) with innovation z - h(f): (m, C) with
     P = (I - K H) Q (I - K H)' + K R K' = C C'. NumPy or JAX alike."""
@@ -316,6 +331,7 @@ class UnscentedProposal(_GaussianProposal):
     """One UKF update per particle from N(f(x_k-1), Q): the unscented particle filter."""
 
     kind: Literal["ukf"] = "ukf"
+    backends: ClassVar[Backends] = Backends(BOTH)
     alpha: StrictFloat = Field(1.0, gt=0.0, le=1.0, description="spread of the sigma points (0 < alpha <= 1)")
     beta: StrictFloat = Field(2.0, ge=0.0, description="prior knowledge of the distribution (2: gaussian)")
     kappa: StrictFloat = Field(0.0, ge=-1e6, le=1e6, description="secondary scaling; needs d + kappa > 0")
@@ -332,24 +348,25 @@ class UnscentedProposal(_GaussianProposal):
         return UnscentedParameters(alpha=self.alpha, beta=self.beta, kappa=self.kappa)
 
     def moments(self, model, predicted, noise, measurement):
+        """NumPy or JAX alike: Q's factor and R are the host's constants (:func:`constant_like`)."""
+        xp = namespace(predicted, measurement)
         leading, d = predicted.shape[:-1], predicted.shape[-1]
         spread, _, _, weight = self.parameters().weights(d)
         curvature = self.beta - self.alpha ** 2
         flat = predicted.reshape(-1, d)                                     # (R N, d): one row per particle
-        points = unscented_sigma_points(flat, np.linalg.cholesky(noise), spread)
+        points = unscented_sigma_points(flat, constant_like(np.linalg.cholesky(noise), flat), spread)
         images = model.measurement_mean(points)
         angles = measurement_angles(model)
         predicted_measurement, measurement_spread = unscented_moments(images, images, weight, curvature, angles, angles)
         _, cross = unscented_moments(points, images, weight, curvature, value_angles=angles)
-        innovation_covariance = measurement_spread + model.measurement_noise.covariance()
-        gain = transpose(np.linalg.solve(innovation_covariance, transpose(cross)))
+        innovation_covariance = measurement_spread + constant_like(model.measurement_noise.covariance(), flat)
+        gain = transpose(xp.linalg.solve(innovation_covariance, transpose(cross)))
         innovation = measurement_innovation(
-            model, np.broadcast_to(measurement, leading + measurement.shape[-1:]).reshape(len(flat), -1),
+            model, xp.broadcast_to(measurement, leading + measurement.shape[-1:]).reshape(flat.shape[0], -1),
             predicted_measurement)
-        mean = flat + np.einsum("rdm,rm->rd", gain, innovation)
-        covariance = noise - gain @ innovation_covariance @ transpose(gain)
-        factor, _ = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
-        return mean.reshape(predicted.shape), factor.reshape(leading + (d, d))
+        mean = flat + xp.einsum("rdm,rm->rd", gain, innovation)
+        covariance = constant_like(noise, flat) - gain @ innovation_covariance @ transpose(gain)
+        return mean.reshape(predicted.shape), proposal_square_root(covariance).reshape(leading + (d, d))
 
 
 Proposal = PROPOSALS.kind_union()
