@@ -234,3 +234,26 @@ def test_the_ukf_proposals_square_root_repairs_on_numpy_and_is_nan_on_jax_where_
         traced = np.asarray(jax.jit(proposal_square_root)(jnp.asarray(covariances)))
     np.testing.assert_allclose(traced[0], np.linalg.cholesky(covariances[0]), rtol=1e-12)
     assert np.isnan(traced[1]).any()         # propose_from replaces it by Q's factor
+
+
+def test_a_ukf_proposal_factor_repaired_by_clipped_eigenvalues_is_triangular_so_log_q_is_exact():
+    """Where jitter cannot repair P_i (a correlation of 2: eigenvalues 3 and -1), the UKF's repair
+    clips eigenvalues and returns a full square root; the proposal refactors that row by Cholesky.
+    log q takes log |det C| as the sum of log diag C: with the triangular factor that is half the
+    log-determinant of the repaired covariance (with the full factor it was not)."""
+    from pfx.filters.kalman.unscented import robust_square_root
+    from pfx.filters.particle.proposals import proposal_square_root
+
+    covariances = np.array([[[2.0, 0.5], [0.5, 1.0]], [[1.0, 2.0], [2.0, 1.0]]])
+    repairs = {"jitter": 0, "clipped": 0}
+    full, repaired = robust_square_root(covariances, repairs)
+    assert repairs["clipped"] == 1 and full[1, 0, 1] != 0.0          # the case this guards
+    factor = proposal_square_root(covariances)
+    np.testing.assert_array_equal(factor[0], full[0])                # a row Cholesky took is unchanged
+    assert np.all(np.triu(factor, 1) == 0.0)
+    np.testing.assert_allclose(factor @ np.swapaxes(factor, -1, -2), repaired, rtol=1e-9, atol=1e-12)
+    half_log_determinant = 0.5 * np.linalg.slogdet(repaired)[1]
+    np.testing.assert_allclose(np.sum(np.log(np.diagonal(factor, axis1=-2, axis2=-1)), axis=-1),
+                               half_log_determinant, rtol=1e-4)     # P is near-singular: cond ~1e12
+    with np.errstate(invalid="ignore"):      # the full factor's diagonal: not its determinant
+        assert not np.sum(np.log(np.abs(np.diagonal(full[1])))) == pytest.approx(half_log_determinant[1], rel=1e-3)

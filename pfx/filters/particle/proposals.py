@@ -264,7 +264,16 @@ def proposal_square_root(covariance):
     repair counts are dropped: a proposal has no diagnostics to report them in); on JAX :func:`cholesky_factor`, NaN there, for :meth:`BoundGaussianProposal.propose_from` to
     replace by Q's factor (a traced step cannot catch an exception or write a row in place)."""
     if namespace(covariance) is np:
-        factor, _ = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
+        factor, repaired = robust_square_root(covariance, {"jitter": 0, "clipped": 0})
+        # log q takes log |det C| as the sum of log diag C, true of a triangular factor only. The
+        # repair's last resort (clipped eigenvalues) returns a full one: such a row is factored
+        # again, by Cholesky of the repaired covariance, positive definite by construction.
+        full = np.any(np.triu(factor, 1) != 0, axis=(-2, -1))
+        for row in zip(*np.nonzero(full)):
+            try:
+                factor[row] = np.linalg.cholesky(repaired[row])
+            except np.linalg.LinAlgError:      # a zero variance: no density to correct, left as it is
+                pass
         return factor
     return cholesky_factor(covariance)
 
