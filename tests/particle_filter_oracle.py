@@ -294,7 +294,9 @@ class OracleParticleFilter:
             ancestors = np.take_along_axis(indices, order, axis=1)
         moved = bound.diffusion.apply(resampled, streams)
         if self.injection is not None:               # augmented MCL: replace some by prior draws
-            active = np.full(rows.size, self.particles) if self.active is None else self.active[rows]
+            # fixed in both (2026-11-29): the count this resampling keeps, KLD's new one (it took the
+            # previous one, so a prior draw could land on a particle the new count leaves inactive)
+            active = counts if bound.adaptive is not None else np.full(rows.size, self.particles)
             replaced = self.injection.inject(moved, active, rows, streams, bound.prior)
             self.trace.injected[rows, t] = replaced.sum(axis=1)
             ancestors = np.where(replaced, -1, ancestors)          # a prior draw has no ancestor

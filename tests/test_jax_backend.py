@@ -185,8 +185,7 @@ def test_the_jax_backend_refuses_what_it_does_not_run_by_key(tmp_path):
     (tmp_path / "transition_as_plugin.py").write_text(TRANSITION_PROPOSAL_PLUGIN)
     pfx.load_plugin(str(tmp_path / "transition_as_plugin.py"))   # every built-in proposal runs on jax
     model = random_walk(steps=5)
-    cases = {"adaptive": {"adaptive": {"kind": "kld", "bin_size": [0.5]}, "particles": 200},
-             "proposal": {"proposal": "transition_as_plugin"},
+    cases = {"proposal": {"proposal": "transition_as_plugin"},
              "backend": {"kind": "kf"}}
     for key, settings in cases.items():
         kind = settings.pop("kind", "particle")
@@ -361,7 +360,10 @@ def test_an_extended_jax_run_equals_a_fresh_one(tmp_path, tiny_config_dict, pfx_
     pfx.run(config, out=tmp_path / "fresh")
     tables = [pd.read_csv(tmp_path / name / "trials.csv").drop(columns=["run_time_s"]) for name in ("extended", "fresh")]
     pd.testing.assert_frame_equal(*tables, check_exact=True)
-    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"),
-                             "--set", "filter.adaptive={kind: kld, bin_size: 0.5}", "--out", str(tmp_path / "refused"))
-    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1
-    assert "filter.adaptive" in refused.stderr and "backend: numpy" in refused.stderr
+    (tmp_path / "transition_as_plugin.py").write_text(TRANSITION_PROPOSAL_PLUGIN)
+    refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set",
+                             f"plugins=[{tmp_path / 'transition_as_plugin.py'}]", "--set",
+                             "filter.proposal=transition_as_plugin", "--out", str(tmp_path / "refused"))
+    assert refused.returncode == 2 and len(refused.stderr.strip().splitlines()) == 1, refused.output
+    assert "filter.proposal" in refused.stderr and "backend: numpy" in refused.stderr
+    assert not (tmp_path / "refused").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.numerics.angles import circular_mean
+from pfx.numerics.arrays import namespace
 from pfx.numerics.compiled import compiled
 
 
@@ -61,6 +62,7 @@ def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndar
 def active_uniform(counts: np.ndarray, maximum: int) -> tuple[np.ndarray, np.ndarray]:
     """(log-weights, weights) uniform over the first ``counts[r]`` particles of each row
     (log 1/n, 1/n), -inf and 0 past them: an adaptive count's inactive particles."""
-    active = np.arange(maximum) < counts[:, None]
+    xp = namespace(counts)         # NumPy or JAX counts (the jax engine's carried ones)
+    active = xp.arange(maximum) < counts[:, None]
     uniform = 1.0 / counts[:, None]
-    return np.where(active, -np.log(counts)[:, None], -np.inf), np.where(active, uniform, 0.0)
+    return xp.where(active, -xp.log(counts)[:, None], -np.inf), xp.where(active, uniform, 0.0)

@@ -12,19 +12,24 @@ its resampling points, and this stage, for every trial:
   the step's control and substep times (the NumPy move reads them on the host by the step
   number). The mcmc move's acceptance rate counts only at the steps a trial resampled: the
   running sum and count per trial are carried (:class:`Carried`), as the NumPy engine tallies them.
+* **adaptive count** (``filter.adaptive``, KLD-sampling): the count rule's own ``apply``
+  (:mod:`pfx.filters.particle.adaptive`, written once against the array namespace): a random
+  order of the resampled particles from the trial's keys, the KLD count over it, the particles
+  past it parked on a copy of particle 0. The active count per trial is carried
+  (:class:`Carried`) and changes only where a trial resampled; the ancestors follow the order.
 * **diffusion**: the diffusion's own ``apply``.
 * **injection** (augmented MCL, :mod:`pfx.filters.particle.injection`): the running averages
   :math:`\log w_\text{slow}, \log w_\text{fast}` per trial are carried and updated from the
   step's log-normaliser :math:`L_k` by the injection module's function (unchanged at a step
   without a measurement); each resampled particle is replaced, with probability
-  :math:`\max(0, 1 - w_\text{fast}/w_\text{slow})`, by a draw from the filter's prior. Every
+  :math:`\max(0, 1 - w_\text{fast}/w_\text{slow})`, by a draw from the filter's prior (with an
+  adaptive count, only the particles active after this resampling). Every
   trial draws the uniforms and the prior's particles (NumPy draws only in the trials with a
   positive probability); a trial that did not resample replaces nothing. A prior draw has
   ancestor -1 in the genealogy, as on NumPy. (The prior's ``sample`` traces on jax: the engine's
   probe of the model checks it at plan time, since the initial cloud is drawn from it too.)
 
-Then a select keeps the trials that did not resample as they were. The adaptive count does not
-run on jax (its declaration says why), so every particle is active.
+Then a select keeps the trials that did not resample as they were.
 """
 
 from __future__ import annotations
@@ -46,6 +51,7 @@ class Carried(NamedTuple):
     log_fast: Any = None          # (R,) log w_fast
     acceptance_sum: Any = None    # (R,) the sum of the move's acceptance rates over the steps it moved
     moved_steps: Any = None       # (R,) their count
+    active: Any = None            # (R,) int32: the adaptive count, the cloud's active particles (filter.adaptive)
 
 
 class AfterResampling:
@@ -53,14 +59,16 @@ class AfterResampling:
 
     def __init__(self, bound, dtype):
         self.bound, self.model, self.dtype = bound, bound.model, dtype
-        self.move, self.injection = bound.move, bound.injection
+        self.move, self.injection, self.adaptive = bound.move, bound.injection, bound.adaptive
 
     def start(self, trials: int) -> Carried:
-        """The carried values before step 1: both averages at log 0, nothing tallied."""
+        """The carried values before step 1: both averages at log 0, nothing tallied, every
+        particle active."""
         never = jnp.full(trials, -jnp.inf, jnp.float64) if self.injection is not None else None
         tally = self.move is not None and self.move.reports_acceptance
         zeros = jnp.zeros(trials, jnp.float64) if tally else None
-        return Carried(log_slow=never, log_fast=never, acceptance_sum=zeros, moved_steps=zeros)
+        active = jnp.full(trials, self.bound.particles, jnp.int32) if self.adaptive is not None else None
+        return Carried(log_slow=never, log_fast=never, acceptance_sum=zeros, moved_steps=zeros, active=active)
 
     def observe(self, carried: Carried, increment, observed) -> Carried:
         """The injection's averages after step k's log-normaliser ``increment`` (R,), for the
@@ -72,7 +80,7 @@ class AfterResampling:
         return carried._replace(log_slow=slow, log_fast=fast)
 
     def apply(self, carried: Carried, offspring, chosen, resampled, before, inputs, random):
-        """The move, the diffusion and the injection on every trial's ``offspring`` (R, N, d)
+        """The move, the adaptive count, the diffusion and the injection on every trial's ``offspring`` (R, N, d)
         (drawn by the indices ``chosen``, (R, N)); the trials not ``resampled`` are kept by the
         caller's select. ``before``: (the previous step's particles, the weighted cloud, its
         log-weights and weights). Returns (offspring, ancestors, carried, injected per trial)."""
@@ -81,6 +89,10 @@ class AfterResampling:
         if self.move is not None:
             offspring, carried = self._move(carried, offspring, chosen, resampled, previous, cloud, log_weights,
                                             weights, inputs, random)
+        if self.adaptive is not None:                    # KLD: the first n of a random order
+            offspring, counts, order = self.adaptive.apply(offspring, random)
+            ancestors = jnp.take_along_axis(chosen, order.astype(chosen.dtype), axis=1)
+            carried = carried._replace(active=jnp.where(resampled, counts.astype(jnp.int32), carried.active))
         if self.bound.diffusion.kind != "none":          # moves the resampled trials' particles apart
             offspring = jnp.asarray(self.bound.diffusion.apply(offspring, random), self.dtype)
         if self.injection is not None:
@@ -89,8 +101,10 @@ class AfterResampling:
             uniforms = random.uniform((count,), jnp.float64)
             fresh = jnp.asarray(self.bound.prior.sample(random, (count,)), self.dtype)
             replaced = (uniforms < probability[:, None]) & resampled[:, None]
+            if carried.active is not None:                           # an inactive particle stays parked
+                replaced = replaced & (jnp.arange(count) < carried.active[:, None])
             offspring = jnp.where(replaced[..., None], fresh, offspring)
-            ancestors = jnp.where(replaced, -1, chosen)              # a prior draw has no ancestor
+            ancestors = jnp.where(replaced, -1, ancestors)           # a prior draw has no ancestor
             injected = jnp.sum(replaced, axis=-1, dtype=jnp.int32)
         return offspring, ancestors, carried, injected
 

@@ -60,6 +60,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError
+from pfx.filters.particle.cloud import active_uniform
 from pfx.filters.particle.jax_after_resampling import AfterResampling
 from pfx.filters.particle.jax_diagnostics import Flags, StageClouds, by_trial, fill_trace, step_diagnostics
 from pfx.filters.particle.jax_look_ahead import JaxLookAhead
@@ -122,6 +123,7 @@ class StepOutputs(NamedTuple):
     snapshots: Any = None     # {stage: ((r, N, d), (r, N))} the snapshot rows' clouds and weights
     prior_snapshot: Any = None    # (r, N, d) the snapshot rows' prior cloud: set once, after the scan
     injected: Any = None      # (R,) the particles replaced by prior draws (filter.injection)
+    particle_counts: Any = None   # (R,) the active count the step's cloud was weighted with (filter.adaptive)
 
 
 class JaxParticleFilter:
@@ -256,7 +258,8 @@ class JaxParticleFilter:
             log_likelihood=np.array(cloud.log_likelihood, dtype=float),
             log_likelihood_increments=by_trial(outputs.increment).astype(float),
             lost_particles=np.array(cloud.lost_particles, dtype=np.int64),
-            particle_counts=np.full((trials, steps), self.particles),
+            particle_counts=np.full((trials, steps), self.particles) if outputs.particle_counts is None
+            else by_trial(outputs.particle_counts).astype(np.int64),
             within_radius=by_trial(outputs.within_radius),
             standard_deviations=None if deviations is None else deviations.astype(float),
             ancestors=by_trial(outputs.ancestors),
@@ -307,8 +310,9 @@ class JaxParticleFilter:
         predictive = self.predictive(predicted, _carried_weights(predicted_log_weights, adjustment), inputs,
                                      scores.at(inputs.step)) if scores is not None else None
         every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
+        active = cloud.after.active          # the adaptive count (None: every particle active)
         log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
-            predicted_log_weights, predicted, inputs, adjustment)
+            predicted_log_weights, predicted, inputs, adjustment, active)
         if first is not None:                # L_k = L1_k + L2_k
             increment = first.increment + increment.astype(jnp.float64)
         after = self.after_resampling.observe(cloud.after, increment, inputs.observed)
@@ -333,6 +337,7 @@ class JaxParticleFilter:
             # those that made this step's particles: the last resampling's, the first stage's if auxiliary
             ancestors=(cloud.ancestors if first is None else first.ancestors) if flags.genealogy else None,
             predictive=None if predictive is None else {**predictive, "log_score": -increment}, injected=injected,
+            particle_counts=active,
             **step_diagnostics(self.model, flags, clouds, inputs))
         carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
                         log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
@@ -384,11 +389,12 @@ class JaxParticleFilter:
         _check_shape(self.model, "the proposal", state, cloud.particles.shape)
         return (*self._park_lost(jnp.asarray(state), cloud.log_weights), jnp.asarray(adjustment, self.dtype))
 
-    def update_weights(self, log_weights, state, inputs: StepInputs, adjustment=None):
+    def update_weights(self, log_weights, state, inputs: StepInputs, adjustment=None, active=None):
         r"""log w_k = log w_{k-1} + log p(z_k | x_k) (or the configured weighting's increment),
         normalised by log-sum-exp; L_k the normaliser
         (0 for a trial without a measurement); a trial whose weights all underflow is degenerate
-        and restarts from uniform weights; a zero-weight particle stays at zero whatever its
+        and restarts from uniform weights (over its ``active`` particles with an adaptive count);
+        a zero-weight particle stays at zero whatever its
         likelihood evaluates to."""
         count = self.particles
         measurement = inputs.measurement.astype(self.dtype)[:, None, :]
@@ -408,9 +414,11 @@ class JaxParticleFilter:
         normaliser = (jnp.log(total) + jnp.where(jnp.isfinite(peak), peak, 0.0))[..., 0]
         bad = jnp.isnan(normaliser) | jnp.isposinf(normaliser)
         degenerate = jnp.isneginf(normaliser)
-        uniform = float(-np.log(count))
-        normalised = jnp.where(degenerate[:, None], uniform, shifted - jnp.log(total))
-        weights = jnp.where(degenerate[:, None], 1.0 / count, jnp.exp(shifted) / total)
+        uniform_log, uniform = float(-np.log(count)), 1.0 / count
+        if active is not None:
+            uniform_log, uniform = active_uniform(active, count)
+        normalised = jnp.where(degenerate[:, None], uniform_log, shifted - jnp.log(total)).astype(self.dtype)
+        weights = jnp.where(degenerate[:, None], uniform, jnp.exp(shifted) / total).astype(self.dtype)
         return normalised, weights, jnp.where(observed, normaliser, 0.0), degenerate, bad
 
     def estimate(self, weights, state):
@@ -430,7 +438,7 @@ class JaxParticleFilter:
         the particles injected per trial (None without injection)."""
         trials, count = weights.shape
         identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
-        resampled = self.picks(ess)
+        resampled = self.picks(ess, after.active)
         if resampled is None:            # sis, or a threshold of 0: never (so nothing moved or injected)
             nothing = jnp.zeros(trials, jnp.int32) if self.bound.injection is not None else None
             return state, log_weights, weights, identity, jnp.zeros(trials, bool), after, nothing
@@ -440,16 +448,21 @@ class JaxParticleFilter:
         offspring, ancestors, after, injected = self.after_resampling.apply(
             after, offspring, chosen, resampled, (previous, state, log_weights, weights), inputs, random)
         state = jnp.where(resampled[:, None, None], offspring, state)
-        log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_weights.dtype), log_weights)
-        weights = jnp.where(resampled[:, None], jnp.asarray(1.0 / count, weights.dtype), weights)
+        uniform_log, uniform = -np.log(count), 1.0 / count
+        if after.active is not None:         # uniform over the active particles only
+            uniform_log, uniform = active_uniform(after.active, count)
+        log_weights = jnp.where(resampled[:, None], uniform_log, log_weights).astype(log_weights.dtype)
+        weights = jnp.where(resampled[:, None], uniform, weights).astype(weights.dtype)
         return state, log_weights, weights, ancestors, resampled, after, injected
 
-    def picks(self, ess):
+    def picks(self, ess, active=None):
         """The ESS rule: which trials resample (R,) bool, every one at threshold 1; None at
-        threshold 0 (none ever does, so none need draw)."""
+        threshold 0 (none ever does, so none need draw). The threshold is a share of the
+        ``active`` count with an adaptive count, as on numpy."""
         if self.threshold <= 0.0:
             return None
-        return jnp.ones(ess.shape, bool) if self.threshold >= 1.0 else ess < self.threshold * self.particles
+        count = self.particles if active is None else active
+        return jnp.ones(ess.shape, bool) if self.threshold >= 1.0 else ess < self.threshold * count
 
     # -- the predictive scores (a static flag; the other diagnostics: jax_diagnostics) ---------
 

@@ -2,7 +2,7 @@
 
 ``filter.backend: jax`` runs the particle filter (``kind: particle`` with the ESS rule, or
 ``sis``) with the components that declare the jax backend (:mod:`pfx.filters.backends`): the
-bootstrap, locally optimal, ekf and ukf proposals, the built-in weightings, resamplers, diffusions and moves, injection. A
+bootstrap, locally optimal, ekf and ukf proposals, the built-in weightings, resamplers, diffusions and moves, the adaptive count (kld), injection. A
 component that does not is refused here, at plan time, by its key and with the reason it
 declares: a config never runs on the NumPy backend behind its author's back. docs/backends.md's
 table says the same for readers, and a test holds it to the declarations.
