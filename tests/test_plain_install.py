@@ -46,7 +46,9 @@ EXTRAS = ("jax", "jaxlib", "dask", "distributed")
 NEEDS_AN_EXTRA = {
     "pfx.bench.jax_reference": "jax",
     "pfx.estimation.compiled_if2": "jax",
+    "pfx.filters.particle.jax_after_resampling": "jax",
     "pfx.filters.particle.jax_engine": "jax",
+    "pfx.filters.particle.jax_look_ahead": "jax",
     "pfx.filters.particle.jax_resampling": "jax",
     "pfx.run.executors.dask": "dask",
 }
