@@ -429,16 +429,19 @@ class JaxParticleFilter:
             mean = mean.at[:, angular].set(circular_mean(weights, state[..., angular], self.model.full_turn))
         return mean
 
-    def resample(self, state, log_weights, weights, ess, random: KeyStreams, previous, after, inputs: StepInputs):
+    def resample(self, state, log_weights, weights, ess, random: KeyStreams, previous, after, inputs: StepInputs,
+                 resampled=None):
         """The trials whose ESS is below the threshold (every trial at 1, none at 0) take their
         resampled particles, then the move, the diffusion and the injection
         (:mod:`pfx.filters.particle.jax_after_resampling`; ``previous``: x_{k-1}, ``after``: its
         carried values), and uniform weights; the others keep theirs (a select: every trial
         drew). Returns the cloud, the ancestors, which trials resampled, ``after`` updated and
-        the particles injected per trial (None without injection)."""
+        the particles injected per trial (None without injection). ``resampled``: the trials to
+        resample when the caller has applied the ESS rule (the auxiliary filter's first stage)."""
         trials, count = weights.shape
         identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
-        resampled = self.picks(ess, after.active)
+        if resampled is None:
+            resampled = self.picks(ess, after.active)
         if resampled is None:            # sis, or a threshold of 0: never (so nothing moved or injected)
             nothing = jnp.zeros(trials, jnp.int32) if self.bound.injection is not None else None
             return state, log_weights, weights, identity, jnp.zeros(trials, bool), after, nothing

@@ -32,7 +32,6 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 
 class FirstStage(NamedTuple):
@@ -96,14 +95,11 @@ class JaxLookAhead:
             return cloud._replace(log_weights=log_first), FirstStage(
                 increment=increment.astype(jnp.float64), adjustment=-look_ahead.astype(self.dtype),
                 resampled=jnp.zeros(trials, bool), ancestors=identity)
-        chosen = jnp.where(resampled[:, None], engine.resampler(first, random), identity)
-        offspring = jnp.take_along_axis(previous, chosen[..., None], axis=1)
-        # the move needs x_{k-2} and injection its averages: neither combines with the auxiliary filter
-        offspring, ancestors, after, _ = engine.after_resampling.apply(
-            cloud.after, offspring, chosen, resampled, (None, previous, log_first, first), inputs, random)
-        state = jnp.where(resampled[:, None, None], offspring, previous)
-        log_weights = jnp.where(resampled[:, None], jnp.asarray(-np.log(count), log_first.dtype), log_first)
-        look_ahead = jnp.where(resampled[:, None], jnp.take_along_axis(look_ahead, chosen, axis=1), look_ahead)
+        # the engine's resampling stage on the first-stage weights (no move, count or injection
+        # combines with the auxiliary filter, so the ancestors are the draws, i -> i where not picked)
+        state, log_weights, _, ancestors, _, after, _ = engine.resample(
+            previous, log_first, first, None, random, None, cloud.after, inputs, resampled=resampled)
+        look_ahead = jnp.take_along_axis(look_ahead, ancestors, axis=1)
         return cloud._replace(particles=state, log_weights=log_weights, after=after), FirstStage(
             increment=increment.astype(jnp.float64), adjustment=-look_ahead.astype(self.dtype),
             resampled=resampled, ancestors=ancestors)
