@@ -32,6 +32,10 @@ from pfx.errors import ConfigError  # noqa: E402
 Z = 4.0
 RUNS = 200
 CPU = Device("cpu", "cpu", 16 * 1024 ** 3, None, "unknown")
+# The tiny case the harness tests run (3 trials x N = 50, T = 100): a test that calls the JAX
+# reference on its shapes reuses its compiled filter (one compile per shape and precision)
+# rather than compiling one of its own; what these tests check does not depend on the size.
+TINY_CASE = (50, 3)
 
 
 @pytest.fixture(scope="module")
@@ -68,11 +72,13 @@ def test_jax_reference_agrees_with_the_numpy_reference(numpy_runs, precision):
     assert np.sqrt(squared_errors.mean()) == pytest.approx(np.sqrt(numpy_squared_errors.mean()), rel=0.1)
 
 
-def test_jax_reference_reruns_give_the_same_numbers_and_seeds_differ(numpy_runs):
-    problem, measurements, _, _, _ = numpy_runs
-    repeated = np.repeat(measurements[None], 3, axis=0)
-    first = jax_reference_filter(problem, repeated, 1_000, [5, 6, 5])
-    again = jax_reference_filter(problem, repeated, 1_000, [5, 6, 5])
+def test_jax_reference_reruns_give_the_same_numbers_and_seeds_differ():
+    particles, trials = TINY_CASE
+    case = make_case(particles, trials)
+    problem = FallingBodyProblem.from_filter(case.filter)
+    repeated = np.repeat(case.measurements[:1], trials, axis=0)     # one trial's measurements, 3 times
+    first = jax_reference_filter(problem, repeated, particles, [5, 6, 5])
+    again = jax_reference_filter(problem, repeated, particles, [5, 6, 5])
     np.testing.assert_array_equal(first[1], again[1])
     assert first[1][0] == first[1][2] and first[1][0] != first[1][1]     # a trial's numbers are its seed's
 
@@ -96,7 +102,7 @@ def numpy_for_jax(monkeypatch):
 
 def test_harness_prints_every_row_on_a_tiny_case(numpy_for_jax):
     printed = []
-    rows = run_jax_bench(cases=[(50, 3)], repeats=1, bandwidth=1e11, pmmh=False, echo=printed.append)
+    rows = run_jax_bench(cases=[TINY_CASE], repeats=1, bandwidth=1e11, pmmh=False, echo=printed.append)
     lines = "\n".join(printed).splitlines()
     assert lines[0].startswith("pfx bench --backend jax: falling body")
     assert lines[1].startswith("machine: ") and "jax " in lines[1] and "cores" in lines[1]
@@ -125,10 +131,10 @@ def test_harness_prints_every_row_on_a_tiny_case(numpy_for_jax):
 
 def test_numpy_rows_run_a_subset_above_their_cap(numpy_for_jax, monkeypatch):
     monkeypatch.setattr(jax_bench, "NUMPY_PARTICLES_PER_STEP", 100)
-    case = make_case(40, 5)
+    case = make_case(*TINY_CASE)
     numpy_row, reference_row = time_jax_case(case, [IMPLEMENTATIONS[0], IMPLEMENTATIONS[3]], CPU, 1, 10.0, {})
-    assert (numpy_row.trials, reference_row.trials) == (2, 5)      # 100 // 40 trials of 5
-    assert numpy_row.particle_steps == 2 * 40 * 100 and numpy_row.runs == 1
+    assert (numpy_row.trials, reference_row.trials) == (2, 3)      # 100 // 50 trials of 3
+    assert numpy_row.particle_steps == 2 * 50 * 100 and numpy_row.runs == 1
 
 
 def test_refused_rows_say_why_and_too_large_cases_are_skipped(monkeypatch):

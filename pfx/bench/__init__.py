@@ -117,9 +117,11 @@ def run_bench(*, quick: bool = False, repeats: int = 3, budget: float = 20.0, pe
              f"engine's arrays); peak resident memory of the process {rss / 1024**2:.0f} MiB")
     workers_result = None
     if workers:
-        particles, trials = (50, 2) if quick else (2_000, 24)
+        # --quick: each worker count up to --repeats times (--repeats 1, a smoke run: once each; a
+        # pool of 2 workers starts fresh processes, seconds of imports where JAX is loaded)
+        particles, trials, rounds = (50, 2, min(repeats, 2)) if quick else (2_000, 24, 2)
         progress("workers: --workers 1 and 2")
-        workers_result = scaling.workers_speedup(particles, trials)
+        workers_result = scaling.workers_speedup(particles, trials, rounds)
         echo(f"workers, sweep of {workers_result['cells']} cells x {trials} trials (N = {particles}..): "
              f"1 worker {workers_result['one']:.2f} s ({workers_result['cpu_one']:.2f} s CPU), 2 workers "
              f"{workers_result['two']:.2f} s ({workers_result['cpu_two']:.2f} s CPU), "

@@ -36,7 +36,8 @@ one compiled program (:mod:`pfx.estimation.compiled_pmmh`; an untimed round comp
 first); and ``particles``' ``mcmc.PMMH`` (one chain; ``adaptive=False``). Each first runs 10 iterations
 that are not timed (first use of compiled code, caches); then each round times a block of 50
 iterations (short blocks, many rounds: on a shared machine the best round is the one least
-disturbed; ``--quick``: 1 and 3). pfx walks on its transformed scale (logit for :math:`\phi` and the Nile variances,
+disturbed; ``--quick``: 3 and 3, a warm-up as long as a round, so that the jax rows compile one
+block length only). pfx walks on its transformed scale (logit for :math:`\phi` and the Nile variances,
 log for :math:`\sigma`), ``particles`` on the parameters as its prior names them: its random
 walk's standard deviations are pfx's times :math:`|d\theta/du|` at the start
 (:func:`natural_scale_sds`), the same steps where the chains begin. A proposal outside the
@@ -71,7 +72,7 @@ SIZES = (100, 1_000)
 QUICK_SIZES = (100,)
 CHAINS = 16
 ITERATIONS, WARM_UP = 50, 10                # timed per round; untimed first
-QUICK_ITERATIONS, QUICK_WARM_UP = 3, 1
+QUICK_ITERATIONS, QUICK_WARM_UP = 3, 3          # one block length: the jax rows compile it once
 START_RUNS = 16                             # filters at the starting point, for the likelihood check
 FILTER = {"kind": "particle", "resampler": "systematic", "ess_threshold": 0.5}
 STAGES = ("filter", "model validation", "initial laws", "prior density", "rest")
@@ -407,7 +408,7 @@ def time_pmmh(*, quick: bool = False, repeats: int = 3, peers: bool = True,
                             target = runners["pfx, 1 chain"].target
                             runner = ParticlesRunner(problem, particles, total, target, problem.seed)
                         runner.advance(warm_up)
-                        if implementation.startswith("pfx jax"):
+                        if implementation.startswith("pfx jax") and warm_up != iterations:
                             runner.advance(iterations)      # compiles the timed rounds' blocks, untimed
                 except Exception as error:         # a peer that breaks is reported, not fatal
                     row.error = f"{type(error).__name__}: {error}".splitlines()[0][:80]
