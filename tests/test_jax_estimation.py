@@ -73,10 +73,11 @@ def test_the_compiled_likelihood_is_unbiased_and_agrees_with_numpy():
     assert abs(ratios.mean() - 1.0) < 4 * ratios.std(ddof=1) / np.sqrt(len(ratios)), ratios.mean()
     error = np.hypot(on_numpy.std(ddof=1), compiled.std(ddof=1)) / np.sqrt(256)
     assert abs(on_numpy.mean() - compiled.mean()) < 4 * error, (on_numpy.mean(), compiled.mean(), error)
-    # a row's estimate depends on its parameters and seed only, not on the rows beside it
-    both = jax_target.log_likelihoods(np.array([[8000.0, 500.0], [15099.0, 1469.1]]),
-                                      [chain_seeds(2, 0, 0, 1)[0], chain_seeds(2, 0, 1, 1)[0]])
-    assert both[1] == compiled[1] and np.isfinite(both[0])
+    # a row's estimate depends on its parameters and seed only, not on the rows beside it (4 rows:
+    # the program IF2's 4 replicates at 500 particles check their starts with, compiled once)
+    rows = np.array([[8000.0, 500.0], *np.repeat(DURBIN_KOOPMAN, 3, axis=0)])
+    beside = jax_target.log_likelihoods(rows, [chain_seeds(2, 0, r, 1)[0] for r in range(4)])
+    assert np.all(beside[1:] == compiled[1:4]) and np.isfinite(beside[0]) and beside[0] != compiled[0]
 
 
 def test_an_initial_law_that_follows_the_parameters_is_drawn_per_row():
@@ -99,8 +100,11 @@ def test_an_initial_law_that_follows_the_parameters_is_drawn_per_row():
 
 def test_an_extended_jax_pmmh_run_equals_one_long_run(tmp_path):
     """Blocks end where the run stops; the chains carry the points the table holds, so a run
-    extended from its folder continues to the same numbers (across the warm-up's end too)."""
-    config = on_jax(nile_config(iterations=20, warm_up=8, adapt=True, adapt_after=4))
+    extended from its folder continues to the same numbers (across the warm-up's end too).
+    Every run compiles its own block programs, one per block length (their host callback keeps
+    them out of JAX's compilation cache): the long run's two blocks, the warm-up's 8 iterations
+    and 8 after it, are one program."""
+    config = on_jax(nile_config(iterations=16, warm_up=8, adapt=True, adapt_after=4))
     long = pfx.run(config, out=tmp_path / "long")
     short = copy.deepcopy(config)
     short["estimation"]["iterations"] = 11
@@ -108,15 +112,19 @@ def test_an_extended_jax_pmmh_run_equals_one_long_run(tmp_path):
     extended = pfx.run(config, out=tmp_path / "short")
     left, right = (pd.read_csv(Path(result.folder) / "chains.csv") for result in (long, extended))
     pd.testing.assert_frame_equal(left, right)
-    assert len(left) == 4 * 21 and left["accepted"].any()
+    assert len(left) == 4 * 17 and left["accepted"].any()
     assert set(left["backend"]) == {"jax"}
 
 
 def test_jax_if2_resumes_to_the_same_numbers(tmp_path):
-    config = on_jax(nile_config("if2", iterations=7, chains=2))
+    """A run stopped after pass 2 and extended to pass 4 (blocks 1-2 and 3-4) ends where one run
+    of a block of 4 passes ends. 4 replicates: the starts' check (4 rows) and the final
+    evaluations (10 a replicate, 40 rows) are the likelihood programs the PMMH runs of this file
+    compile too (their starts, their likelihood spread's 40 runs), compiled once."""
+    config = on_jax(nile_config("if2", iterations=4, chains=4))
     whole = pfx.run(config, out=tmp_path / "whole")
     part = copy.deepcopy(config)
-    part["estimation"]["iterations"] = 3
+    part["estimation"]["iterations"] = 2
     pfx.run(part, out=tmp_path / "part")
     extended = pfx.run(config, out=tmp_path / "part")
     for name in ("if2.csv", "maximum_likelihood.csv"):

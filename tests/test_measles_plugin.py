@@ -38,6 +38,7 @@ CASES, CORRECTED = DATA / "london-measles-cases.csv", DATA / "london-measles-cas
 COVARIATES = DATA / "london-measles-covariates.csv"
 PAPER = REPOSITORY / "configs" / "benchmarks" / "measles-london" / "paper.yaml"
 TRIALS, PARTICLES = 200, 500          # 1e5 draws of one substep
+JAX_TRIALS = 20                       # trials per call of the compiled substep (one_substep)
 WEEK = 7.0 / 365.25
 START = np.array([120_000.0, 2_000.0, 1_500.0, 3_200_000.0, 0.0, 0.0])      # S, E, I, R, W, C
 IN_TERM = 1955.2                      # day 73 of the year: in the spring term
@@ -108,19 +109,34 @@ def exact_moments(model, time):
     }
 
 
-def one_substep(model, backend, time, seed, trials=TRIALS, particles=PARTICLES):
+def one_substep(model, backend, time, seed, trials=TRIALS, particles=PARTICLES, parameters=None):
+    """One substep from START at ``time`` for ``trials`` x ``particles``, trial r drawing from the
+    streams of seed ``seed + r``; with ``parameters``, by the model whose parameters are those
+    arrays (:meth:`pfx.models.base.Model.with_parameter_arrays`).
+
+    On jax, by one compiled program for JAX_TRIALS trials whose arguments are the state, the
+    keys and the time (as in the filter's compiled step), called for each block of JAX_TRIALS
+    trials: a trial's draws depend on its own key only, so the blocks draw what one call for all
+    the trials would, and the tests that draw ``particles`` per trial share the program, whatever
+    their time, seed and number of trials (JAX's compilation cache). The parameter arrays are the
+    program's constants, as the numbers are (so the two programs compute alike, bit for bit):
+    with them, one block."""
+    moving = model if parameters is None else model.with_parameter_arrays(parameters)
     state = np.broadcast_to(START, (trials, particles, 6))
-    seeds = range(seed, seed + trials)
     if backend == "numpy":
-        return model.sample_substep(state.copy(), None, time, TrialStreams.from_seeds(seeds))
+        return moving.sample_substep(state.copy(), None, time, TrialStreams.from_seeds(range(seed, seed + trials)))
     jax = pytest.importorskip("jax")
     import jax.numpy as jnp
 
     from pfx.numerics.key_streams import KeyStreams
 
-    random = KeyStreams.from_seeds(seeds)
+    assert trials % JAX_TRIALS == 0 and (parameters is None or trials == JAX_TRIALS), trials
     with jax.enable_x64(True):
-        return np.asarray(jax.jit(lambda: model.sample_substep(jnp.asarray(state), None, time, random))())
+        substep = jax.jit(lambda start, keys, at: moving.sample_substep(start, None, at, KeyStreams(keys)))
+        block = jnp.asarray(state[:JAX_TRIALS])
+        return np.concatenate([
+            np.asarray(substep(block, KeyStreams.from_seeds(range(first, first + JAX_TRIALS)).keys, jnp.asarray(time)))
+            for first in range(seed, seed + trials, JAX_TRIALS)])
 
 
 def test_data_files_are_the_730_weeks_with_he_et_als_correction():
@@ -276,16 +292,14 @@ def test_the_estimated_parameters_are_its_vectorised_parameters_and_mu_stays_a_n
 def test_parameters_given_per_particle_at_one_value_draw_what_the_numbers_draw(backend):
     """(R, N, 1) arrays all holding the model's values: the same draws from the same streams,
     bit for bit, as the model with numbers, at school entry (the cohort's day, in the holidays)
-    and in term (on numpy; jax's compilations take the time, and school entry reads every
-    parameter)."""
+    and in term (on jax, the program for the model with numbers is the substep's moment test's,
+    compiled once for both: JAX_TRIALS trials of PARTICLES particles)."""
     model = measles()
-    trials, particles = 20, 50
-    arrays = model.with_parameter_arrays({name: np.full((trials, particles, 1), getattr(model, name))
-                                          for name in ESTIMATED})
-    times = ((SCHOOL_ENTRY, 3), (IN_TERM, 5)) if backend == "numpy" else ((SCHOOL_ENTRY, 3),)
-    for time, seed in times:
+    trials, particles = (20, 50) if backend == "numpy" else (JAX_TRIALS, PARTICLES)
+    arrays = {name: np.full((trials, particles, 1), getattr(model, name)) for name in ESTIMATED}
+    for time, seed in ((SCHOOL_ENTRY, 3), (IN_TERM, 5)):
         expected = one_substep(model, backend, time, seed, trials, particles)
-        moved = one_substep(arrays, backend, time, seed, trials, particles)
+        moved = one_substep(model, backend, time, seed, trials, particles, parameters=arrays)
         np.testing.assert_array_equal(moved, expected)
 
 
