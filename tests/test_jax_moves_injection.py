@@ -211,9 +211,18 @@ def test_a_moved_filter_matches_the_kalman_mean_on_both_backends(kalman, move):
 # -- the command line ------------------------------------------------------------------------
 
 def test_a_config_with_the_moves_and_injection_runs_on_jax_from_the_command_line(pfx_in_process, tmp_path):
-    config = tiny_config_dict(trials=6, outputs={"figures": []})
-    config["filter"].update(backend="jax", particles=50)
-    config["arms"] = {"regularised": {"move": {"kind": "regularise"}}, "mcmc": {"move": {"kind": "mcmc"}},
+    """The moved arms run the Kalman tests' filters (_linear_model, 60 trials of 300 particles,
+    ESS threshold 0.5, mcmc with 2 steps; untraced, no spread criterion): the programs compiled
+    there serve here. What is checked (the arms run on jax, their columns) does not depend on the size."""
+    model = _linear_model()
+    config = tiny_config_dict(trials=60, outputs={"figures": [], "trace_trials": 0},
+                              metrics={"convergence": {"criterion": "truth"}})
+    config["model"] = {"kind": "linear_gaussian", "steps": model.steps,
+                       "transition_matrix": [[0.9, 0.2], [0.0, 0.8]], "measurement_matrix": [[1.0, 0.0]],
+                       "process_noise": {"variance": [0.5, 0.5]}, "measurement_noise": {"variance": 1.0},
+                       "initial": {"kind": "gaussian", "mean": [0.0, 0.0], "covariance": 1.0}}
+    config["filter"].update(backend="jax", particles=300, ess_threshold=0.5)
+    config["arms"] = {"regularised": {"move": {"kind": "regularise"}}, "mcmc": {"move": {"kind": "mcmc", "steps": 2}},
                       "augmented": {"injection": INJECTION}}
     path = tmp_path / "moved.yaml"
     path.write_text(yaml.safe_dump(config))
@@ -221,7 +230,7 @@ def test_a_config_with_the_moves_and_injection_runs_on_jax_from_the_command_line
     assert code == 0, out + err
     trials = pd.read_csv(tmp_path / "out" / "trials.csv").set_index("arm")
     assert set(trials.index) == {"regularised", "mcmc", "augmented"} and (trials["backend"] == "jax").all()
-    assert len(trials) == 18 and trials["rmse_x1"].notna().all()
+    assert len(trials) == 3 * 60 and trials["rmse_x1"].notna().all()
     assert (trials.loc["augmented", "injected_mean"] >= 0).all()
     acceptance = trials.loc["mcmc", "move_acceptance"]
     assert ((acceptance > 0) & (acceptance < 1)).all()
