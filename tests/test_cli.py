@@ -1,9 +1,11 @@
 """The ``pfx`` command line, end to end.
 
-A module fixture starts the runs as real subprocesses, concurrently (a tiny run with a two-cell
-sweep, a run with ``--set``/``--trials``), and the other invocations (``validate``, ``list``,
-``schema``, ``reproduce`` ...) through the command line's entry point in the test's process;
-tests that need a finished result folder work on copies of it, again through real processes.
+A module fixture starts the base run (a tiny run with a two-cell sweep) as a real ``python -m pfx``
+process, the end-to-end check of the command as users start it, and the other invocations (a
+run with ``--set``/``--trials``, ``validate``, ``list``, ``schema``, ``reproduce`` ...) through the
+command line's entry point in the test's process; tests that need a finished result folder work
+on copies of it, again in the test's process (what they check, messages, exit statuses and
+files, a process of its own would not show any better).
 """
 
 from __future__ import annotations
@@ -56,11 +58,8 @@ def cli(tmp_path_factory, run_pfx, pfx_in_process):
     write_config_file(root / "paper-configs" / "toy-paper",
                       tiny_config_dict(name="toy-experiment", outputs={"trace_trials": 1, "figures": []}),
                       "first.yaml")
-    processes = {
-        "run": (["run", "exp.yaml", "--out", "out"], root),
-        "run-set": (["run", "single.yaml", "--out", "out-set", "--set", "filter.particles=7", "--trials", "3"], root),
-    }
     jobs = {
+        "run-set": (["run", "single.yaml", "--out", "out-set", "--set", "filter.particles=7", "--trials", "3"], root),
         "validate": (["validate", "exp.yaml"], root),
         "list": (["list"], root),
         "list-resamplers": (["list", "resamplers"], root),
@@ -78,7 +77,7 @@ def cli(tmp_path_factory, run_pfx, pfx_in_process):
     }
     for example in EXAMPLES:
         jobs[f"example:{example.name}"] = (["validate", str(example)], REPO_ROOT)
-    results = run_pfx.many(processes) | pfx_in_process.many(jobs)
+    results = {"run": run_pfx("run", "exp.yaml", "--out", "out", cwd=root)} | pfx_in_process.many(jobs)
     results["root"] = root
     return results
 
@@ -92,8 +91,8 @@ def out(cli) -> Path:
 
 
 @pytest.fixture(scope="module")
-def followups(out, cli, run_pfx, tmp_path_factory):
-    """The second wave, concurrently, on copies of the finished folder: run again, run a changed
+def followups(out, cli, pfx_in_process, tmp_path_factory):
+    """The second wave, in the test's process, on copies of the finished folder: run again, run a changed
     config into it, re-render its figures; and `pfx figures` on a folder that is no result."""
     root = tmp_path_factory.mktemp("cli-followups")
     folders = {name: root / name for name in ("again", "changed", "figures-again")}
@@ -103,7 +102,9 @@ def followups(out, cli, run_pfx, tmp_path_factory):
               for name, folder in folders.items()}
     shutil.rmtree(folders["figures-again"] / "figures")
     (folders["figures-again"] / "config.yaml").unlink()   # figures come from the CSV files (and manifest) alone
-    changed = write_config_file(root, {**BASE, "seed": 12}, "changed.yaml")
+    # another seed changes the config; no figures, which the test of this config does not check
+    changed = write_config_file(root, {**BASE, "seed": 12, "outputs": {**BASE["outputs"], "figures": []}},
+                                "changed.yaml")
     (root / "not-a-result").mkdir()
     jobs = {
         "again": (["run", cli["root"] / "exp.yaml", "--out", folders["again"]], root),
@@ -111,7 +112,7 @@ def followups(out, cli, run_pfx, tmp_path_factory):
         "figures": (["figures", folders["figures-again"]], root),
         "figures-not-a-result": (["figures", root / "not-a-result"], root),
     }
-    results = run_pfx.many(jobs)
+    results = pfx_in_process.many(jobs)
     return {"folders": folders, "before": before, "changed-config": changed, "root": root, **results}
 
 
@@ -280,7 +281,7 @@ def test_run_again_is_up_to_date_and_changes_nothing(followups):
         followups["before"]["again"]
 
 
-def test_changed_config_into_same_folder_is_refused_unless_fresh(followups, run_pfx):
+def test_changed_config_into_same_folder_is_refused_unless_fresh(followups, pfx_in_process):
     refused, folder = followups["changed"], followups["folders"]["changed"]
     before = followups["before"]["changed"]
     assert refused.returncode == 2, refused.output
@@ -288,7 +289,7 @@ def test_changed_config_into_same_folder_is_refused_unless_fresh(followups, run_
     assert str(folder) in line and "different config" in line and "--fresh" in line
     assert {table: (folder / table).read_bytes() for table in before} == before
 
-    fresh = run_pfx("run", followups["changed-config"], "--out", folder, "--fresh", cwd=followups["root"])
+    fresh = pfx_in_process("run", followups["changed-config"], "--out", folder, "--fresh", cwd=followups["root"])
     assert fresh.returncode == 0, fresh.output
     manifest = json.loads((folder / "manifest.json").read_text())
     assert manifest["config_hash"] != json.loads(before["manifest.json"])["config_hash"]

@@ -194,11 +194,15 @@ def test_a_wrong_shape_for_the_runs_particle_count_is_named(request, tmp_path, w
     assert not out.exists()
 
 
-def test_the_traceback_is_shown_on_request(run_pfx, tmp_path):
+def test_the_traceback_is_shown_on_request(run_pfx, pfx_in_process, tmp_path):
+    """--traceback before or after the command; the traceback of a worker process's fault comes
+    back through a real pfx process with workers (once: where the option stands is read before any
+    worker starts, so the second place is checked in the test's process, without workers)."""
     source = plugin_source(propagate=RAISES_ON_THE_REAL_BATCH)
     config = setup_case(tmp_path, source, model={**walk_config()["model"], "a": 1.01})
-    for arguments in (["--traceback", "run", config], ["run", config, "--traceback"]):
-        result = run_pfx(*arguments, "--out", tmp_path / "out", "--workers", "2", cwd=tmp_path)
+    for command_line, arguments, workers in ((run_pfx, ["--traceback", "run", config], "2"),
+                                             (pfx_in_process, ["run", config, "--traceback"], "1")):
+        result = command_line(*arguments, "--out", tmp_path / "out", "--workers", workers, cwd=tmp_path)
         assert result.returncode == 1
         assert "Traceback (most recent call last)" in result.stderr
         assert 'File "walk.py", line' in result.stderr and "in propagate" in result.stderr
