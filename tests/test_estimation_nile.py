@@ -138,6 +138,9 @@ def _small(name: str) -> dict:
     raw["data"]["measurements"] = str(REPO_ROOT / "examples" / "data" / "nile.csv")
     if name == "pmmh":
         raw["estimation"].update(iterations=24, warm_up=8, adapt_after=4)
+        # the figures the report shows (and the gallery test looks for), not the default's
+        # posterior_pairs, which nothing here reads (tests/test_estimation_figures.py draws it)
+        raw.setdefault("outputs", {})["figures"] = ["chain_traces", "posterior_marginals"]
     else:
         raw["filter"]["particles"] = 100
         raw["estimation"].update(iterations=4, evaluations=3)
