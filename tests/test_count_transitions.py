@@ -25,6 +25,7 @@ from pfx.numerics.key_streams import KeyStreams  # noqa: E402
 pytestmark = pytest.mark.usefixtures("fresh_plugins")
 REPOSITORY = Path(__file__).resolve().parents[1]
 TRIALS, PARTICLES = 400, 250           # 1e5 draws of each law
+SIGMA, STEP = 0.3, 0.25                # the gamma white noise: Gamma(STEP / SIGMA^2, SIGMA^2) draws
 
 
 def streams(backend: str, seed: int = 0):
@@ -32,12 +33,22 @@ def streams(backend: str, seed: int = 0):
     return TrialStreams.from_seeds(seeds) if backend == "numpy" else KeyStreams.from_seeds(seeds)
 
 
-def on(backend: str, function):
-    """Run ``function`` eagerly on NumPy, or under jax.jit with 64-bit types on JAX."""
+def on(backend: str, random, draw):
+    """``draw(xp, random)``: eagerly on NumPy; on JAX under jax.jit with 64-bit types, the trials'
+    keys the program's argument, as in the filter's compiled step (so two draws of one law with
+    the same numbers from fresh streams of any seeds are one program, compiled once: JAX's
+    compilation cache). ``random``'s draw counter advances as the draws made it."""
     if backend == "numpy":
-        return np.asarray(function(np))
+        return np.asarray(draw(np, random))
+
+    def traced(keys):
+        streams = KeyStreams(keys, random.dtype, counter=random.counter)
+        drawn = draw(jnp, streams)
+        random.counter = streams.counter
+        return drawn
+
     with jax.enable_x64(True):
-        return np.asarray(jax.jit(lambda: function(jnp))())
+        return np.asarray(jax.jit(traced)(random.keys))
 
 
 def assert_moments(draws: np.ndarray, mean, variance, label: str = "") -> None:
@@ -57,13 +68,19 @@ def assert_moments(draws: np.ndarray, mean, variance, label: str = "") -> None:
 def test_binomial_poisson_and_gamma_have_their_moments_with_a_value_per_trial(backend):
     random = streams(backend)
     count = np.repeat(np.array([3.0, 40.0]), TRIALS // 2)[:, None]          # (R, 1): one n per trial
-    draws = on(backend, lambda xp: random.binomial(xp.asarray(count), 0.3, shape=(PARTICLES,)))
+    draws = on(backend, random, lambda xp, random: random.binomial(xp.asarray(count), 0.3, shape=(PARTICLES,)))
     assert draws.shape == (TRIALS, PARTICLES)
     for rows, n in ((slice(0, TRIALS // 2), 3.0), (slice(TRIALS // 2, None), 40.0)):
         assert_moments(draws[rows], n * 0.3, n * 0.3 * 0.7, f"binomial n={n}")
     rate = np.full((TRIALS, PARTICLES), 7.5)
-    assert_moments(on(backend, lambda xp: random.poisson(xp.asarray(rate))), 7.5, 7.5, "poisson")
-    assert_moments(on(backend, lambda xp: random.gamma(2.5, 0.4, shape=(PARTICLES,))), 1.0, 2.5 * 0.16, "gamma")
+    assert_moments(on(backend, random, lambda xp, random: random.poisson(xp.asarray(rate))), 7.5, 7.5, "poisson")
+    # the law of the gamma white noise below, drawn directly (on JAX, the same program as its:
+    # compiled once), from fresh streams of seeds apart from its
+    scale = SIGMA * SIGMA
+    shape_parameter = STEP / scale
+    draws = on(backend, streams(backend, 5000),
+               lambda xp, random: random.gamma(shape_parameter, scale, shape=(PARTICLES,)))
+    assert_moments(draws, shape_parameter * scale, shape_parameter * scale**2, "gamma")
 
 
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
@@ -73,8 +90,8 @@ def test_euler_multinomial_has_the_exact_multinomial_moments(backend):
     random = streams(backend, 1)
     rates = np.array([0.3, 0.1, 0.05])
     count = np.full((TRIALS, PARTICLES), 50.0)
-    draws = on(backend, lambda xp: euler_multinomial(random, xp.asarray(count),
-                                                     xp.asarray(np.broadcast_to(rates, (TRIALS, PARTICLES, 3))), 1.5))
+    draws = on(backend, random, lambda xp, random: euler_multinomial(
+        random, xp.asarray(count), xp.asarray(np.broadcast_to(rates, (TRIALS, PARTICLES, 3))), 1.5))
     assert draws.shape == (TRIALS, PARTICLES, 3)
     assert np.all(draws == np.round(draws)) and np.all(draws >= 0) and np.all(draws.sum(axis=-1) <= 50)
     total = rates.sum()
@@ -90,8 +107,8 @@ def test_euler_multinomial_has_the_exact_multinomial_moments(backend):
 def test_multinomial_splits_the_count_by_its_probabilities(backend):
     random = streams(backend, 2)
     probabilities = np.array([0.5, 0.2, 0.3])
-    draws = on(backend, lambda xp: multinomial(random, xp.full((TRIALS, PARTICLES), 20.0),
-                                               xp.asarray(np.broadcast_to(probabilities, (TRIALS, PARTICLES, 3)))))
+    draws = on(backend, random, lambda xp, random: multinomial(
+        random, xp.full((TRIALS, PARTICLES), 20.0), xp.asarray(np.broadcast_to(probabilities, (TRIALS, PARTICLES, 3)))))
     assert np.all(draws.sum(axis=-1) == 20)
     assert_moments(draws, 20 * probabilities, 20 * probabilities * (1 - probabilities), "multinomial")
 
@@ -99,8 +116,8 @@ def test_multinomial_splits_the_count_by_its_probabilities(backend):
 @pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_gamma_white_noise_has_mean_h_and_variance_sigma_squared_h(backend):
     random = streams(backend, 3)
-    draws = on(backend, lambda xp: gamma_white_noise(random, 0.3, 0.25, shape=(PARTICLES,)))
-    assert_moments(draws, 0.25, 0.09 * 0.25, "gamma white noise")
+    draws = on(backend, random, lambda xp, random: gamma_white_noise(random, SIGMA, STEP, shape=(PARTICLES,)))
+    assert_moments(draws, STEP, SIGMA * SIGMA * STEP, "gamma white noise")
 
 
 def sir_model(**parameters):
@@ -115,7 +132,7 @@ def test_sir_substep_has_the_exact_binomial_moments(backend):
     model = sir_model(substeps=4)
     state = np.broadcast_to(np.array([5000.0, 300.0, 4700.0, 0.0]), (TRIALS, PARTICLES, 4))
     random = streams(backend, 4)
-    moved = on(backend, lambda xp: model.sample_transition(xp.asarray(state), None, [0.0], random))
+    moved = on(backend, random, lambda xp, random: model.sample_transition(xp.asarray(state), None, [0.0], random))
     h = model.substep_duration
     infection = model.contact_rate * 300.0 / model.population
     q = -np.expm1(-(infection + model.death_rate) * h) * infection / (infection + model.death_rate)

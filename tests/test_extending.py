@@ -11,11 +11,13 @@ it while the unmodified copy's schema refuses that config, a tiny config using i
 --update`` and ``pfx schema > docs/config.schema.json`` bring the generated pages along.
 
 The stories run concurrently (a module fixture starts them all); each test waits for its own.
+Each copies the same copy of the package, compiled to bytecode once (:func:`compiled_package`).
 """
 
 from __future__ import annotations
 
 import ast
+import compileall
 import json
 import os
 import re
@@ -84,13 +86,14 @@ class PackageCopy:
     """``root/src/pfx``: a copy of the package to edit as docs/extending.md says, plus copies of
     the generated doc pages under ``root/docs``; every edit is recorded in :attr:`touched`."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, package: Path = PACKAGE):
         self.root = root
         self.src = root / "src"
-        # With the bytecode: copytree keeps each file's time, so Python (and numba's cache) take a
-        # compiled module for the same source as valid, and a module a story edits is compiled again.
-        # Without it, each copy's first import compiles the whole package, seconds each time.
-        shutil.copytree(PACKAGE, self.src / "pfx")
+        # With the bytecode (``package``: the repository's, or :func:`compiled_package`'s copy of
+        # it): copytree keeps each file's time, so Python (and numba's cache) take a compiled
+        # module for the same source as valid, and a module a story edits is compiled again.
+        # Without it, every process of every copy compiles each module it imports, again.
+        shutil.copytree(package, self.src / "pfx")
         for page in GENERATED_PAGES:
             (root / page).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(REPO_ROOT / page, root / page)
@@ -145,6 +148,17 @@ class PackageCopy:
         """What differs from the fresh copy, file by file: path -> new | edited."""
         return {relative: "new" if relative not in self.fresh else "edited"
                 for relative, path in self._files() if self.fresh.get(relative) != path.read_bytes()}
+
+
+def compiled_package(folder: Path) -> Path:
+    """A copy of the package in ``folder``, every module compiled to bytecode, for the stories to
+    copy. A fresh clone has no bytecode, and with PYTHONDONTWRITEBYTECODE set no process writes
+    any: each of the file's dozen processes would compile the modules it imports (about half a
+    second each); compiled once here (about as long), they load them."""
+    package = folder / "pfx"
+    shutil.copytree(PACKAGE, package)
+    compileall.compile_dir(package, quiet=1)        # writes the bytecode whatever PYTHONDONTWRITEBYTECODE says
+    return package
 
 
 def block(source: str) -> str:
@@ -362,6 +376,13 @@ NEW_RESAMPLERS = block(r'''
 ''')
 
 
+RESAMPLER_TESTS = """
+import sys, pytest
+sys.exit(pytest.main(["-q", "-p", "no:cacheprovider", "tests/test_resampling.py", "tests/test_extremes.py",
+                      "-k", "antithetic or reflected"]))
+"""
+
+
 @story
 def add_resampler(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
     # step 1: the functions (every point is a uniform, so E[N_j] = N w_j: unbiased)
@@ -381,9 +402,12 @@ def add_resampler(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
     config = tiny("resamplers", model={**tiny_config_dict()["model"], "steps": 6},
                   arms={"antithetic": {"resampler": "antithetic"}, "reflected": {"resampler": "reflected"}})
     write_config_file(copy.root, config)
-    # compiled, as in use: the new functions feed the compiled inverse_cdf
+    # compiled, as in use: the new functions feed the compiled inverse_cdf. The repository's own
+    # tests over those lists ("tests") run on the copy by pytest in the driver's process, which
+    # has imported the copy's pfx already: one interpreter start and one import of pfx fewer.
     steps = drive(copy, {"list": cli("list", "resamplers"), **REGENERATE,
-                         "run": cli("run", "config.yaml", "--out", "out")}, jit=True)
+                         "run": cli("run", "config.yaml", "--out", "out"), "tests": {"code": RESAMPLER_TESTS}},
+                  jit=True)
     story = Story(copy, steps, baseline())
     story.assert_listed("resamplers", "antithetic",
                         "antithetic multinomial: N/2 order statistics and their mirrors 1 - u")   # add's line
@@ -399,15 +423,10 @@ def add_resampler(copy: PackageCopy, baseline: Callable[[], Steps]) -> None:
 
     # The repository's own tests over those lists, run on the copy: E[N_j] = N w_j and the
     # extremes (every weight underflowing, one or two particles) for both new schemes.
-    completed = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_resampling.py",
-         "tests/test_extremes.py", "-k", "antithetic or reflected"],
-        cwd=copy.root, env=_environment(copy, jit=True), capture_output=True, text=True, timeout=TIMEOUT_S,
-        stdin=subprocess.DEVNULL)
-    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-2000:]
+    tests = steps.ok("tests")
     # per scheme: test_unbiased_mean_offspring, test_shape_range_and_zero_weights (test_resampling);
     # 6 of test_engine_every_weight_underflows and 2 of test_engine_one_or_two_particles_one_step
-    assert re.search(r"\b22 passed\b", completed.stdout), completed.stdout[-2000:]
+    assert re.search(r"\b22 passed\b", tests), tests[-2000:]
     extremes = ast.parse((copy.root / "tests" / "test_extremes.py").read_text())
     names = next(ast.literal_eval(node.value) for node in extremes.body if isinstance(node, ast.Assign)
                  and getattr(node.targets[0], "id", None) == "RESAMPLER_NAMES")
@@ -1003,9 +1022,10 @@ def _baseline(copy: PackageCopy) -> Steps:
 @pytest.fixture(scope="module")
 def stories(tmp_path_factory):
     """Every story started at once (each in its own copy); story name -> its future."""
+    package = compiled_package(tmp_path_factory.mktemp("compiled"))
     with ThreadPoolExecutor(max_workers=max(2, 2 * (os.cpu_count() or 1))) as pool:
-        baseline = pool.submit(_baseline, PackageCopy(tmp_path_factory.mktemp("unmodified")))
-        futures = {name: pool.submit(perform, PackageCopy(tmp_path_factory.mktemp(name)), baseline.result)
+        baseline = pool.submit(_baseline, PackageCopy(tmp_path_factory.mktemp("unmodified"), package))
+        futures = {name: pool.submit(perform, PackageCopy(tmp_path_factory.mktemp(name), package), baseline.result)
                    for name, perform in STORIES.items()}
         yield {"baseline": baseline, **futures}
 
