@@ -29,6 +29,13 @@ depends on no other test. One worker runs all of a module's tests, so a module f
   ``pfx.run`` of a config with plugins) is unloaded after it, so that the worker's next test, of
   any module, sees pfx's own registries (a test module that loads plugins in process sets
   ``pytestmark = pytest.mark.usefixtures("fresh_plugins")``).
+* ``backend`` runs a test once per backend of the particle filter, ``"numpy"`` then ``"jax"``
+  (ids ``numpy``, ``jax``); the jax run is skipped, saying why, without the ``jax`` extra. An
+  algorithm's check (the likelihood's unbiasedness, agreement with the Kalman filter, missing
+  measurements, lost particles, a feature's own property) takes it and passes it on
+  (``pfx.filter(..., backend=backend)``). A module fixture per backend reuses the list:
+  ``@pytest.fixture(scope="module", params=BACKENDS)``. A check of the NumPy backend's own
+  numbers or draws, bit for bit, is marked ``@pytest.mark.numpy_only`` instead.
 * ``tiny_config_dict()`` is a fresh dict of a tiny, fast, valid experiment (1-D linear-Gaussian
   model, 5 steps, 20 particles, 4 trials); ``write_config(data, name)`` writes a dict (as YAML),
   text or bytes into ``tmp_path``; ``tiny_config`` is the tiny config written to a file.
@@ -38,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import importlib.util
 import io
 import logging
 import os
@@ -76,6 +84,21 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # users get.
 if "XLA_FLAGS" not in os.environ:
     os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=1 --xla_cpu_use_fusion_emitters=false"
+
+# The particle filter's backends, for ``@pytest.fixture(params=BACKENDS)``: the jax one is
+# skipped without the extra (found, not imported: a test imports JAX only when it runs on it).
+BACKENDS = [
+    pytest.param("numpy", id="numpy"),
+    pytest.param("jax", id="jax", marks=pytest.mark.skipif(
+        importlib.util.find_spec("jax") is None, reason="the jax backend needs the 'jax' extra (pip install 'pfx[jax]')")),
+]
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request) -> str:
+    """The particle filter's backend, ``"numpy"`` or ``"jax"``: the test runs once on each."""
+    return request.param
+
 
 TINY_CONFIG: dict[str, Any] = {
     "name": "tiny",

@@ -14,13 +14,15 @@ import pfx
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.filters.particle.adaptive import KLDSampling, kld_bound, kld_count, occupied_bins_by_prefix
-from pfx.filters.particle.cloud import active_uniform
-from pfx.filters.particle.engine import ParticleFilter
-from pfx.filters.particle.injection import AugmentedMCL
+from pfx.filters.particle.cloud import active_uniform, posterior_mean
+from pfx.filters.particle.engine import ParticleFilter, Rows
+from pfx.filters.particle.injection import AugmentedMCL, injection_probability, observed_averages
+from pfx.filters.particle.kernel import Carried, Prediction, StageClouds, StepOutputs
 from pfx.filters.particle.recorders import Recording, SpreadCriterion
 from pfx.models.planar_robot import PlanarRobot
 from pfx.models.simulation import simulate_truth
 from pfx.models.sonar_mcl import FreeSpaceLaw, SonarMCL
+from pfx.numerics.log_weights import effective_sample_size
 from pfx.numerics.seeding import TrialStreams
 
 SQUARE = [[0.0, 0.0, 100.0, 0.0], [100.0, 0.0, 100.0, 100.0], [100.0, 100.0, 0.0, 100.0], [0.0, 100.0, 0.0, 0.0]]
@@ -117,12 +119,21 @@ def test_inactive_particles_never_affect_the_estimate_or_the_diagnostics():
     adaptive.state = np.concatenate([cloud, np.full((1, maximum - active, 3), 1e6)], axis=1)  # far outside
     adaptive.active = np.array([active])
     adaptive.log_weights, adaptive.weights = active_uniform(adaptive.active, maximum)
-    for run in (fixed, adaptive):
+    for run in (fixed, adaptive):        # step 1's weight update and estimate, without moving or resampling
         run.record("prior", 0)
-        run.update_weights(1)
-        run.estimate(1)
-        run.record("weighted", 1)
-        run.record("resampled", 1)         # the spread and the share within the radius
+        counts = run.active
+        prediction = Prediction(state=run.state, log_weights=run.log_weights, weights=run.weights, adjustment=None,
+                                likelihood=None, lost=None, failures=None)
+        log_weights, weights, increment, degenerate, _ = run.update_weights(prediction, run.step_inputs(1), counts)
+        outputs = StepOutputs(estimate=posterior_mean(model, weights, run.state), ess=effective_sample_size(weights),
+                              resampled=np.zeros(1, dtype=bool), degenerate=degenerate, increment=increment,
+                              failures=None, particle_counts=counts)
+        clouds = StageClouds(predicted=run.state, predicted_log_weights=run.log_weights, predicted_weights=run.weights,
+                             adjustment=None, log_weights=log_weights, weights=weights, estimate=outputs.estimate,
+                             resampled=run.state, resampled_log_weights=log_weights, resampled_weights=weights,
+                             active=counts)
+        run.keep(1, outputs, clouds)       # the spread and the share within the radius, as after resampling
+        run.trace.log_likelihood = increment
     for name in ("estimates", "ess", "log_likelihood", "spread", "within_radius", "standard_deviations"):
         np.testing.assert_allclose(getattr(adaptive.trace, name), getattr(fixed.trace, name), rtol=1e-12,
                                    err_msg=name)
@@ -133,10 +144,11 @@ def test_inactive_particles_never_affect_the_estimate_or_the_diagnostics():
 
 def test_no_injection_while_the_fast_average_stays_above_the_slow_one():
     # a constant likelihood c: w_slow = c (1 - (1 - a_slow)^k) <= w_fast = c (1 - (1 - a_fast)^k)
-    state = AugmentedMCL(alpha_slow=0.05, alpha_fast=0.3).start(3)
+    settings = AugmentedMCL(alpha_slow=0.05, alpha_fast=0.3)
+    log_slow = log_fast = np.full(3, -np.inf)
     for log_average in np.log([1e-300, 0.2, 3.0]) * np.ones((50, 3)):
-        state.observe(log_average)
-        assert (state.probability(np.arange(3)) == 0.0).all()
+        log_slow, log_fast = observed_averages(settings, log_slow, log_fast, log_average)
+        assert (injection_probability(log_slow, log_fast) == 0.0).all()
 
 
 def test_no_injection_in_a_filter_with_a_constant_likelihood():
@@ -149,17 +161,19 @@ def test_no_injection_in_a_filter_with_a_constant_likelihood():
 def test_injection_replaces_active_particles_at_the_stated_rate():
     # w_fast / w_slow held at 0.7: each active particle is replaced with probability 0.3
     trials, maximum, active = 40, 2000, 1500
-    state = AugmentedMCL(alpha_slow=0.1, alpha_fast=0.5).start(trials)
-    state.log_slow[:] = 0.0
-    state.log_fast[:] = np.log(0.7)
-    cloud = np.zeros((trials, maximum, 3))                  # (0, 0) is outside free space: a replaced
-    marked = state.inject(cloud, np.full(trials, active), np.arange(trials),   # particle is recognisable
-                          TrialStreams.from_seeds(range(trials)), FreeSpaceLaw(walls=[[w + 1.0 for w in wall]
-                                                                                      for wall in SQUARE]))
-    injected = marked.sum(axis=1)
+    model = _model()
+    prior = FreeSpaceLaw(walls=[[w + 1.0 for w in wall] for wall in SQUARE])   # (0, 0) is outside its free
+    bound = pfx.particle_filter(model, prior=prior, particles=maximum,            # space: a replaced particle
+                                injection=AugmentedMCL(alpha_slow=0.1, alpha_fast=0.5)).planned.bound   # shows
+    run = ParticleFilter(bound, np.zeros((trials, 1, model.measurement_dimension)), TrialStreams.from_seeds(range(trials)))
+    after = Carried(log_slow=np.zeros(trials), log_fast=np.full(trials, np.log(0.7)), active=np.full(trials, active))
+    cloud, ancestors, injected = run.inject(Rows(np.arange(trials), trials), np.zeros((trials, maximum, 3)),
+                                            np.broadcast_to(np.arange(maximum), (trials, maximum)), after, run.random)
+    marked = ancestors == -1                               # a prior draw has no ancestor
     replaced = (cloud != 0.0).any(axis=-1)
     assert not replaced[:, active:].any()                  # inactive particles: never
     np.testing.assert_array_equal(replaced, marked)
+    np.testing.assert_array_equal(injected, marked.sum(axis=1))
     rate, draws = injected.sum() / (trials * active), trials * active
     standard_error = math.sqrt(0.3 * 0.7 / draws)           # binomial
     assert abs(rate - 0.3) < 4 * standard_error

@@ -21,6 +21,7 @@ from pfx.numerics.log_weights import log_normalise, normalise_weights
 from pfx.numerics.seeding import TrialStreams
 
 
+@pytest.mark.numpy_only
 @pytest.mark.parametrize("count", [1, 2, 7, 300, 50_000])
 def test_normal_draws_are_numpys_word_for_word(count):
     seeds = [0, 1, 2024, 2**62 + 5]
@@ -45,6 +46,7 @@ def test_normal_draws_keep_their_shape_and_mix_with_other_draws():
         np.testing.assert_array_equal(second[row], generator.standard_normal(5))
 
 
+@pytest.mark.numpy_only
 def test_the_tails_and_wedges_are_numpys_too():
     """4e6 draws reach every slow path (tail beyond r: ~1000 draws, wedges: ~1 %)."""
     streams = TrialStreams.from_seeds([77])
@@ -86,6 +88,7 @@ def test_copies_step_their_own_generators():
     assert [generator.bit_generator.state for generator in streams.generators] == before
 
 
+@pytest.mark.numpy_only
 def test_pcg64_uniforms_are_numpys():
     from pfx.numerics import pcg64
 

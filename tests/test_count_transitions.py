@@ -64,7 +64,6 @@ def assert_moments(draws: np.ndarray, mean, variance, label: str = "") -> None:
     assert np.all(np.abs(sample_variance - variance) < 4 * variance_error + 1e-12), (label, sample_variance, variance)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_binomial_poisson_and_gamma_have_their_moments_with_a_value_per_trial(backend):
     random = streams(backend)
     count = np.repeat(np.array([3.0, 40.0]), TRIALS // 2)[:, None]          # (R, 1): one n per trial
@@ -83,7 +82,6 @@ def test_binomial_poisson_and_gamma_have_their_moments_with_a_value_per_trial(ba
     assert_moments(draws, shape_parameter * scale, shape_parameter * scale**2, "gamma")
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_euler_multinomial_has_the_exact_multinomial_moments(backend):
     """n = 50 individuals, exits at rates (0.3, 0.1, 0.05) over h = 1.5: counts by exit with
     E = n q, Var = n q (1 - q), Cov = -n q_i q_j, q_j = (1 - e^(-R h)) r_j / R."""
@@ -103,7 +101,6 @@ def test_euler_multinomial_has_the_exact_multinomial_moments(backend):
     assert abs(covariance - (-50 * share[0] * share[1])) < 4 * product.std() / np.sqrt(len(flat))
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_multinomial_splits_the_count_by_its_probabilities(backend):
     random = streams(backend, 2)
     probabilities = np.array([0.5, 0.2, 0.3])
@@ -113,7 +110,6 @@ def test_multinomial_splits_the_count_by_its_probabilities(backend):
     assert_moments(draws, 20 * probabilities, 20 * probabilities * (1 - probabilities), "multinomial")
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_gamma_white_noise_has_mean_h_and_variance_sigma_squared_h(backend):
     random = streams(backend, 3)
     draws = on(backend, random, lambda xp, random: gamma_white_noise(random, SIGMA, STEP, shape=(PARTICLES,)))
@@ -125,7 +121,6 @@ def sir_model(**parameters):
     return pfx.model("sir", **parameters)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_sir_substep_has_the_exact_binomial_moments(backend):
     """One substep from S = 5000, I = 300: the new infections are the infection exit of S's
     Euler multinomial, Bin(S, q) with q = (1 - e^(-(beta I / P + mu) h)) (beta I / P) / (beta I / P + mu)."""

@@ -146,6 +146,7 @@ def batch_plan():
     return build_plan(copy.deepcopy(BATCH_CONFIG), "test.yaml")
 
 
+@pytest.mark.numpy_only
 @pytest.mark.parametrize("arm", list(BATCH_ARMS))
 def test_batched_trials_equal_trials_run_one_by_one(batch_plan, arm):
     cell = next(c for c in batch_plan.cells if c.labels["arm"] == arm)

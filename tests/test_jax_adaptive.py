@@ -1,5 +1,5 @@
 """KLD-sampling (``filter.adaptive``) on the JAX backend (pfx/filters/particle/adaptive.py, run
-by pfx/filters/particle/jax_after_resampling.py).
+by the kernel's resampling stage, pfx/filters/particle/kernel.py).
 
 The backends draw from different generators, so the JAX run is checked against NumPy's in
 distribution (the active counts' means, within 4 standard errors over trials), against the
@@ -119,7 +119,6 @@ def test_an_adaptive_config_runs_on_jax_through_the_cli(tmp_path, tiny_config_di
     assert (trials["injected_mean"] == 0).all()
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_with_kld_the_injection_replaces_only_the_active_particles_of_the_new_count(backend):
     """KLD then injection, as both engines order them: the prior draws go among the particles the
     new count keeps (ancestor -1 only below it), and every replacement counts in ``injected``.
@@ -142,3 +141,20 @@ def test_with_kld_the_injection_replaces_only_the_active_particles_of_the_new_co
     active = np.arange(400) < trace.particle_counts[:, 1:, None]
     assert not (injected_at & ~active).any()
     np.testing.assert_array_equal(injected_at.sum(axis=-1), trace.injected[:, :-1])
+
+
+def test_a_trial_that_did_not_resample_keeps_its_particles_as_their_own_ancestors(backend):
+    """With KLD and the ESS rule at 0.5, the genealogy of a step whose trial did not resample is
+    i -> i. (The jax engine once put KLD's random order on every trial, the ones that did not
+    resample too: their genealogy said particles had changed places when none had.)"""
+    model = pfx.model("linear_gaussian", steps=STEPS, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
+                      process_noise={"variance": 1.0}, measurement_noise={"variance": 1.0},
+                      initial={"kind": "gaussian", "mean": [0.0], "covariance": 1.0})
+    _, measurements = simulate_truth(model, TrialStreams.from_seeds(range(20)))
+    trace = pfx.filter(model, measurements, particles=200, backend=backend, seed=7, adaptive=KLD,
+                       genealogy=True, ess_threshold=0.5).trace
+    kept = ~trace.resampled[:, :-1]                      # ancestors[:, k] come from step k-1's resampling
+    assert kept.any() and (~kept).any()                  # both kinds of step occur
+    identity = np.arange(trace.ancestors.shape[-1])
+    assert (trace.ancestors[:, 1:][kept] == identity).all()
+    assert (trace.ancestors[:, 1:][~kept] != identity).any(axis=-1).all()

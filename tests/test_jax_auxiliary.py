@@ -1,17 +1,13 @@
-"""The auxiliary particle filter on the JAX backend (pfx/filters/particle/jax_look_ahead.py), with
-its first stage written once for both backends (pfx/filters/particle/auxiliary.py).
+"""The auxiliary particle filter on the JAX backend (the kernel's look-ahead, pfx/filters/particle/kernel.py), with
+its first stage written once for both backends (pfx/filters/particle/auxiliary.py). The filter's
+agreement with the Kalman filter and L_k = L1_k + L2_k (with ess_threshold 0 its increment is the
+plain filter's) are checked on both backends in tests/test_proposals.py.
 
 * the first stage's code is one: on JAX arrays it gives NumPy's numbers, edge cases included (a
   NaN point prediction: g = -inf and weight 0; first-stage weights that all underflow: g = 0 and
   the previous weights; a missing measurement: g = 0 and L1 = 0);
-* on a linear-Gaussian model the filter's means agree with the Kalman filter's and its
-  likelihood estimate is unbiased for the exact one, on both backends (the method and the
-  4-standard-error tolerances of tests/test_proposals.py: the runs filter one data set);
-* L_k = L1_k + L2_k, deterministically: with ess_threshold 0 the first stage resamples nothing
-  and draws nothing, so the step draws what the plain filter draws and its increment must be
-  the plain filter's (leaving L1 out, the classic bug, breaks this);
 * a missing measurement adds nothing, and the genealogy records the first stage's ancestors and
-  ``resampled`` flags as the NumPy engine does;
+  ``resampled`` flags as the NumPy engine does (both on both backends: the ``backend`` fixture);
 * a model's own look-ahead runs on jax, or is refused at plan time if written for NumPy only;
 * a config with ``auxiliary: true`` and ``backend: jax`` runs through the command line.
 """
@@ -23,7 +19,6 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import tiny_config_dict
-from test_proposals import assert_agrees_with_the_kalman_filter
 
 import pfx
 from pfx.errors import ConfigError
@@ -34,8 +29,6 @@ from pfx.models.linear_gaussian import LinearGaussian
 
 jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
-
-RUNS = 200            # independent filter runs on one data set, of RUNS particles each
 
 
 def constant_velocity(steps: int = 10):
@@ -79,45 +72,14 @@ def test_the_first_stage_is_one_code_with_numpy_numbers_on_jax():
     np.testing.assert_allclose(first.sum(axis=1), 1.0, rtol=1e-12)
 
 
-@pytest.fixture(scope="module")
-def informative():
-    model = constant_velocity()
-    measurements = one_data_set(model, RUNS)
-    return model, measurements, pfx.filter(model, measurements, kind="kf").trace
-
-
-@pytest.mark.parametrize("backend,proposal", [("numpy", "bootstrap"), ("jax", "bootstrap"),
-                                              ("jax", "locally_optimal")])
-def test_means_and_likelihood_agree_with_the_kalman_filter(informative, backend, proposal):
-    model, measurements, exact = informative
-    result = pfx.filter(model, measurements, seeds=seeds(RUNS), particles=RUNS, proposal=proposal,
-                        auxiliary=True, backend=backend)
-    assert_agrees_with_the_kalman_filter(result.trace, exact)
-    assert result.trace.resampled.all()              # threshold 1: the first stage resamples every step
-
-
 @pytest.mark.parametrize("proposal", ["bootstrap", "ekf"])
-def test_without_first_stage_resampling_the_increment_is_the_plain_filters(proposal):
-    model = constant_velocity()
-    measurements = one_data_set(model, 20)
-    settings = dict(seeds=seeds(20), particles=50, proposal=proposal, ess_threshold=0.0, backend="jax")
-    plain = pfx.filter(model, measurements, **settings).trace
-    auxiliary = pfx.filter(model, measurements, auxiliary=True, **settings).trace
-    np.testing.assert_allclose(auxiliary.log_likelihood_increments, plain.log_likelihood_increments,
-                               rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(auxiliary.log_likelihood, plain.log_likelihood, rtol=1e-9)
-    np.testing.assert_allclose(auxiliary.estimates, plain.estimates, rtol=1e-9, atol=1e-9)
-    assert not auxiliary.resampled.any()
-
-
-@pytest.mark.parametrize("proposal", ["bootstrap", "ekf"])
-def test_a_missing_measurement_adds_nothing(proposal):
+def test_a_missing_measurement_adds_nothing(proposal, backend):
     model = constant_velocity(steps=4)
     measurements = one_data_set(model, 4)
     blank = measurements.copy()
     blank[:, 3] = np.nan                  # the last step: the run must equal the one that stops before it
     blank[1, 1] = np.nan                  # and one trial's middle step
-    settings = dict(seeds=seeds(4), particles=50, proposal=proposal, auxiliary=True, backend="jax")
+    settings = dict(seeds=seeds(4), particles=50, proposal=proposal, auxiliary=True, backend=backend)
     truncated = pfx.filter(model, measurements[:, :3], **settings).trace
     with_blank = pfx.filter(model, blank, **settings).trace
     others = [0, 2, 3]
@@ -127,7 +89,6 @@ def test_a_missing_measurement_adds_nothing(proposal):
     assert np.isfinite(with_blank.estimates).all()
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_the_genealogy_records_the_first_stages_ancestors(backend):
     """Threshold 0.5: some trials resample at the first stage, some do not. A trial that does has
     the systematic resampler's ancestors (non-decreasing), one that does not has i -> i."""

@@ -3,9 +3,12 @@ computes, on JAX's CPU build.
 
 The two backends draw from different generators (NumPy's PCG64 per trial, threefry keys per
 trial), so every check here is **backend-invariant**: a property of the algorithm checked
-within Monte Carlo error (the Kalman filter's exact answer, the likelihood estimate's
-unbiasedness, the offspring counts' unbiasedness), or the JAX backend against itself (reruns,
-batching). The NumPy backend's bit-exact checks are the rest of the suite (and results/).
+within Monte Carlo error (the offspring counts' unbiasedness, the backends' likelihood
+estimates alike), or the JAX backend against itself (reruns, batching). The algorithm's checks
+that hold on either backend take the ``backend`` fixture and live with their subject (the
+Kalman filter's exact answers and the likelihood's unbiasedness: tests/test_kalman_convergence.py;
+missing measurements: tests/test_recorded_data.py); the NumPy backend's bit-exact checks are
+marked ``numpy_only``.
 Statistical tolerances are 3 standard errors of the quantity compared, from the sample itself;
 every seed is fixed.
 """
@@ -49,31 +52,6 @@ def test_threefry_keys_are_the_keys_jax_makes_of_the_seeds():
     with jax.enable_x64(True):
         expected = np.stack([np.asarray(jax.random.key_data(jax.random.PRNGKey(seed))) for seed in seeds])
     assert (threefry_keys(seeds) == expected).all()
-
-
-def test_mean_squared_error_is_the_riccati_covariance():
-    """The filter's squared error against the truth, divided by the Kalman filter's posterior
-    variance P_k (the Riccati recursion), averages 1 over trials and steps: the particle filter's
-    own error adds O(1/N), far below the 3 standard errors allowed at N = 2000."""
-    model = random_walk()
-    truth, measurements = simulated(model, 200)
-    variances = pfx.filter(model, measurements, kind="kf").trace.covariances[..., 0, 0]
-    estimates = pfx.filter(model, measurements, particles=2000, backend="jax", seed=1).estimates[..., 0]
-    ratio = ((estimates - truth[..., 0]) ** 2 / variances).mean(axis=1)      # one value per trial
-    standard_error = ratio.std(ddof=1) / np.sqrt(len(ratio))
-    assert abs(ratio.mean() - 1.0) < 3 * standard_error, (ratio.mean(), standard_error)
-
-
-def test_likelihood_estimate_is_unbiased():
-    """E[exp(log L-hat - log L)] = 1 (the particle filter's likelihood estimate is unbiased), over
-    4000 runs on one data set, with the exact log L from the Kalman filter."""
-    model = random_walk(steps=10)
-    _, measurements = simulated(model, 1, seed=3)
-    exact = pfx.filter(model, measurements[0], kind="kf").log_likelihood[0]
-    estimates = pfx.filter(model, measurements[0], trials=4000, particles=50, backend="jax", seed=5).log_likelihood
-    ratios = np.exp(estimates - exact)
-    standard_error = ratios.std(ddof=1) / np.sqrt(len(ratios))
-    assert abs(ratios.mean() - 1.0) < 3 * standard_error, (ratios.mean(), standard_error)
 
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
@@ -123,8 +101,8 @@ def test_cumulative_weights_stay_exact_for_a_million_float32_weights():
 
 
 def test_float32_runs_in_single_precision_and_agrees_with_float64():
-    """The float64 run has the unbiasedness test's shape (10 steps, 4000 trials of 50 particles)
-    and shares its compiled program; the tolerance is 3 standard errors at that size."""
+    """The float64 run has the unbiasedness test's shape (tests/test_kalman_convergence.py: 10
+    steps, 4000 trials of 50 particles); the tolerance is 3 standard errors at that size."""
     model = random_walk(steps=10)
     _, measurements = simulated(model, 1, seed=4)
     runs = {precision: pfx.filter(model, measurements[0], trials=4000, particles=50, backend="jax",
@@ -148,21 +126,6 @@ def test_batching_changes_nothing_and_a_rerun_is_identical():
                                rtol=1e-12)
     np.testing.assert_allclose(np.concatenate([h.estimates for h in halves]), whole.estimates, rtol=1e-10,
                                atol=1e-12)
-
-
-def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept():
-    model = random_walk(steps=8)
-    _, measurements = simulated(model, 3)
-    measurements[:, 2] = np.nan
-    measurements[1, 5] = np.nan
-    result = pfx.filter(model, measurements, particles=32, backend="jax", genealogy=True, ess_threshold=1.0)
-    increments = result.trace.log_likelihood_increments
-    assert (increments[:, 2] == 0).all() and increments[1, 5] == 0
-    assert np.isfinite(increments).all() and (increments[0, 5] != 0)
-    np.testing.assert_allclose(increments.sum(axis=1), result.log_likelihood)
-    assert result.ancestors.shape == (3, 8, 32)
-    assert (result.ancestors[:, 0] == np.arange(32)).all()          # step 1 descends from the prior
-    assert result.trace.resampled.all()
 
 
 TRANSITION_PROPOSAL_PLUGIN = '''

@@ -68,7 +68,6 @@ def test_the_backends_agree_on_nees_and_nis_within_monte_carlo_error(consistency
 
 
 @pytest.mark.parametrize("statistic,expected", [("nees", 2.0), ("nis", 2.0)])
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_each_backend_has_the_kalman_filters_expected_nees_and_nis(consistency_runs, backend, statistic, expected):
     """The Kalman filter is the exact posterior here: NEES ~ chi2(d), NIS ~ chi2(m) at each step."""
     per_trial = consistency_runs[backend][statistic]

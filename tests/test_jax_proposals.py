@@ -2,20 +2,17 @@
 ``propose_from``, called by pfx/filters/particle/jax_engine.py's ``propose``).
 
 On a linear-Gaussian model the locally optimal proposal is known in closed form and the EKF and
-UKF proposals are exact, so, as tests/test_proposals.py checks on numpy:
+UKF proposals are exact, so:
 
 * deterministically, on jax: log p(z | x) + the weight adjustment is log N(z; H f_i, H Q H' + R)
   for every particle, whatever x was drawn; the ekf proposal (the model's Jacobian, or central
   differences traced on jax) and the ukf proposal draw the locally optimal proposal's particles;
   a trial without a measurement gets adjustment 0; a covariance whose factorisation fails falls
   back to Q's factor, and the weight is still p(x | x_prev) / q exactly;
-* statistically, on both backends (fixed seeds): over n runs on one data set, the posterior
-  means' standardised errors against the Kalman filter lie within 4 standard errors of 0, and the
-  likelihood estimate is unbiased: mean(l) + var(l)/2 within 4 standard errors of 0 for
-  l = log L_hat - log p (the log domain's -s^2/2 bias accounted for: tests/test_proposals.py's
-  ``unbiased_log_likelihood``);
-* a missing measurement is a predict-only step on jax too; a config asking for the proposal on
-  ``filter.backend: jax`` runs through the CLI and writes trials.csv.
+* statistically, the posterior means and the likelihood estimate against the Kalman filter, on
+  both backends: tests/test_proposals.py (the ``backend`` fixture);
+* a config asking for the proposal on ``filter.backend: jax`` runs through the CLI and writes
+  trials.csv (a missing measurement as a predict-only step: tests/test_proposals.py, on both backends).
 
 The ukf proposal's sigma points and moments (pfx/filters/kalman/unscented.py) are the same code
 on both backends: compiled on jax in float64, its mean and factor equal NumPy's for the same
@@ -33,12 +30,8 @@ import pandas as pd
 import pytest
 from scipy import stats
 from test_proposals import (
-    assert_agrees_with_the_kalman_filter,
     constant_velocity,
-    kalman,
-    one_data_set,
     proposal,
-    run_particle,
 )
 
 from pfx.models.base import bind_law
@@ -50,8 +43,6 @@ jnp = pytest.importorskip("jax.numpy")
 
 from pfx.filters.particle.proposals import ExtendedKalmanProposal, cholesky_factor  # noqa: E402
 from pfx.numerics.key_streams import KeyStreams  # noqa: E402
-
-RUNS = 100            # independent filter runs on one data set
 
 
 class NumericalJacobian(LinearGaussian):
@@ -127,33 +118,6 @@ def test_on_jax_a_failed_factorisation_falls_back_to_the_transition_covariance()
     expected = stats.multivariate_normal(cov=Q).logpdf(state - predicted) \
         - stats.multivariate_normal(cov=Q).logpdf(state - mean)
     np.testing.assert_allclose(adjustment, expected, rtol=1e-9, atol=1e-9)
-
-
-@pytest.fixture(scope="module")
-def informative():
-    model = constant_velocity(0.01)
-    measurements = one_data_set(model, RUNS)
-    return model, measurements, kalman(model, measurements)
-
-
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
-@pytest.mark.parametrize("name", ["locally_optimal", "ekf", "ukf"])
-def test_guided_posterior_means_and_likelihood_match_the_kalman_filter_on_both_backends(informative, name, backend):
-    model, measurements, exact = informative
-    trace = run_particle(model, measurements, particles=RUNS, proposal=name, backend=backend)
-    assert_agrees_with_the_kalman_filter(trace, exact)
-
-
-def test_a_missing_measurement_is_predict_only_on_jax():
-    model = constant_velocity(0.5, steps=3)
-    measurements = one_data_set(model, 4)
-    blank = measurements.copy()
-    blank[:, 2] = np.nan
-    truncated = run_particle(model, measurements[:, :2], particles=50, proposal="ekf", backend="jax")
-    with_blank = run_particle(model, blank, particles=50, proposal="ekf", backend="jax")
-    np.testing.assert_allclose(with_blank.log_likelihood, truncated.log_likelihood, rtol=1e-12)
-    np.testing.assert_array_equal(with_blank.log_likelihood_increments[:, 2], 0.0)
-    assert np.isfinite(with_blank.estimates).all()
 
 
 @pytest.mark.parametrize("guided", ["locally_optimal", {"kind": "ukf"}], ids=["locally_optimal", "ukf"])

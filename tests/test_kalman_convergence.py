@@ -1,5 +1,8 @@
-"""The bootstrap particle filter converges to the exact (Kalman) posterior mean on a
-linear-Gaussian model, at the Monte Carlo rate: mean squared difference ~ 1/N."""
+"""The bootstrap particle filter against the Kalman filter's exact answers on linear-Gaussian
+models, on both backends (the ``backend`` fixture): it converges to the exact posterior mean at
+the Monte Carlo rate (mean squared difference ~ 1/N), its squared error against the truth is the
+Riccati recursion's variance, and its likelihood estimate is unbiased for the exact likelihood.
+Statistical tolerances are standard errors from the sample itself; every seed is fixed."""
 
 from __future__ import annotations
 
@@ -56,7 +59,7 @@ def test_kalman_filter_helper_on_hand_example():
     assert covariances[0, 0, 0] == pytest.approx(2 / 3)
 
 
-def test_particle_filter_converges_to_kalman_mean():
+def test_particle_filter_converges_to_kalman_mean(backend):
     """On a 2-D linear-Gaussian model (position observed, velocity-like hidden component)
     the bootstrap filter with systematic resampling every step approaches the Kalman mean.
 
@@ -84,7 +87,7 @@ def test_particle_filter_converges_to_kalman_mean():
 
     msd = {}
     for n in (100, 1000, 10_000):
-        trace = pfx.particle_filter(model, prior=bind_law(GaussianLaw(mean=PRIOR_MEAN, covariance=PRIOR_COV), 2, "initial"), particles=n, resampler="systematic", ess_threshold=1.0)(measurements, seeds=range(7000 + n, 7000 + n + TRIALS)).trace
+        trace = pfx.particle_filter(model, prior=bind_law(GaussianLaw(mean=PRIOR_MEAN, covariance=PRIOR_COV), 2, "initial"), particles=n, resampler="systematic", ess_threshold=1.0, backend=backend)(measurements, seeds=range(7000 + n, 7000 + n + TRIALS)).trace
         assert trace.resampled.all()
         msd[n] = float(np.mean(np.sum((trace.estimates - kf_means) ** 2, axis=-1)))
 
@@ -93,3 +96,36 @@ def test_particle_filter_converges_to_kalman_mean():
     # The error at N = 10000 is a small fraction of the posterior variance itself
     # (theory: a few times trace(P) / N = a few 1e-4 trace(P)); 1 % leaves a wide margin.
     assert msd[10_000] < 0.01 * np.mean(np.trace(kf_covariances, axis1=1, axis2=2)), msd
+
+
+def random_walk(steps: int = 30):
+    """x_k = 0.9 x_{k-1} + w_k, z_k = x_k + v_k, unit variances: the Kalman filter is exact."""
+    return pfx.model("linear_gaussian", steps=steps, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
+                     process_noise={"variance": 1.0}, measurement_noise={"variance": 1.0},
+                     initial={"kind": "gaussian", "mean": [0.0], "covariance": 1.0})
+
+
+def test_mean_squared_error_is_the_riccati_covariance(backend):
+    """The filter's squared error against the truth, divided by the Kalman filter's posterior
+    variance P_k (the Riccati recursion), averages 1 over trials and steps: the particle filter's
+    own error adds O(1/N), far below the 3 standard errors allowed at N = 2000."""
+    model = random_walk()
+    truth, measurements = simulate_truth(model, TrialStreams.from_seeds(range(200)))
+    truth = truth[:, 1:]
+    variances = pfx.filter(model, measurements, kind="kf").trace.covariances[..., 0, 0]
+    estimates = pfx.filter(model, measurements, particles=2000, backend=backend, seed=1).estimates[..., 0]
+    ratio = ((estimates - truth[..., 0]) ** 2 / variances).mean(axis=1)      # one value per trial
+    standard_error = ratio.std(ddof=1) / np.sqrt(len(ratio))
+    assert abs(ratio.mean() - 1.0) < 3 * standard_error, (ratio.mean(), standard_error)
+
+
+def test_likelihood_estimate_is_unbiased(backend):
+    """E[exp(log L-hat - log L)] = 1 (the particle filter's likelihood estimate is unbiased), over
+    4000 runs on one data set, with the exact log L from the Kalman filter."""
+    model = random_walk(steps=10)
+    _, measurements = simulate_truth(model, TrialStreams.from_seeds([3]))
+    exact = pfx.filter(model, measurements[0], kind="kf").log_likelihood[0]
+    estimates = pfx.filter(model, measurements[0], trials=4000, particles=50, backend=backend, seed=5).log_likelihood
+    ratios = np.exp(estimates - exact)
+    standard_error = ratios.std(ddof=1) / np.sqrt(len(ratios))
+    assert abs(ratios.mean() - 1.0) < 3 * standard_error, (ratios.mean(), standard_error)

@@ -288,7 +288,6 @@ def test_the_estimated_parameters_are_its_vectorised_parameters_and_mu_stays_a_n
     assert set(type(measles()).vectorised_parameters) == set(ESTIMATED)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_parameters_given_per_particle_at_one_value_draw_what_the_numbers_draw(backend):
     """(R, N, 1) arrays all holding the model's values: the same draws from the same streams,
     bit for bit, as the model with numbers, at school entry (the cohort's day, in the holidays)
@@ -324,12 +323,9 @@ def test_each_particle_moves_and_is_weighted_under_its_own_parameters():
         np.testing.assert_allclose(weights[:, particle], alone.log_likelihood(reports, own)[:, 0], rtol=1e-13)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_if2_estimates_its_parameters_per_particle_on_both_backends(tmp_path, backend):
     """IF2 on the first ten weeks: every particle carries its own R0, rho and sigmaSE through the
     substeps; the passes run and their estimates stay in the parameters' ranges."""
-    if backend == "jax":
-        pytest.importorskip("jax")
     measurements = tmp_path / "weeks.csv"
     pd.read_csv(CORRECTED).head(10).to_csv(measurements, index=False)
     positive = {"prior": {"law": "flat", "lower": 0}, "transform": "log", "random_walk_sd": 0.05}

@@ -1,5 +1,6 @@
 """Numerical robustness: ESS, log-domain normalisation, noise families, and the engine's
-handling of underflowing weights and non-finite model output."""
+handling of underflowing weights and non-finite model output (degenerate steps, far
+measurements and lost particles on both backends: the ``backend`` fixture)."""
 
 from __future__ import annotations
 
@@ -207,12 +208,13 @@ def test_noise_validation():
 
 # -- the engine: degenerate steps and model errors --------------------------------------------
 
-def _run(model, measurements, seeds, particles=500, prior=None):
+def _run(model, measurements, seeds, particles=500, prior=None, backend="numpy"):
     prior = prior if prior is not None else bind_law(model.default_prior(), model.state_dimension, "initial")
-    return pfx.particle_filter(model, prior=prior, particles=particles, resampler="systematic", ess_threshold=1.0)(measurements, seeds=seeds).trace
+    return pfx.particle_filter(model, prior=prior, particles=particles, resampler="systematic", ess_threshold=1.0,
+                               backend=backend)(measurements, seeds=seeds).trace
 
 
-def test_engine_degenerate_steps_are_counted_and_survived():
+def test_engine_degenerate_steps_are_counted_and_survived(backend):
     """Uniform measurement noise (half-width sqrt 3) and measurements moved to 1e6 at steps 2
     and 4: every weight is exactly zero there. The trace flags exactly those steps as
     degenerate in every trial, weights are reset to uniform (ESS = N), no NaN appears, and the
@@ -224,7 +226,7 @@ def test_engine_degenerate_steps_are_counted_and_survived():
     _, measurements = simulate_truth(model, TrialStreams.from_seeds(range(100, 100 + trials)))
     measurements[:, [1, 3]] = 1e6
     n = 500
-    trace = _run(model, measurements, range(200, 200 + trials), particles=n)
+    trace = _run(model, measurements, range(200, 200 + trials), particles=n, backend=backend)
     expected = np.zeros((trials, 6), dtype=bool)
     expected[:, [1, 3]] = True
     np.testing.assert_array_equal(trace.degenerate, expected)
@@ -237,13 +239,13 @@ def test_engine_degenerate_steps_are_counted_and_survived():
     assert np.all(trace.log_likelihood == -np.inf)
 
 
-def test_engine_far_measurement_gaussian_is_not_degenerate():
+def test_engine_far_measurement_gaussian_is_not_degenerate(backend):
     """With gaussian noise a measurement 1e6 away gives log-weights near -5e11 but log-domain
     normalisation keeps them usable: no degenerate step, no NaN, ESS in [1, N] (here ~1: the
     particle nearest z takes all the weight) and a finite log-likelihood."""
     model = LinearGaussian(transition_matrix=[[1.0]], measurement_matrix=[[1.0]], steps=3)
     measurements = np.full((4, 3, 1), 1e6)
-    trace = _run(model, measurements, range(4), particles=300)
+    trace = _run(model, measurements, range(4), particles=300, backend=backend)
     assert not trace.degenerate.any()
     assert np.isfinite(trace.estimates).all()
     assert np.all((trace.ess >= 1 - 1e-9) & (trace.ess <= 300 + 1e-9))
@@ -259,13 +261,17 @@ class _NaNAtStep3(LinearGaussian):
 
 
 class _HalfLostAtStep2(LinearGaussian):
-    """A linear model whose transition sends every other particle to NaN at step 2."""
+    """A linear model whose transition sends every other particle to NaN at step 2, whose substep
+    starts at time 1 (a substep written with ``pfx.namespace`` and ``where`` runs on both
+    backends: on jax the time is traced)."""
 
-    def transition(self, state, step, random):
-        moved = super().transition(state, step, random)
-        if step == 2 and moved.ndim == 3:
-            moved[:, ::2] = np.nan
-        return moved
+    def sample_substep(self, state, control, time, random):
+        moved = super().sample_substep(state, control, time, random)
+        if moved.ndim != 3:                 # the truth's simulation: one state per trial
+            return moved
+        xp = pfx.namespace(moved)
+        every_other = (xp.arange(moved.shape[1]) % 2 == 0)[:, None]
+        return xp.where((time == 1.0) & every_other, xp.nan, moved)
 
 
 class _NaNLikelihood(LinearGaussian):
@@ -299,11 +305,11 @@ def test_nan_likelihood_raises_with_kind_and_step():
         _run(_linear(_NaNLikelihood), np.zeros((2, 5, 1)), [0, 1], particles=50)
 
 
-def test_some_lost_particles_are_counted_not_fatal():
+def test_some_lost_particles_are_counted_not_fatal(backend):
     """Half the particles NaN at step 2: they are counted as lost (N/2 per trial), get zero
     weight (so estimates stay finite and ESS <= N/2 at that step), and the run completes."""
     n = 100
-    trace = _run(_linear(_HalfLostAtStep2), np.zeros((3, 5, 1)), [0, 1, 2], particles=n)
+    trace = _run(_linear(_HalfLostAtStep2), np.zeros((3, 5, 1)), [0, 1, 2], particles=n, backend=backend)
     np.testing.assert_array_equal(trace.lost_particles, n // 2)
     assert np.isfinite(trace.estimates).all()
     assert np.all(trace.ess[:, 1] <= n / 2 + 1e-9)

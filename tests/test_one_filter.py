@@ -35,6 +35,7 @@ CASES = {
 }
 
 
+@pytest.mark.numpy_only
 @pytest.mark.parametrize("case", list(CASES))
 def test_the_python_entry_point_gives_the_config_paths_numbers(case, tmp_path):
     model_section, settings = CASES[case]

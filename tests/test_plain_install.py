@@ -28,6 +28,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import venv
 from pathlib import Path
@@ -46,9 +47,7 @@ EXTRAS = ("jax", "jaxlib", "dask", "distributed")
 NEEDS_AN_EXTRA = {
     "pfx.bench.jax_reference": "jax",
     "pfx.estimation.compiled_if2": "jax",
-    "pfx.filters.particle.jax_after_resampling": "jax",
     "pfx.filters.particle.jax_engine": "jax",
-    "pfx.filters.particle.jax_look_ahead": "jax",
     "pfx.filters.particle.jax_resampling": "jax",
     "pfx.run.executors.dask": "dask",
 }
@@ -95,6 +94,9 @@ def plain(tmp_path_factory) -> dict:
         _pip(python, "--no-compile", *BUILD_REQUIREMENTS)    # to rebuild pfx here, without a download
         stamp_file.write_text(stamp)
     else:                                                    # the working tree's pfx, as pip builds it
+        # setuptools copies into build/lib and never deletes there: a module removed from the
+        # tree would stay in the wheel
+        shutil.rmtree(ROOT / "build", ignore_errors=True)
         _pip(python, "--no-deps", "--force-reinstall", "--no-build-isolation", "--no-compile", ".")
     present = subprocess.run([str(python), "-c", "import importlib.util as u; "
                               f"print([m for m in {EXTRAS!r} if u.find_spec(m)])"],

@@ -251,10 +251,7 @@ class Counts(pfx.Model):
 '''
 
 
-@pytest.mark.parametrize("backend", ["numpy", "jax"])
 def test_a_nan_likelihood_from_zero_log_zero_names_the_plugins_log_likelihood(pfx_in_process, tmp_path, backend):
-    if backend == "jax":
-        pytest.importorskip("jax")
     (tmp_path / "counts.py").write_text(COUNTS)
     (tmp_path / "counts.csv").write_text("step,z1\n1,0\n2,1\n3,0\n4,0\n")
     config = {"name": "counts", "plugins": ["counts.py"], "trials": 2,

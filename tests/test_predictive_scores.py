@@ -136,10 +136,6 @@ def simulated(model, trials: int, seed: int = 0):
     return pfx.simulate(model, trials=trials, seed=seed).measurements
 
 
-BACKENDS = ["numpy", "jax"]
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_particle_scores_match_the_kalman_filters_exact_scores(backend):
     """On a linear-Gaussian model the exact predictive law of z_k is N(H m, H P H' + R): the
     Kalman filter's CRPS and log score are exact. The particle filter's, averaged per trial over
@@ -147,8 +143,6 @@ def test_particle_scores_match_the_kalman_filters_exact_scores(backend):
     standard errors plus 2/N. (A particle approximation of the predictive law scores worse than
     the exact law by O(1/N): for the log score E[-log p-hat] - (-log p) ~ Var(p-hat / p) / 2 =
     c / (2N), with c = N * sum w^2 of order 1 to 4 here; about 0.0008 at N = 2000, as measured.)"""
-    if backend == "jax":
-        pytest.importorskip("jax")
     model = random_walk()
     measurements = simulated(model, 100)
     exact = pfx.filter(model, measurements, kind="kf", scores=True).predictive
@@ -165,14 +159,11 @@ def test_particle_scores_match_the_kalman_filters_exact_scores(backend):
     assert abs(np.median(particle.sd / exact.sd) - 1.0) < 0.02
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_pit_is_uniform_when_the_model_is_right_and_not_when_it_is_wrong(backend):
     """The PITs of a well-specified filter are iid uniform over the steps and trials: a
     Kolmogorov-Smirnov test at 1 % does not reject. A filter that assumes a measurement variance
     9 times too small (over-confident) gets a U-shaped PIT, and the test rejects; one that assumes
     it 9 times too large, a hump, rejected too."""
-    if backend == "jax":
-        pytest.importorskip("jax")
     model = random_walk(steps=30)
     measurements = simulated(model, 40, seed=11)
     right = pfx.filter(model, measurements, particles=1000, backend=backend, seed=5, scores=True).predictive.pit
@@ -258,15 +249,12 @@ def forecasts_of(model, measurements, backend: str, origin: int, horizons, parti
     return trace.forecasts
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 def test_forecast_mean_and_variance_are_the_exact_k_step_moments(backend):
     """From the Kalman filter's posterior N(m_k, P_k) at the origin, the exact h-step forecast of
     x_{k+h} is N(a^h m_k, a^{2h} P_k + q sum_{j<h} a^{2j}). The particle filter's forecast mean,
     per trial, differs from a^h m_k by Monte Carlo error only: the mean difference over 100
     trials (each its own data) is within 4 standard errors; its forecast variance over the exact
     one averages 1 within 4 standard errors plus the O(1/N) of a weighted sample."""
-    if backend == "jax":
-        pytest.importorskip("jax")
     model = random_walk(steps=30)
     measurements = simulated(model, 100, seed=21)
     origin, horizons = 20, (1, 5)

@@ -72,6 +72,7 @@ def _numpy_sequence(seed: int, row: int, parameters: dict[str, np.ndarray]) -> l
     ]
 
 
+@pytest.mark.numpy_only
 def test_each_trials_draws_are_its_own_generators_numpy_draws():
     streams = TrialStreams.from_seeds(SEEDS)
     parameters = _parameters()
@@ -94,6 +95,7 @@ def test_a_batch_draws_what_its_parts_draw():
         np.testing.assert_array_equal(together, apart)
 
 
+@pytest.mark.numpy_only
 def test_subsets_and_pickled_copies_keep_drawing_the_same_streams():
     streams = TrialStreams.from_seeds(SEEDS[:3])
     streams.standard_normal((2,))                  # the compiled loops have found the generators

@@ -21,6 +21,7 @@ import pytest
 import yaml
 from conftest import REPO_ROOT, tiny_config_dict, write_config_file
 
+import pfx
 from pfx.config.plan import build_plan
 from pfx.errors import ConfigError
 from pfx.filters import FILTERS
@@ -218,10 +219,10 @@ def test_histogram_filter_skips_the_update_where_the_measurement_is_missing():
 
 
 @pytest.mark.parametrize("kind", ["particle", "sis"])
-def test_particle_filters_skip_the_weight_update_where_the_measurement_is_missing(kind):
+def test_particle_filters_skip_the_weight_update_where_the_measurement_is_missing(kind, backend):
     trials, particles = 200, 500
     model, _, with_gaps = missing_setup(trials=trials)
-    settings = build_settings(kind, particles=particles, ess_threshold=0.5)
+    settings = build_settings(kind, particles=particles, ess_threshold=0.5, backend=backend)
     trace = run_filter(kind, model, with_gaps, TrialStreams.from_seeds(list(range(trials))), settings=settings,
                        prior=model.initial, trace_rows=np.arange(trials))
     # weights untouched at a missing step: the ESS is the previous step's, or N (uniform weights)
@@ -246,6 +247,28 @@ def test_particle_filters_skip_the_weight_update_where_the_measurement_is_missin
     mean, sem = deviations.mean(axis=0), deviations.std(axis=0, ddof=1) / math.sqrt(trials)
     if kind == "particle":          # SIS degenerates: its sd says so, it need not match
         assert np.all(np.abs(mean - np.sqrt(variances)) < 5 * sem + 0.02 * np.sqrt(variances))
+
+
+def test_missing_measurement_steps_add_nothing_and_the_genealogy_is_kept(backend):
+    """Step 3 missing in every trial, step 6 in trial 1 only: their increments are exactly 0, the
+    others finite and non-zero; the increments sum to the log-likelihood; the genealogy runs over
+    every step (ESS rule at 1: every step resamples, missing or not)."""
+    from pfx.models.simulation import simulate_truth
+
+    model = pfx.model("linear_gaussian", steps=8, transition_matrix=[[0.9]], measurement_matrix=[[1.0]],
+                      process_noise={"variance": 1.0}, measurement_noise={"variance": 1.0},
+                      initial={"kind": "gaussian", "mean": [0.0], "covariance": 1.0})
+    _, measurements = simulate_truth(model, TrialStreams.from_seeds(range(3)))
+    measurements[:, 2] = np.nan
+    measurements[1, 5] = np.nan
+    result = pfx.filter(model, measurements, particles=32, backend=backend, genealogy=True, ess_threshold=1.0)
+    increments = result.trace.log_likelihood_increments
+    assert (increments[:, 2] == 0).all() and increments[1, 5] == 0
+    assert np.isfinite(increments).all() and (increments[0, 5] != 0)
+    np.testing.assert_allclose(increments.sum(axis=1), result.log_likelihood)
+    assert result.ancestors.shape == (3, 8, 32)
+    assert (result.ancestors[:, 0] == np.arange(32)).all()          # step 1 descends from the prior
+    assert result.trace.resampled.all()
 
 
 def test_particle_sd_is_recorded_for_the_traced_rows_only():

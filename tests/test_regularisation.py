@@ -207,13 +207,8 @@ def first_step(move: str, trials: int, particles: int):
     bound = bind_particle_filter("particle", model, settings, model.default_prior())
     measurements = np.tile(np.array([0.4, -0.3]), (trials, model.steps, 1))
     run = ParticleFilter(bound, measurements, TrialStreams.from_seeds(range(trials)))
-    run.predict(1)
-    predicted = run.state.copy()
-    run.update_weights(1)
-    run.estimate(1)
-    weights = run.weights.copy()
-    run.resample_and_move(1)
-    return predicted, weights, run.state, bound.move
+    _, _, clouds = run.step(run.start(run.state, trials), run.step_inputs(1), run.random)
+    return clouds.predicted, clouds.weights, clouds.resampled, bound.move
 
 
 def test_a_deterministic_model_recovers_from_a_collapse_with_the_regulariser():

@@ -207,6 +207,7 @@ def test_resamplers_never_return_n_with_short_sums(name):
     assert indices.max() < n
 
 
+@pytest.mark.numpy_only
 @pytest.mark.parametrize("name", ALL)
 def test_batched_equals_one_by_one(name):
     """Resampling rows together with their generators gives exactly the indices obtained by

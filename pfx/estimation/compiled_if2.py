@@ -33,7 +33,8 @@ import numpy as np
 
 from pfx.estimation.compiled_filter import RowGaussians, double_precision_everywhere
 from pfx.estimation.if2 import COOLING_HORIZON, IteratedFiltering, PerturbedParameters
-from pfx.filters.particle.jax_engine import JaxParticleFilter, first_failure
+from pfx.filters.particle.jax_engine import JaxParticleFilter
+from pfx.filters.particle.kernel import first_failure
 from pfx.numerics.key_streams import KeyStreams, threefry_keys
 
 BLOCK = 5         # passes per compiled call: a run saves its swarm (and can stop) between blocks
@@ -82,7 +83,7 @@ class PerturbedPass(JaxParticleFilter):
         swarm = self.swarm
         return swarm.sd * swarm.cooling ** ((self.iteration - 1 + step / swarm.steps) / COOLING_HORIZON)
 
-    def predict(self, cloud, inputs, random, model=None):
+    def transition(self, cloud, inputs, random, model=None):
         import jax.numpy as jnp
 
         d, target = self.swarm.state_dimension, self.swarm.target
@@ -91,9 +92,9 @@ class PerturbedPass(JaxParticleFilter):
                                    * random.standard_normal(parameters.shape[1:])).astype(parameters.dtype)
         current = self.swarm.template.with_parameter_arrays(target.parameter_arrays(target.to_natural(parameters)))
         self.model.current = current
-        state, lost, log_weights = super().predict(cloud._replace(particles=cloud.particles[..., :d]), inputs, random,
-                                                   model=current)
-        return jnp.concatenate([state, parameters], axis=-1), lost, log_weights
+        state, likelihood, failures = super().transition(cloud._replace(particles=cloud.particles[..., :d]), inputs,
+                                                         random, model=current)
+        return jnp.concatenate([state.astype(self.dtype), parameters], axis=-1), likelihood, failures
 
 
 class CompiledSwarm:

@@ -97,7 +97,7 @@ def walk_error(target, model, iteration: int, natural: np.ndarray, error: Except
 def _law_refused(error: Exception) -> bool:
     """Whether ``error`` is how a law refuses a parameter: a ValueError on NumPy; on the jax
     backend, which cannot raise inside a compiled pass, the engine's report of the rule the
-    transition broke (:func:`pfx.filters.particle.jax_engine.first_failure`)."""
+    transition broke (:func:`pfx.filters.particle.kernel.first_failure`)."""
     return isinstance(error, ValueError) or "raised ValueError: " in str(error)
 
 

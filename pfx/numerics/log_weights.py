@@ -85,5 +85,8 @@ def masked_normalise(log_weights, peak=None):
 
 
 def effective_sample_size(weights: np.ndarray) -> np.ndarray:
-    """ESS = 1 / sum_i w_i^2 for normalised weights, per row."""
+    """ESS = 1 / sum_i w_i^2 for normalised weights, per row (NumPy or JAX arrays)."""
+    if is_jax_array(weights):
+        xp = namespace(weights)
+        return 1.0 / xp.sum(weights * weights, axis=-1)
     return 1.0 / np.einsum("rn,rn->r", weights, weights)

@@ -49,28 +49,13 @@ from pfx.numerics.log_weights import normalise_weights
 class AuxiliaryFirstStage:
     """The first stage: the look-ahead weights of the particles of step k-1 (module docstring).
 
-    It computes and returns; the engine applies (adds the increment to the log-likelihood, takes
-    the weights, resamples the trials the ESS rule picks with its resampling stage, and gathers
-    the ancestors' look-ahead :math:`g_{a_i}` for the second stage). :meth:`first_stage` is
-    written once for both backends: the NumPy engine reaches it through :meth:`weights`, the
-    JAX engine (:mod:`pfx.filters.particle.jax_look_ahead`) with the look-ahead it computes in
-    its compiled step.
+    It computes and returns; the kernel applies (:meth:`pfx.filters.particle.kernel.ParticleKernel.look_ahead`:
+    adds the increment to the log-likelihood, takes the weights, resamples the trials the ESS
+    rule picks with its resampling stage, and gathers the ancestors' look-ahead :math:`g_{a_i}`
+    for the second stage), with the look-ahead each backend's driver evaluates.
     """
 
     backends = Backends(BOTH)
-
-    def weights(self, model, log_weights: np.ndarray, previous: np.ndarray, step: int,
-                measurement: np.ndarray, observed: Optional[np.ndarray]):
-        """(log lambda, lambda, L1, g): the normalised first-stage log-weights and weights (R, N),
-        the log-likelihood increment :math:`L^{(1)}_k` (R,) and the look-ahead g (R, N), from the
-        normalised ``log_weights`` of ``previous`` (R, N, d), ``measurement`` z_k (R, m) and
-        ``observed`` (None: every trial has its measurement)."""
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            measurement = measurement[:, None, :]
-            if observed is not None:
-                measurement = np.where(observed[:, None, None], measurement, 0.0)
-            look_ahead = model.look_ahead_log_weight(previous, step, measurement)
-        return self.first_stage(log_weights, look_ahead, observed)
 
     def first_stage(self, log_weights: Any, look_ahead: Any, observed: Optional[Any]):
         """(log lambda, lambda, L1, g) from the normalised ``log_weights`` (R, N), the model's

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from pfx.numerics.angles import circular_mean
-from pfx.numerics.arrays import namespace
+from pfx.numerics.arrays import namespace, with_values
 from pfx.numerics.compiled import compiled
 
 
@@ -49,20 +49,25 @@ def gather_particles(state, rows, indices, out):
                 out[r, i, c] = state[source, indices[r, i], c]
 
 
-def posterior_mean(model, weights: np.ndarray, particles: np.ndarray) -> np.ndarray:
+def posterior_mean(model, weights, particles):
     """The estimate: the weighted mean, with the model's angular components (if any) averaged
-    on the circle (:func:`pfx.numerics.angles.circular_mean`)."""
-    mean = weighted_mean(weights, particles)
+    on the circle (:func:`pfx.numerics.angles.circular_mean`). NumPy or JAX arrays: NumPy takes
+    BLAS's product (:func:`weighted_mean`), JAX an ``einsum``."""
+    xp = namespace(weights, particles)
+    mean = weighted_mean(weights, particles) if xp is np else xp.einsum("rn,rnd->rd", weights, particles)
     angular = list(model.angular_components)
     if angular:
-        mean[:, angular] = circular_mean(weights, particles[..., angular], model.full_turn)
+        mean = with_values(mean, (slice(None), angular), circular_mean(weights, particles[..., angular],
+                                                                        model.full_turn))
     return mean
 
 
 def active_uniform(counts: np.ndarray, maximum: int) -> tuple[np.ndarray, np.ndarray]:
     """(log-weights, weights) uniform over the first ``counts[r]`` particles of each row
     (log 1/n, 1/n), -inf and 0 past them: an adaptive count's inactive particles."""
-    xp = namespace(counts)         # NumPy or JAX counts (the jax engine's carried ones)
+    xp = namespace(counts)         # NumPy or JAX counts (the jax driver's carried ones)
     active = xp.arange(maximum) < counts[:, None]
+    # in float64: JAX takes the log of an int32 array in float32, even in a float64 run
+    counts = counts.astype(np.float64)
     uniform = 1.0 / counts[:, None]
     return xp.where(active, -xp.log(counts)[:, None], -np.inf), xp.where(active, uniform, 0.0)

@@ -1,54 +1,31 @@
-r"""The batched particle filter: many independent trials x N particles advanced together.
+r"""The particle filter on the NumPy backend: the kernel's step in a Python loop.
 
-Particles are an array of shape (trials, N, d); log-weights (trials, N). Each step k = 1..T:
+:class:`ParticleFilter` runs one batch of trials (arrays of shape (trials, N, d)) of a filter
+bound once (:class:`~pfx.filters.particle.bound.BoundParticleFilter`): the prior's cloud, then
+:meth:`~pfx.filters.particle.kernel.ParticleKernel.step` for k = 1..T (:mod:`pfx.filters.particle.kernel`
+states the algorithm, written once for both backends). This module holds the loop and the NumPy
+primitives the step calls:
 
-1. **Predict**: :math:`x_{k,i} \sim p(x_k \mid x_{k-1,i}, u_k)` (the model's transition).
-2. **Weight**: :math:`\log \tilde w_{k,i} = \log w_{k-1,i} + \log \ell_k(x_{k,i})`, with the
-   configured weighting :math:`\ell` (the likelihood :math:`p(z_k \mid x_{k,i})` by default).
-3. **Normalise** in the log domain: :math:`\log w_{k,i} = \log \tilde w_{k,i} - L_k`,
-   :math:`L_k = \log \sum_i \tilde w_{k,i}` by log-sum-exp (shifted by the row maximum, so
-   extreme log-weights never overflow). :math:`\sum_k L_k` estimates :math:`\log p(z_{1:T})`.
-   If every weight of a trial underflows (:math:`L_k = -\infty`), the step is *degenerate*:
-   the policy is to reset that trial's weights to uniform and go on (counted per trial).
-4. **Estimate** :math:`\hat x_k = \sum_i w_{k,i} x_{k,i}` (weighted mean, before resampling;
-   a model's angular components by the circular mean, :mod:`pfx.numerics.angles`), and
-   :math:`\mathrm{ESS}_k = 1 / \sum_i w_{k,i}^2`.
-5. **Resample** the trials with :math:`\mathrm{ESS}_k < \theta N` (:math:`\theta = 1`: every step;
-   :math:`\theta = 0`: never, i.e. SIS), then apply the post-resampling diffusion to them.
-
-In the code, :class:`ParticleFilter` runs one batch of a filter bound once
-(:class:`~pfx.filters.particle.bound.BoundParticleFilter`, which holds every setting, resolved),
-and :meth:`ParticleFilter.step` is the order of the stages, written once:
-
-* ``look_ahead``: the auxiliary filter's first stage (:mod:`pfx.filters.particle.auxiliary`),
-  which resamples by the look-ahead weights before the proposal; nothing otherwise;
-* ``predict``: the proposal, i.e. the transition (the bootstrap filter) or a guided proposal
-  (:mod:`pfx.filters.particle.proposals`), whose importance correction (and the auxiliary
-  filter's :math:`-g_{a_i}`) reaches the weight update as a per-particle weight adjustment;
-* ``update_weights``, ``estimate``;
-* ``resample_and_move`` (not for the auxiliary filter, which resamples in its next first
-  stage): the resampler and the ESS rule (:class:`~pfx.filters.particle.resampling.Resampling`),
-  then on the resampled particles the move (``filter.move``, :mod:`pfx.filters.particle.moves`,
-  given the step's context), the adaptive count (:mod:`pfx.filters.particle.adaptive`), the
-  diffusion and the injection (:mod:`pfx.filters.particle.injection`), in that order.
-
-Diagnostics (particle snapshots, NEES/NIS, the spread, the genealogy) are recorders
-(:mod:`pfx.filters.particle.recorders`) called after each stage; they only read. For the
-bootstrap filter with the likelihood as weight, a model's optional compiled step
-(:meth:`pfx.models.base.Model.compiled_step`) does the transition and the likelihood in one
-pass: ``predict`` then hands the likelihood to ``update_weights``.
+* **rows, not masks**: only the trials the ESS rule picks resample, draw and move
+  (:class:`Rows`); each trial's stream is its own, so no trial's draws depend on another's;
+* **the model's host methods**: the transition (or a guided proposal) by the step number, or a
+  model's compiled step, which does the transition and the likelihood in one pass for the bootstrap
+  filter with the likelihood as weight (:meth:`pfx.models.base.Model.compiled_step`);
+* **fast paths**: one sum finds whether any particle left the model's domain, and the weights'
+  log-sum-exp (:func:`pfx.numerics.log_weights.normalise_rows`) takes its masks only where a row
+  needs them;
+* **raise at the failing step**: a trial that loses every particle, a NaN or +inf log-likelihood
+  of a finite particle, a non-finite estimate raise :class:`~pfx.errors.ModelNumericalError`
+  naming the model and the step (:func:`~pfx.filters.particle.kernel.first_failure`'s messages).
 
 A particle whose state becomes NaN or infinite has left the model's domain (the falling body's
-drag equation, for instance, blows up in finite time for a negative ballistic coefficient): it
-gets weight zero (log-weight -inf), its state is parked at 0 until resampling replaces it, and
-it is counted per trial (``lost_particles``). A trial that loses every particle, a NaN or
-+inf log-likelihood of a finite particle, or a non-finite truth is a model error:
-:class:`ModelNumericalError` names the model and the step.
+drag equation blows up in finite time for a negative ballistic coefficient): it gets weight zero,
+its state is parked at 0 until resampling replaces it, and it is counted per trial. A missing
+measurement (NaN in a trial's row) makes the step predict-only for that trial.
 
-A missing measurement (NaN in a trial's row at step k: recorded data with a blank row) makes
-the step predict-only for that trial: step 2 is skipped (the weights stay as they were, so
-:math:`L_k = 0` adds nothing to the log-likelihood), the estimate and the ESS are taken as
-usual, and the ESS rule may still resample.
+Diagnostics (particle snapshots, NEES/NIS, the spread, the genealogy) are recorders
+(:mod:`pfx.filters.particle.recorders`) called after each step with the step's clouds, stage by
+stage; they only read.
 """
 
 from __future__ import annotations
@@ -58,95 +35,107 @@ from typing import Optional
 import numpy as np
 
 from pfx.errors import ModelContractError, ModelNumericalError, note_step
-from pfx.filters.particle.cloud import active_uniform, posterior_mean, resample_rows
+from pfx.filters.particle.cloud import active_uniform, resample_rows
+from pfx.filters.particle.kernel import ParticleKernel, RowSelection, StepInputs, failure_error
 from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
-from pfx.filters.particle.moves import MoveContext
 from pfx.filters.particle.predictive import PredictiveRecorder
 from pfx.filters.particle.recorders import Recording, recorders_for
 from pfx.filters.trace import FilterTrace
-from pfx.numerics.log_weights import effective_sample_size, normalise_rows
+from pfx.numerics.log_weights import normalise_rows
 from pfx.numerics.seeding import TrialStreams
 
 
-class ParticleFilter:
-    """One batch of trials of a bound particle filter (``bound``, a
-    :class:`~pfx.filters.particle.bound.BoundParticleFilter`), advanced step by step in named stages.
+class ParticleFilter(ParticleKernel):
+    """One batch of trials of a bound particle filter on NumPy: :meth:`run` is the loop, the other
+    methods the kernel's primitives (module docstring)."""
 
-    :meth:`step` is the algorithm; each stage is a method, and the points where a variant plugs
-    in are the bound filter's objects (``self.filter``): the proposal, the weighting, the
-    resampling, the move, the adaptive count, the diffusion and the injection.
-    """
+    count_dtype, index_dtype = np.int64, np.intp
+    skips_unobserved = True        # a step without any measurement does not call the weighting
 
     def __init__(self, bound, measurements: np.ndarray, random: TrialStreams,
                  recording: Recording = Recording()):
-        self.filter, self.model, self.measurements, self.random = bound, bound.model, measurements, random
+        super().__init__(bound)
+        self.measurements, self.random = measurements, random
         self.trials, self.steps, _ = measurements.shape
-        particles = self.particles = bound.particles         # with an adaptive count: the maximum
+        self.resampler = bound.resampling.resampler
+        self.tracks_ancestors = recording.genealogy
         self.recorders = recorders_for(bound.model, recording)
         if recording.scores:         # the predictive law's scores (its log score needs to know the weighting)
             self.recorders.append(PredictiveRecorder(bound.model, bound.weighting.is_likelihood))
-        self.weight_adjustment: Optional[np.ndarray] = None   # log p(x|x_prev) - log q - g_a, per particle
-        self.previous_state: Optional[np.ndarray] = None      # x_{k-1}, kept only for a move that needs parents
-        self.keep_previous = bound.move is not None and bound.move.needs_parents
-        # the adaptive count: active particles per trial (None: all N)
-        self.active: Optional[np.ndarray] = None if bound.adaptive is None else np.full(self.trials, particles)
-        # particle injection's running averages, or None
-        self.injection = None if bound.injection is None else bound.injection.start(self.trials)
-        self.uniform_log_weight = -np.log(particles)
-        self.state = bound.prior.sample(random, (particles,))
-        self.cloud_shape = self.state.shape             # (trials, N, d), at every step
-        self.log_weights = np.full((self.trials, particles), self.uniform_log_weight)
-        self.weights = np.full((self.trials, particles), 1.0 / particles)    # always exp(log_weights)
-        self.lost: Optional[np.ndarray] = None            # this step's particles that left the domain
-        # (trials, T) True where a trial's measurement is missing (predict-only steps); None when
-        # every measurement is there, so that simulated runs never look at it again
+        # (trials, T) True where a trial's measurement is missing; None when every one is there
         missing = np.isnan(measurements).any(axis=-1)
         self.missing: Optional[np.ndarray] = missing if missing.any() else None
+        self.compiled_step = bound.model.compiled_step() if bound.uses_compiled_step else None
+        particles = self.particles
         self.trace = FilterTrace(
-            estimates=np.empty((self.trials, self.steps, self.state.shape[-1])),
+            estimates=np.empty((self.trials, self.steps, bound.model.state_dimension)),
             ess=np.empty((self.trials, self.steps)), resampled=np.zeros((self.trials, self.steps), dtype=bool),
             degenerate=np.zeros((self.trials, self.steps), dtype=bool), spread=np.full((self.trials, self.steps), np.nan),
             log_likelihood=np.zeros(self.trials), log_likelihood_increments=np.zeros((self.trials, self.steps)),
             lost_particles=np.zeros(self.trials, dtype=np.int64),
             particle_counts=np.full((self.trials, self.steps), particles),
             injected=None if bound.injection is None else np.zeros((self.trials, self.steps), dtype=np.int64))
-        # each particle's ancestor at the previous step (the genealogy), only when recorded
-        self.ancestors: Optional[np.ndarray] = None
-        if recording.genealogy:
-            self.ancestors = np.broadcast_to(np.arange(particles), (self.trials, particles)).copy()
-        # per trial: the sum of the move's acceptance rates over the steps it moved, and their count
-        self.acceptance_tally = np.zeros((2, self.trials)) \
-            if bound.move is not None and bound.move.reports_acceptance else None
-        self.compiled_step = bound.model.compiled_step() if bound.uses_compiled_step else None
-        self.log_likelihood: Optional[np.ndarray] = None     # this step's log p(z_k | x_k), from compiled_step
+        # what the recorders read, as of the stage they are called after
+        self.state = bound.prior.sample(random, (particles,))
+        self.log_weights = np.full((self.trials, particles), -np.log(particles))
+        self.weights = np.full((self.trials, particles), 1.0 / particles)
+        self.active = None if bound.adaptive is None else np.full(self.trials, particles)
+        self.ancestors = self.weight_adjustment = None
 
     def run(self) -> FilterTrace:
-        # Overflow, NaN and log(0) are the engine's to handle (lost particles, degenerate steps,
-        # ModelNumericalError), not NumPy's to warn about: one setting for the whole run, not one
-        # per stage and step (each costs microseconds).
+        # Overflow, NaN and log(0) are the step's to handle (lost particles, degenerate steps,
+        # ModelNumericalError), not NumPy's to warn about: one setting for the whole run.
         k = 0
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+                cloud = self.start(self.state, self.trials)
                 self.record("prior", 0)
                 for k in range(1, self.steps + 1):
-                    self.step(k)
+                    cloud, outputs, clouds = self.step(cloud, self.step_inputs(k), self.random)
+                    self.keep(k, outputs, clouds)
         except Exception as error:        # where it happened, for the one-line report
             note_step(error, k, "filter")
             raise
-        if self.acceptance_tally is not None:
+        self.trace.log_likelihood = cloud.log_likelihood
+        self.trace.lost_particles = cloud.lost_particles
+        if cloud.after.acceptance_sum is not None:
             with np.errstate(invalid="ignore", divide="ignore"):     # never moved: NaN, an empty field
-                self.trace.move_acceptance = self.acceptance_tally[0] / self.acceptance_tally[1]
+                self.trace.move_acceptance = cloud.after.acceptance_sum / cloud.after.moved_steps
         return self.trace
 
-    def step(self, k: int) -> None:
-        """Step k: the stages in their order (module docstring), each followed by its recorders."""
-        self.look_ahead(k)
-        self.predict(k)
+    def step_inputs(self, k: int) -> StepInputs:
+        """What step k reads: the measurements (NaN where missing) and which trials have one."""
+        observed = None if self.missing is None or not self.missing[:, k - 1].any() else ~self.missing[:, k - 1]
+        return StepInputs(step=k, measurement=self.measurements[:, k - 1], observed=observed)
+
+    def keep(self, k: int, outputs, clouds) -> None:
+        """Step k's columns into the trace, then the recorders, stage by stage."""
+        t, trace = k - 1, self.trace
+        trace.estimates[:, t], trace.ess[:, t] = outputs.estimate, outputs.ess
+        trace.log_likelihood_increments[:, t] = outputs.increment
+        trace.resampled[:, t] = outputs.resampled
+        if outputs.degenerate is not None:
+            trace.degenerate[:, t] = outputs.degenerate
+        if outputs.particle_counts is not None:
+            trace.particle_counts[:, t] = outputs.particle_counts
+        if outputs.injected is not None:
+            trace.injected[:, t] = outputs.injected
+        if self.recorders:
+            self.record_stages(k, outputs, clouds)
+        self.state, self.log_weights, self.weights = clouds.resampled, clouds.resampled_log_weights, clouds.resampled_weights
+        self.active = clouds.active
+
+    def record_stages(self, k: int, outputs, clouds) -> None:
+        """The recorders after each stage of step k, reading the stage's cloud."""
+        self.state, self.log_weights, self.weights = clouds.predicted, clouds.predicted_log_weights, clouds.predicted_weights
+        # a copy: the genealogy recorder starts the next step's from i -> i in place
+        self.weight_adjustment = clouds.adjustment
+        self.ancestors = None if outputs.ancestors is None else np.array(outputs.ancestors)
         self.record("predicted", k)
-        self.update_weights(k)
-        self.estimate(k)
+        self.log_weights, self.weights = clouds.log_weights, clouds.weights
         self.record("weighted", k)
-        self.resample_and_move(k)
+        self.state, self.log_weights, self.weights = clouds.resampled, clouds.resampled_log_weights, clouds.resampled_weights
+        self.active = clouds.active
         self.record("resampled", k)
 
     def record(self, stage: str, step: int) -> None:
@@ -154,188 +143,168 @@ class ParticleFilter:
             recorder.record(stage, step, self)
 
     def observed(self, k: int) -> Optional[np.ndarray]:
-        """The trials with a measurement at step k (None: all of them)."""
+        """The trials with a measurement at step k (None: all of them; the recorders ask)."""
         return None if self.missing is None else ~self.missing[:, k - 1]
 
-    def look_ahead(self, k: int) -> None:
-        """The auxiliary filter's first stage: weights lambda from the look-ahead, whose
-        normaliser joins the log-likelihood; the trials the ESS rule picks resample by them; the
-        ancestors' look-ahead g_a is kept for the second stage's weights."""
-        self.weight_adjustment = None
-        if self.filter.auxiliary is None:
-            return
-        log_first, first, increment, look_ahead = self.filter.auxiliary.weights(
-            self.model, self.log_weights, self.state, k, self.measurements[:, k - 1], self.observed(k))
-        self.trace.log_likelihood += increment
-        self.trace.log_likelihood_increments[:, k - 1] += increment      # L1_k; update_weights adds L2_k
-        self.log_weights, self.weights = log_first, first
-        rows = self.filter.resampling.rows(effective_sample_size(first), self.particles, self.active)
-        if rows.size:
-            indices, selected = self.resample(rows, k)
-            look_ahead[selected] = np.take_along_axis(look_ahead[selected], indices, axis=-1)
-        self.weight_adjustment = -look_ahead
+    # -- the primitives (pfx.filters.particle.kernel) ------------------------------------------
 
-    def predict(self, k: int) -> None:
-        """Propose x_k: from the transition (the bootstrap proposal), or from a guided proposal
-        (:mod:`pfx.filters.particle.proposals`); park particles that left the model's domain at
-        weight zero."""
-        if self.keep_previous:
-            self.previous_state = self.state
-        proposal = self.filter.proposal
-        if proposal is not None:
-            self.state, correction = proposal.propose(self.state, k, self.measurements[:, k - 1], self.observed(k),
-                                                      self.random)
-            self.weight_adjustment = correction if self.weight_adjustment is None else \
-                correction + self.weight_adjustment
-        elif self.compiled_step is not None:         # the model's fused transition and likelihood
-            noise = self.model.process_noise.sample(self.random, self.state.shape[1:-1])
-            self.state, self.log_likelihood = self.compiled_step(self.state, self.model.control(k), noise,
-                                                                 self.measurements[:, k - 1])
+    def carried_weights(self, weights):
+        return weights             # the normalisation's own exponentials, not exp(log w) again
+
+    def weights_before(self, log_weights, cloud, lost):
+        self.log_weights = log_weights
+        return cloud.weights if lost is None else np.where(lost, 0.0, cloud.weights)
+
+    def picks(self, ess, active):
+        return self.bound.resampling.rows(ess, self.particles, active)
+
+    def select(self, picks) -> Optional["Rows"]:
+        return None if picks is None or picks.size == 0 else Rows(picks, self.trials)
+
+    def transition(self, cloud, inputs: StepInputs, random):
+        """x_k ~ p(x_k | x_k-1, u_k) by the model's host transition, or its compiled step (which
+        also gives log p(z_k | x_k)); (state, likelihood or None, None)."""
+        model, k, likelihood = self.model, inputs.step, None
+        if self.compiled_step is not None:         # the model's fused transition and likelihood
+            noise = model.process_noise.sample(random, cloud.particles.shape[1:-1])
+            state, likelihood = self.compiled_step(cloud.particles, model.control(k), noise, inputs.measurement)
         else:
-            self.state = self.model.transition(self.state, k, self.random)    # non-finite values: below
-        if self.state.shape != self.cloud_shape:       # a tuple comparison: the contract, at the run's size
-            source = "the proposal" if proposal is not None else \
-                "compiled_step" if self.compiled_step is not None else \
-                f"the transition ({self.model.transition_method()})"
-            raise ModelContractError(f"model {self.model.kind}: {source} returned shape {self.state.shape} at step "
-                                     f"{k} of the filter, for {self.trials} trials x {self.particles} particles; "
-                                     f"expected {self.cloud_shape}")
+            state = model.transition(cloud.particles, k, random)    # non-finite values: find_lost
+        self.state = state
+        if state.shape != cloud.particles.shape:
+            source = "compiled_step" if self.compiled_step is not None else \
+                f"the transition ({model.transition_method()})"
+            self._check_cloud(source, state, cloud.particles.shape, k)
+        return state, likelihood, None
+
+    def propose(self, cloud, inputs: StepInputs, random):
+        state, correction = self.bound.proposal.propose(cloud.particles, inputs.step, inputs.measurement,
+                                                        inputs.observed, random)
+        self._check_cloud("the proposal", state, cloud.particles.shape, inputs.step)
+        self.state = state
+        return state, correction, None
+
+    def _check_cloud(self, source: str, state, expected: tuple, k: int) -> None:
+        if state.shape != expected:       # a tuple comparison: the contract, at the run's size
+            raise ModelContractError(f"model {self.model.kind}: {source} returned shape {state.shape} at step {k} of "
+                                     f"the filter, for {self.trials} trials x {self.particles} particles; "
+                                     f"expected {expected}")
+
+    def find_lost(self, state):
         # NaN and inf survive a sum: one fast pass, and the per-particle mask only if needed.
-        suspect = not np.isfinite(self.state.sum())
-        self.lost = None
-        if suspect:
-            finite = np.isfinite(self.state).all(axis=-1)
-            if not finite.all():
-                self.lost = lost = ~finite
-                self.trace.lost_particles += lost.sum(axis=-1)
-                if (lost | np.isneginf(self.log_weights)).all(axis=-1).any():
-                    raise ModelNumericalError(f"model {self.model.kind}: every particle of a trial became NaN or "
-                                              f"infinite at step {k} of the filter (check the prior and the noise)")
-                self.state[lost] = 0.0
-                self.log_weights[lost] = -np.inf
-                self.weights[lost] = 0.0
+        if np.isfinite(state.sum()):
+            return state, None
+        finite = np.isfinite(state).all(axis=-1)
+        return state, None if finite.all() else ~finite
 
-    def update_weights(self, k: int) -> None:
-        """log w_k = log w_{k-1} + log l_k(x_k), normalised by log-sum-exp; the normaliser adds to
-        the log-likelihood estimate; a trial whose weights all underflow is degenerate."""
-        t = k - 1
-        skipped = None if self.missing is None or not self.missing[:, t].any() else self.missing[:, t]
-        if skipped is not None and skipped.all():
-            increment = np.zeros_like(self.log_weights)       # no measurement anywhere: nothing to weigh
-        else:
-            if self.log_likelihood is not None:      # computed with the transition (compiled_step)
-                increment = self.log_likelihood
-            else:
-                increment = self.filter.weighting.log_weights(self.model, self.measurements[:, t, None, :],
-                                                              self.state, self.weights)
-            if increment.shape != self.log_weights.shape:      # would broadcast silently
-                raise ModelContractError(
-                    f"model {self.model.kind}: the weighting {getattr(self.filter.weighting, 'kind', '')} (log_likelihood) "
-                    f"returned shape {np.shape(increment)} at step {k} of the filter, for {self.trials} trials x "
-                    f"{self.particles} particles; expected {self.log_weights.shape}")
-            if skipped is not None:
-                increment[skipped] = 0.0
-        if self.weight_adjustment is not None:     # a guided proposal's or the auxiliary filter's terms
-            increment += self.weight_adjustment
-        if self.lost is not None:
-            increment[self.lost] = -np.inf
-        updated = self.log_weights + increment
-        normalised, new_weights, normaliser = normalise_rows(updated)
+    def mean_prediction(self, parents, inputs: StepInputs):
+        return self.model.mean_transition(parents, inputs.step)
+
+    def look_ahead_weights(self, previous, inputs: StepInputs):
+        measurement = inputs.measurement[:, None, :]
+        if inputs.observed is not None:
+            measurement = np.where(inputs.observed[:, None, None], measurement, 0.0)
+        return self.model.look_ahead_log_weight(previous, inputs.step, measurement)
+
+    def measured(self, inputs: StepInputs):
+        return inputs.measurement         # NaN where missing, as recorded
+
+    def check_weights_shape(self, likelihood, expected: tuple, k: int):
+        if np.shape(likelihood) != expected:      # would broadcast silently
+            raise ModelContractError(
+                f"model {self.model.kind}: the weighting {getattr(self.bound.weighting, 'kind', '')} (log_likelihood) "
+                f"returned shape {np.shape(likelihood)} at step {k} of the filter, for {self.trials} trials x "
+                f"{self.particles} particles; expected {expected}")
+        return likelihood
+
+    def normalise(self, log_weights, increment, lost, active, k: int):
+        """log-sum-exp of log w + increment by rows, its fast path first; a row whose every weight
+        underflows is degenerate and restarts uniform; a NaN or +inf normaliser raises."""
+        if lost is not None:
+            increment[lost] = -np.inf
+        updated = log_weights + increment
+        normalised, weights, normaliser = normalise_rows(updated)
+        degenerate = None
         if not np.isfinite(normaliser).all():          # rare: one check in the common case
             if not np.isfinite(normaliser[~np.isneginf(normaliser)]).all():
                 # A zero-weight particle stays at zero weight whatever its likelihood evaluates to
                 # (-inf + NaN would be NaN); only if that does not help is it the model's error.
-                updated = np.where(np.isneginf(self.log_weights), -np.inf, updated)
-                normalised, new_weights, normaliser = normalise_rows(updated)
+                updated = np.where(np.isneginf(log_weights), -np.inf, updated)
+                normalised, weights, normaliser = normalise_rows(updated)
             if np.isnan(normaliser).any() or np.isposinf(normaliser).any():
                 bad = "NaN" if np.isnan(normaliser).any() else "an infinite"
                 raise ModelNumericalError(bad_log_likelihood_message(self.model, k, bad))
-            underflow = np.isneginf(normaliser)
-            self.trace.degenerate[underflow, t] = True
-            normalised[underflow] = self.uniform_log_weight
-            new_weights[underflow] = 1.0 / self.particles
-            if self.active is not None:            # uniform over the active particles only
-                normalised[underflow], new_weights[underflow] = active_uniform(self.active[underflow], self.particles)
+            degenerate = np.isneginf(normaliser)
+            normalised[degenerate] = -np.log(self.particles)
+            weights[degenerate] = 1.0 / self.particles
+            if active is not None:            # uniform over the active particles only
+                normalised[degenerate], weights[degenerate] = active_uniform(active[degenerate], self.particles)
         self.log_weights = normalised
-        if skipped is not None:
-            # A predict-only step adds nothing: its normaliser is only the mass of the particles
-            # lost to the model's domain (they were renormalised away above).
-            normaliser = np.where(skipped, 0.0, normaliser)
-        self.trace.log_likelihood += normaliser
-        self.trace.log_likelihood_increments[:, t] += normaliser     # after the auxiliary filter's L1_k, if any
-        if self.injection is not None:              # w_avg = exp(L_k), the weighted mean likelihood
-            self.injection.observe(normaliser, None if skipped is None else ~skipped)
-        self.weights = new_weights
+        return normalised, weights, normaliser, degenerate, None
 
-    def estimate(self, k: int) -> None:
-        """The ESS before resampling, and the estimate: the weighted (circular) mean."""
-        t = k - 1
-        self.trace.ess[:, t] = effective_sample_size(self.weights)
-        self.trace.estimates[:, t] = posterior_mean(self.model, self.weights, self.state)
-        if not np.isfinite(self.trace.estimates[:, t]).all():
-            raise ModelNumericalError(f"model {self.model.kind} produced NaN or infinite particles at step {k} "
-                                      "of the filter (check the prior and the noise)")
+    def flag(self, failures, condition, bit: int, step):
+        if condition is not None and condition.any():
+            raise failure_error(self.model, bit, step)
+        return None
 
-    def resample_and_move(self, k: int) -> None:
-        """Resample the trials whose ESS fell below the threshold, then move their particles
-        (:meth:`resample`); the auxiliary filter resamples in its next first stage instead."""
-        if self.active is not None:                  # the count this step's cloud was weighted with
-            self.trace.particle_counts[:, k - 1] = self.active
-        if self.filter.auxiliary is not None:
-            return
-        rows = self.filter.resampling.rows(self.trace.ess[:, k - 1], self.particles, self.active)
-        if rows.size:
-            self.resample(rows, k)
+    def accumulate(self, total, first, increment):
+        return (total if first is None else total + first) + increment     # L1_k first, as it happens
 
-    def resample(self, rows: np.ndarray, k: int):
-        """Resample the trials ``rows`` (not empty) at step k and apply, to their resampled
-        particles, the move, the adaptive count, the diffusion and the injection; their weights
-        become uniform. Returns the ancestor indices (len(rows), N) and the rows' selector."""
-        bound, t = self.filter, k - 1
-        every = rows.size == self.trials
-        selected = slice(None) if every else rows      # a slice spares fancy-index copies
-        streams = self.random if every else self.random.subset(rows)
-        indices = bound.resampling.indices(self.weights[selected], streams)
-        ancestors = indices
-        resampled = resample_rows(self.state, rows, indices)
-        if bound.move is not None:                   # filter.move, on the parents' resampled order
-            resampled = self.move(k, rows, selected, indices, resampled, streams)
-        if bound.adaptive is not None:               # KLD: keep the first n of a random order
-            resampled, counts, order = bound.adaptive.apply(resampled, streams)
-            ancestors = np.take_along_axis(indices, order, axis=1)
-        moved = bound.diffusion.apply(resampled, streams)
-        if self.injection is not None:               # augmented MCL: replace some by prior draws
-            # the count this resampling keeps (KLD's new one): only those particles may be replaced
-            active = counts if bound.adaptive is not None else np.full(rows.size, self.particles)
-            replaced = self.injection.inject(moved, active, rows, streams, bound.prior)
-            self.trace.injected[rows, t] = replaced.sum(axis=1)
-            ancestors = np.where(replaced, -1, ancestors)          # a prior draw has no ancestor
-        if every:
-            self.state = moved
-        else:
-            self.state[rows] = moved
-        if bound.adaptive is not None:
-            self.active[rows] = counts
-            self.log_weights[selected], self.weights[selected] = active_uniform(counts, self.particles)
-        else:
-            self.log_weights[selected] = self.uniform_log_weight
-            self.weights[selected] = 1.0 / self.particles
-        self.trace.resampled[selected, t] = True
-        if self.ancestors is not None:
-            self.ancestors[selected] = ancestors
-        return indices, selected
+    def gather(self, state, rows: "Rows", indices):
+        return resample_rows(state, rows.rows, indices)
 
-    def move(self, k: int, rows: np.ndarray, selected, indices: np.ndarray, resampled: np.ndarray,
-             streams: TrialStreams) -> np.ndarray:
-        """Apply ``filter.move`` to the resampled trials, giving it the cloud and weights before
-        resampling, the measurement and (if it needs them) the parents' previous states; tally
-        its acceptance rate."""
-        parents = resample_rows(self.previous_state, rows, indices) if self.keep_previous else None
-        context = MoveContext(model=self.model, step=k, resampled=resampled, cloud=self.state[selected],
-                              weights=self.weights[selected], measurement=self.measurements[selected, k - 1],
-                              parents=parents, indices=indices, log_weights=self.log_weights[selected])
-        moved, acceptance = self.filter.move.apply(context, streams)
-        if self.acceptance_tally is not None:
-            self.acceptance_tally[0, selected] += acceptance
-            self.acceptance_tally[1, selected] += 1
-        return moved
+    def uniforms(self, streams, shape):
+        return streams.uniform(shape)
+
+    def as_state(self, values):
+        return values
+
+    def park(self, state, lost):
+        state[lost] = 0.0                # the transition's own new array
+        return state
+
+    def put(self, mask, new, old):
+        out = old.copy(order="K")        # the state's memory layout, as the transition made it
+        out[mask] = new[mask]
+        return out
+
+
+class Rows(RowSelection):
+    """The rows a stage acts on, as indices into the batch's ``total`` rows: only they are
+    taken, draw and are written back (a copy: the step's earlier clouds stay as they were)."""
+
+    def __init__(self, rows: np.ndarray, total: int):
+        self.rows, self.total = rows, total
+        self.every = rows.size == total
+
+    def take(self, values):
+        return values if self.every else values[self.rows]
+
+    def streams(self, random):
+        return random if self.every else random.subset(self.rows)
+
+    def indices(self, drawn):
+        return drawn
+
+    def merge(self, new, old):
+        if self.every:
+            return new if np.shape(new) == old.shape else np.full_like(old, new)
+        out = old.copy(order="K")
+        out[self.rows] = new
+        return out
+
+    def scatter(self, values, fill):
+        if self.every:
+            return values
+        out = np.full((self.total,) + np.shape(values)[1:], fill, dtype=np.asarray(values).dtype)
+        out[self.rows] = values
+        return out
+
+    def mask(self):
+        out = np.zeros(self.total, dtype=bool)
+        out[self.rows] = True
+        return out
+
+    def within(self, condition):
+        inner = np.flatnonzero(condition)
+        return Rows(inner, len(condition)) if inner.size else None

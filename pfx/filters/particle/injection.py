@@ -23,10 +23,9 @@ that the previous measurements already ruled out). The averages are kept as loga
 stops the averages. A step without a measurement leaves them unchanged.
 
 The averages' update and the probability are functions of arrays (:func:`observed_averages`,
-:func:`injection_probability`), NumPy or JAX: the NumPy engine keeps them in an
-:class:`InjectionState` and draws only in the trials with :math:`p > 0`; the jax engine carries
-them through its scan and draws in every trial, replacing only in those that resampled
-(:mod:`pfx.filters.particle.jax_after_resampling`).
+:func:`injection_probability`), NumPy or JAX; the kernel (:meth:`pfx.filters.particle.kernel.ParticleKernel.inject`)
+carries the averages in its cloud and draws only in the resampled trials with :math:`p > 0`
+(on JAX, a mask: every trial draws, only those replace).
 """
 
 from __future__ import annotations
@@ -38,7 +37,6 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, model_validator
 
 from pfx.filters.backends import BOTH, Backends
 from pfx.numerics.arrays import namespace
-from pfx.numerics.seeding import TrialStreams
 
 
 class AugmentedMCL(BaseModel):
@@ -57,54 +55,8 @@ class AugmentedMCL(BaseModel):
                              f"{self.alpha_fast:g}): the slow average must be the slower one")
         return self
 
-    def start(self, trials: int) -> "InjectionState":
-        return InjectionState(self, trials)
 
-
-class InjectionState:
-    """The running averages of one batch (log w_slow, log w_fast per trial, starting at log 0)."""
-
-    def __init__(self, settings: AugmentedMCL, trials: int):
-        self.settings = settings
-        self.log_slow = np.full(trials, -np.inf)
-        self.log_fast = np.full(trials, -np.inf)
-
-    def observe(self, log_average: np.ndarray, observed=None) -> None:
-        """w <- (1 - alpha) w + alpha w_avg for both averages, in logs; ``observed`` (bool per
-        trial, or None: all) masks the trials that had a measurement."""
-        self.log_slow, self.log_fast = observed_averages(self.settings, self.log_slow, self.log_fast, log_average,
-                                                         observed)
-
-    def probability(self, rows) -> np.ndarray:
-        """p = max(0, 1 - w_fast / w_slow) for the given rows (0 while w_slow = 0)."""
-        return injection_probability(self.log_slow[rows], self.log_fast[rows])
-
-    def inject(self, state: np.ndarray, active: np.ndarray, rows: np.ndarray, random: TrialStreams,
-               prior) -> np.ndarray:
-        """Replace each active particle of the resampled ``rows`` (state: their clouds, (R, N, d))
-        with probability p by a prior draw, in place; returns which were replaced, (R, N) bool.
-
-        Only the trials with p > 0 draw (from their own streams), so a trial's draws never
-        depend on the other trials of its batch.
-        """
-        probability = self.probability(rows)
-        count = state.shape[1]
-        replaced_rows = np.zeros((len(rows), count), dtype=bool)
-        drawing = np.flatnonzero(probability > 0.0)
-        if not drawing.size:
-            return replaced_rows
-        streams = random.subset(drawing)
-        replaced = streams.uniform((count,)) < probability[drawing, None]
-        replaced &= np.arange(count) < active[drawing, None]
-        fresh = prior.sample(streams, (count,))
-        target = state[drawing]
-        target[replaced] = fresh[replaced]
-        state[drawing] = target
-        replaced_rows[drawing] = replaced
-        return replaced_rows
-
-
-# -- the mathematics, once for both engines (NumPy or JAX arrays: pfx.numerics.arrays.namespace) --
+# -- the mathematics, for both backends (NumPy or JAX arrays: pfx.numerics.arrays.namespace) ----------
 
 def observed_averages(settings: AugmentedMCL, log_slow, log_fast, log_average, observed=None):
     """(log w_slow, log w_fast) after a step whose log-normaliser is ``log_average`` (R,):

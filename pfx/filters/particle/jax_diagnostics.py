@@ -1,12 +1,13 @@
 r"""The jax backend's diagnostics: what its compiled step records besides the estimate, and how
 the host turns that into the trace and the requests' records.
 
-The NumPy engine calls recorders after each stage of a step
+The NumPy driver calls recorders with each step's clouds, stage by stage
 (:mod:`pfx.filters.particle.recorders`). The compiled step
 (:mod:`pfx.filters.particle.jax_engine`) cannot call back to the host, so each diagnostic is an
 output of the step instead, computed only where a static flag asks for it: each set of
 :class:`Flags` is a program of its own, and a diagnostic not asked for is not in it. The step
-hands :func:`step_diagnostics` its clouds at the recorders' stages (:class:`StageClouds`); after
+hands :func:`step_diagnostics` its clouds at the recorders' stages
+(:class:`~pfx.filters.particle.kernel.StageClouds`); after
 the scan, :func:`fill_trace` turns the outputs, (T, trials, ...), into the trace's fields,
 (trials, T, ...), and the requests' records, as the recorders fill them:
 
@@ -38,10 +39,11 @@ JAX: the engine, which does, imports it.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
+from pfx.filters.particle.kernel import StageClouds
 from pfx.filters.particle.recorders import innovation_squared, posterior_covariance
 from pfx.filters.trace import Predictive
 from pfx.numerics.angles import wrap_difference
@@ -85,18 +87,6 @@ def _snapshot_stages(request, steps: int) -> tuple:
     stages = ("prior",) if request.wants("prior", 0) else ()
     return stages + tuple(stage for stage in STEP_STAGES
                           if any(request.wants(stage, step) for step in range(1, steps + 1)))
-
-
-class StageClouds(NamedTuple):
-    """One step's clouds at the stages the diagnostics read (the NumPy recorders' stages)."""
-
-    predicted: Any                # (R, N, d) after the transition (lost particles at 0)
-    predicted_log_weights: Any    # (R, N) the previous weights, lost particles at -inf
-    log_weights: Any              # (R, N) after the weight update, normalised ("weighted")
-    weights: Any                  # (R, N) their exponentials
-    estimate: Any                 # (R, d)
-    resampled: Any                # (R, N, d) after resampling and diffusion
-    resampled_weights: Any        # (R, N)
 
 
 # -- in the compiled step ------------------------------------------------------------------------

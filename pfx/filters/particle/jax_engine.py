@@ -1,45 +1,35 @@
-r"""The particle filter on the JAX backend: one pure step, scanned over the steps, compiled once.
+r"""The particle filter on the JAX backend: the kernel's step, scanned over the steps, compiled once.
 
-The algorithm is :mod:`pfx.filters.particle.engine`'s (predict, weight, normalise, estimate,
-resample by the ESS rule; its docstring states each stage), written as a function of explicit
-values so that XLA can compile the whole run, on a CPU or a GPU:
+The algorithm is :mod:`pfx.filters.particle.kernel`'s, written once for both backends. Here it
+runs as a function of explicit values, so that XLA can compile the whole run, on a CPU or a GPU:
+:meth:`JaxParticleFilter.traced_run` draws the prior's cloud and scans
+:meth:`JaxParticleFilter.scan_step` over the steps.
 
-    step(cloud, inputs) -> (cloud, outputs)
-
-* ``cloud`` (:class:`Cloud`) is everything carried from step to step: the particles (trials, N,
-  d), their log-weights, each trial's log-likelihood so far, its lost particles, and the
-  ancestors of the current particles;
-* ``inputs`` (:class:`StepInputs`) is what step k reads, arrays indexed by the step and prepared
-  on the host before the run: k itself, the measurements (trials, m), which trials have one,
-  the control u_k and the substep times;
+* the cloud (:class:`~pfx.filters.particle.kernel.Cloud`) is everything carried from step to
+  step: the particles, their log-weights, each trial's log-likelihood so far, its lost
+  particles, the ancestors and the post-resampling stage's running values;
+* the step's inputs (:class:`~pfx.filters.particle.kernel.StepInputs`) are arrays indexed by the
+  step, prepared on the host before the run (:meth:`JaxParticleFilter.step_inputs`): k, the
+  measurements (trials, m), which trials have one, the control u_k and the substep times;
 * the random numbers come from the trials' threefry keys folded with k
   (:class:`~pfx.numerics.key_streams.KeyStreams`): nothing random is carried;
-* a guided proposal (``filter.proposal``) replaces the transition by the proposals module's
-  own drawing (:meth:`JaxParticleFilter.propose`), and its weight adjustment joins the
-  likelihood in the weight update;
-* the auxiliary filter (``filter.auxiliary``) runs its first stage before the prediction
-  (:mod:`pfx.filters.particle.jax_look_ahead`: resampling by the look-ahead weights, whose
-  normaliser joins the step's increment), adds its :math:`-g_{a_i}` to the weight adjustment
-  and does not resample at the end of the step;
-* ``outputs`` (:class:`StepOutputs`) are the trace's columns at step k: the estimate, the ESS,
-  whether the trial resampled, whether its weights underflowed, the log-likelihood increment,
-  and what a :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a
-  diagnostic not asked for is not computed; :mod:`pfx.filters.particle.jax_diagnostics`
-  computes them from the step's clouds and makes the trace's fields of them).
+* the step's outputs are the trace's columns at step k, and what a
+  :class:`~pfx.filters.particle.recorders.Recording` asks for (static flags: a diagnostic not
+  asked for is not computed; :mod:`pfx.filters.particle.jax_diagnostics` computes them from the
+  step's clouds and makes the trace's fields of them).
 
-Three things differ in form from the NumPy engine, not in what they compute:
+The JAX primitives the kernel calls differ in form from NumPy's, not in what they compute:
 
-* **masks, not subsets**: every trial draws its resampling points and is resampled; the trials
-  whose ESS is above the threshold keep their particles by a select. (The NumPy engine touches
-  only the trials that resample.) The move, the diffusion and the injection after resampling
-  are the stage of :mod:`pfx.filters.particle.jax_after_resampling`, which carries the
-  injection's running averages and the move's acceptance tally in the cloud.
+* **masks, not subsets** (:class:`Mask`): every trial draws its resampling points and is
+  resampled, moved and injected; the trials whose ESS is above the threshold keep their
+  particles by a select;
 * **error flags, not exceptions**: a trial whose particles all left the model's domain, a NaN
   or +inf log-likelihood, a non-finite estimate set a bit in the step's ``failures``, and a law's
   parameter out of its domain in the transition (a negative Poisson rate:
   :mod:`pfx.numerics.parameter_checks`) the code of the rule it broke; after the scan the first
-  one is raised as the NumPy engine raises it (:class:`~pfx.errors.ModelNumericalError`, or the
-  law's refusal; same message, same step).
+  one is raised as the NumPy driver raises it (same message, same step);
+* **the transition from arrays**: the model's substeps scanned over the control and substep
+  times of the step's inputs (the NumPy driver asks the model by the step number);
 * **precision**: ``float32`` keeps the particles, the process noise and the weights in single
   precision: what is stored and carried from step to step, hence the memory traffic that bounds
   a GPU. A model's arithmetic follows JAX's promotion rules: a constant held as a NumPy float64
@@ -48,99 +38,52 @@ Three things differ in form from the NumPy engine, not in what they compute:
   float64 (:mod:`pfx.filters.particle.jax_resampling` says why).
 
 The NumPy and JAX backends draw from different generators, so their results agree in
-distribution, not number for number (tests/test_jax_backend.py checks that they do).
+distribution, not number for number (tests/test_jax_backend.py checks that they do); served the
+same draws, they agree to rounding (tests/test_kernel_replay.py).
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Optional
+from typing import Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pfx.errors import ModelContractError, ModelNumericalError
+from pfx.errors import ModelContractError
 from pfx.filters.particle.cloud import active_uniform
-from pfx.filters.particle.jax_after_resampling import AfterResampling
-from pfx.filters.particle.jax_diagnostics import Flags, StageClouds, by_trial, fill_trace, step_diagnostics
-from pfx.filters.particle.jax_look_ahead import JaxLookAhead
+from pfx.filters.particle.jax_diagnostics import Flags, by_trial, fill_trace, step_diagnostics
 from pfx.filters.particle.jax_resampling import JAX_RESAMPLERS
-from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
+from pfx.filters.particle.kernel import (
+    BROKEN_RULE_SHIFT,
+    Cloud,
+    ParticleKernel,
+    RowSelection,
+    StepInputs,
+    StepOutputs,
+    first_failure,
+)
 from pfx.filters.particle.predictive import predictive_step
 from pfx.filters.trace import FilterTrace
-from pfx.numerics.angles import circular_mean
 from pfx.numerics.key_streams import KeyStreams
-from pfx.numerics.parameter_checks import broken_rule_message, collecting, merge_codes
+from pfx.numerics.parameter_checks import collecting, merge_codes
 from pfx.numerics.seeding import SCORE_STREAM
 
-# the bits of a step's ``failures``, per trial; above them, the code of the first rule of a law's
-# parameters the trial's transition broke (pfx.numerics.parameter_checks: a negative Poisson rate)
-EVERY_PARTICLE_LOST, BAD_LIKELIHOOD, NON_FINITE_ESTIMATE = 1, 2, 4
-BROKEN_RULE_SHIFT = 3
 
-
-class Cloud(NamedTuple):
-    """What one step hands the next."""
-
-    particles: Any            # (R, N, d)
-    log_weights: Any          # (R, N), normalised
-    log_likelihood: Any       # (R,), float64
-    lost_particles: Any       # (R,), int
-    ancestors: Any            # (R, N): each particle's index in the previous step's weighted cloud
-    after: Any = None         # the post-resampling stage's running values (jax_after_resampling.Carried)
-
-
-class StepInputs(NamedTuple):
-    """What step k reads (one slice of arrays indexed by the step)."""
-
-    step: Any                 # k = 1..T
-    measurement: Any          # (R, m); a missing one holds 0 (``observed`` says which)
-    observed: Any             # (R,) bool
-    control: Any              # (c,) u_k, or None
-    times: Any                # (s,) the substeps' start times
-
-
-class StepOutputs(NamedTuple):
-    """The trace's columns at step k; None where not asked for."""
-
-    estimate: Any             # (R, d)
-    ess: Any                  # (R,)
-    resampled: Any            # (R,) bool
-    degenerate: Any           # (R,) bool
-    increment: Any            # (R,) L_k
-    failures: Any             # (R,) bits
-    spread: Any = None        # (R,) weighted RMS distance of the positions from their mean
-    within_radius: Any = None  # (R,) the spread criterion's share within its radius
-    standard_deviations: Any = None   # (R, d)
-    ancestors: Any = None     # (R, N) the genealogy
-    particles: Any = None     # (R, N, d) the weighted cloud (the history the smoothers read)
-    log_weights: Any = None   # (R, N)
-    predictive: Any = None    # the predictive law's moments and scores (pfx.filters.particle.predictive)
-    forecast_particles: Any = None     # (r, N, d) the forecast rows' weighted cloud (pfx.filters.particle.forecasting)
-    forecast_log_weights: Any = None   # (r, N)
-    covariance: Any = None    # (R, d, d) the weighted posterior covariance before resampling, float64
-    nis: Any = None           # (R,) the predicted cloud's NIS, float64
-    snapshots: Any = None     # {stage: ((r, N, d), (r, N))} the snapshot rows' clouds and weights
-    prior_snapshot: Any = None    # (r, N, d) the snapshot rows' prior cloud: set once, after the scan
-    injected: Any = None      # (R,) the particles replaced by prior draws (filter.injection)
-    particle_counts: Any = None   # (R,) the active count the step's cloud was weighted with (filter.adaptive)
-
-
-class JaxParticleFilter:
+class JaxParticleFilter(ParticleKernel):
     """A bound particle filter (:class:`~pfx.filters.particle.bound.BoundParticleFilter`) as a JAX
     program: :meth:`run` filters a batch of trials; the program is compiled once per shape of
-    the batch and per set of diagnostics asked for, and reused."""
+    the batch and per set of diagnostics asked for, and reused. The other methods are the
+    kernel's primitives (:mod:`pfx.filters.particle.kernel`) on JAX arrays."""
+
+    count_dtype, index_dtype = jnp.int32, jnp.int32
 
     def __init__(self, bound):
-        self.bound, self.model = bound, bound.model
+        super().__init__(bound)
         self.dtype = jnp.float32 if bound.precision == "float32" else jnp.float64
         self.resampler = JAX_RESAMPLERS[bound.resampling.resampler.function.__name__]
         self.threshold = bound.resampling.threshold
-        self.particles = bound.particles
-        self.after_resampling = AfterResampling(bound, self.dtype)
-        # the auxiliary filter's first stage (filter.auxiliary), or None
-        self.look_ahead = None if bound.auxiliary is None else \
-            JaxLookAhead(self, own_look_ahead=_overrides(bound.model, "look_ahead_log_weight"))
+        self.own_look_ahead = _overrides(bound.model, "look_ahead_log_weight")
         self._programs: dict = {}
 
     def check_model(self) -> None:
@@ -196,8 +139,25 @@ class JaxParticleFilter:
                         "write it against the array namespace, xp = pfx.namespace(state), without writing into "
                         "arrays (docs/plugins.md, 'Writing a model for both backends'), or set backend: numpy"
                     ) from None
-        if self.look_ahead is not None:
-            self.look_ahead.check_model()
+        if self.bound.auxiliary is not None and self.own_look_ahead:
+            self._check_look_ahead()
+
+    def _check_look_ahead(self) -> None:
+        """Trace the model's own ``look_ahead_log_weight`` once on a tiny batch (nothing
+        computed), with a traced step: one written for the host is refused at plan time."""
+        model = self.model
+        with jax.enable_x64(True):
+            state = jax.ShapeDtypeStruct((2, 3, model.state_dimension), self.dtype)
+            step = jax.ShapeDtypeStruct((), jnp.int32)
+            measurement = jax.ShapeDtypeStruct((2, 1, model.measurement_dimension), self.dtype)
+            try:
+                jax.eval_shape(model.look_ahead_log_weight, state, step, measurement)
+            except Exception as error:      # any failure to trace: the method is NumPy-only
+                reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+                raise ValueError(
+                    f"@auxiliary: model {model.kind}'s look_ahead_log_weight does not run on the jax backend "
+                    f"({reason[:160]}); write it against the array namespace with the step as an array, "
+                    "or set backend: numpy") from None
 
     def __getstate__(self) -> dict:
         # compiled programs belong to this process: a copy sent to a worker compiles its own
@@ -266,147 +226,157 @@ class JaxParticleFilter:
             particles=None if outputs.particles is None else by_trial(outputs.particles).astype(float),
             log_weights=None if outputs.log_weights is None else by_trial(outputs.log_weights).astype(float))
         fill_trace(trace, outputs, recording, observed, self.particles)
-        self.after_resampling.fill_trace(trace, cloud.after, outputs.injected)
+        if outputs.injected is not None:
+            trace.injected = by_trial(outputs.injected).astype(np.int64)
+        if cloud.after.acceptance_sum is not None:     # the move's mean acceptance per trial (NaN: never moved)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                trace.move_acceptance = np.asarray(cloud.after.acceptance_sum, dtype=float) / np.asarray(
+                    cloud.after.moved_steps, dtype=float)
         return trace
 
     # -- compiled: the run and its step --------------------------------------------------------
 
     def traced_run(self, keys, inputs: StepInputs, flags: "Flags"):
-        """The run as a traceable function: the prior's cloud, then :meth:`step` scanned over the
+        """The run as a traceable function: the prior's cloud, then :meth:`scan_step` scanned over the
         steps; (the last cloud, the steps' :class:`StepOutputs`). :meth:`run` compiles it per
         set of ``flags``; estimation traces it inside its own programs, at parameter arrays."""
         random = KeyStreams(keys, self.dtype)
         trials, count = keys.shape[0], self.particles
         state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
         _check_shape(self.model, "the filter's prior (initial law)", state, (trials, count, self.model.state_dimension))
-        cloud = Cloud(particles=state,
-                      log_weights=jnp.full((trials, count), -np.log(count), self.dtype),
-                      log_likelihood=jnp.zeros(trials, jnp.float64),
-                      lost_particles=jnp.zeros(trials, jnp.int32),
-                      ancestors=jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count)),
-                      after=self.after_resampling.start(trials))
+        cloud = self.start(state, trials)
         scores = random.derived(SCORE_STREAM) if flags.scores else None
-        cloud, outputs = jax.lax.scan(lambda carried, at_step: self.step(carried, at_step, random, flags, scores),
+        cloud, outputs = jax.lax.scan(lambda carried, at_step: self.scan_step(carried, at_step, random, flags, scores),
                                       cloud, inputs)
         if "prior" in flags.snapshot_stages:         # the prior's cloud is kept once, not per step
             outputs = outputs._replace(prior_snapshot=state[np.asarray(flags.snapshot_rows)])
         return cloud, outputs
 
-    def step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: "Flags",
-             scores: Optional[KeyStreams] = None):
-        """Step k: predict, weight and normalise, estimate, resample (module docstring); with
-        ``scores`` (the trials' score streams), the predictive law of z_k and its scores."""
-        random = random.at(inputs.step)
-        adjustment = first = None
-        if self.look_ahead is not None:      # the auxiliary filter's first stage: resample by the look-ahead
-            cloud, first = self.look_ahead.apply(cloud, inputs, random)
-            adjustment = first.adjustment
-        with collecting(len(random)) as transition_checks:
-            if self.bound.proposal is None:
-                predicted, lost, predicted_log_weights = self.predict(cloud, inputs, random)
-            else:
-                predicted, lost, predicted_log_weights, correction = self.propose(cloud, inputs, random)
-                adjustment = correction if adjustment is None else correction + adjustment
-        predictive = self.predictive(predicted, _carried_weights(predicted_log_weights, adjustment), inputs,
-                                     scores.at(inputs.step)) if scores is not None else None
-        every_particle_lost = jnp.all(jnp.isneginf(predicted_log_weights), axis=-1)
-        active = cloud.after.active          # the adaptive count (None: every particle active)
-        log_weights, weights, increment, degenerate, bad_likelihood = self.update_weights(
-            predicted_log_weights, predicted, inputs, adjustment, active)
-        if first is not None:                # L_k = L1_k + L2_k
-            increment = first.increment + increment.astype(jnp.float64)
-        after = self.after_resampling.observe(cloud.after, increment, inputs.observed)
-        ess = 1.0 / jnp.sum(weights * weights, axis=-1)
-        estimate = self.estimate(weights, predicted)
-        if first is None:
-            resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, after, injected = \
-                self.resample(predicted, log_weights, weights, ess, random, cloud.particles, after, inputs)
-        else:                                # no resampling at the end of an auxiliary step (as on numpy)
-            resampled_state, resampled_log_weights, resampled_weights, ancestors, resampled, injected = \
-                predicted, log_weights, weights, first.ancestors, first.resampled, None
-        failures = (jnp.where(every_particle_lost, EVERY_PARTICLE_LOST, 0) | jnp.where(bad_likelihood, BAD_LIKELIHOOD, 0)
-                    | jnp.where(jnp.all(jnp.isfinite(estimate), axis=-1), 0, NON_FINITE_ESTIMATE))
-        if transition_checks.recorded:          # a model whose transition checks no law adds nothing
-            failures = failures | (transition_checks.codes << BROKEN_RULE_SHIFT)
-        clouds = StageClouds(predicted=predicted, predicted_log_weights=predicted_log_weights, log_weights=log_weights,
-                             weights=weights, estimate=estimate, resampled=resampled_state,
-                             resampled_weights=resampled_weights)
-        outputs = StepOutputs(
-            estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate, increment=increment,
-            failures=failures.astype(jnp.int16),
-            # those that made this step's particles: the last resampling's, the first stage's if auxiliary
-            ancestors=(cloud.ancestors if first is None else first.ancestors) if flags.genealogy else None,
-            predictive=None if predictive is None else {**predictive, "log_score": -increment}, injected=injected,
-            particle_counts=active,
-            **step_diagnostics(self.model, flags, clouds, inputs))
-        carried = Cloud(particles=resampled_state, log_weights=resampled_log_weights,
-                        log_likelihood=cloud.log_likelihood + increment.astype(jnp.float64),
-                        lost_particles=cloud.lost_particles + jnp.sum(lost, axis=-1, dtype=jnp.int32),
-                        ancestors=ancestors, after=after)
-        return carried, outputs
+    def scan_step(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, flags: Flags,
+                  scores: Optional[KeyStreams] = None):
+        """Step k of the scan: the kernel's step from the trials' keys folded with k, then the
+        diagnostics ``flags`` ask for; with ``scores`` (the trials' score streams), the
+        predictive law of z_k and its scores."""
+        cloud, outputs, clouds = self.step(cloud, inputs, random.at(inputs.step))
+        predictive = None
+        if scores is not None:
+            predictive = self.predictive(clouds.predicted, _carried_weights(clouds.predicted_log_weights,
+                                                                            clouds.adjustment),
+                                         inputs, scores.at(inputs.step))
+            predictive = {**predictive, "log_score": -outputs.increment}
+        outputs = outputs._replace(failures=outputs.failures.astype(jnp.int16), predictive=predictive,
+                                   ancestors=outputs.ancestors if flags.genealogy else None,
+                                   **step_diagnostics(self.model, flags, clouds, inputs))
+        return cloud, outputs
 
-    def predict(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams, model=None):
+    # -- the primitives (pfx.filters.particle.kernel) ------------------------------------------
+
+    def carried_weights(self, weights):
+        return None                # recomputed from the log-weights: less to carry through the scan
+
+    def weights_before(self, log_weights, cloud, lost):
+        return jnp.exp(log_weights)
+
+    def picks(self, ess, active=None):
+        """The ESS rule: which trials resample (R,) bool, every one at threshold 1; None at
+        threshold 0 (none ever does, so none need draw). The threshold is a share of the
+        ``active`` count with an adaptive count, as on numpy."""
+        if self.threshold <= 0.0:
+            return None
+        count = self.particles if active is None else active
+        return jnp.ones(ess.shape, bool) if self.threshold >= 1.0 else ess < self.threshold * count
+
+    def select(self, picks) -> Optional["Mask"]:
+        return None if picks is None else Mask(picks, self.particles)
+
+    def transition(self, cloud, inputs: StepInputs, random: KeyStreams, model=None):
         r"""x_k ~ p(x_k | x_{k-1}, u_k): the accumulators reset, then the model's substeps
         (:meth:`pfx.models.base.Model.sample_substep`, by default propagate with fresh process
-        noise), scanned when there are several, each substep's draws from keys of its own. A
-        particle that left the model's domain (NaN or inf) is parked at 0 with weight zero.
-        ``model``: the filter's model unless given (IF2 gives the one at each particle's parameters)."""
+        noise), scanned when there are several, each substep's draws from keys of its own; a law's
+        parameter out of its domain is a failure code. ``model``: the filter's model unless given
+        (IF2 gives the one at each particle's parameters). (state, None, failures)."""
         model, state = self.model if model is None else model, cloud.particles
         control = None if inputs.control is None else inputs.control.astype(self.dtype)
         substeps = inputs.times.shape[0]
-        if _overrides(model, "sample_transition"):          # a transition that is not a sequence of substeps
-            state = model.sample_transition(state, control, inputs.times, random)
-        elif substeps == 1:
-            state = model.sample_substep(model.reset_accumulators(state), control, inputs.times[0], random)
-        else:
-            def substep(current, place):
-                index, time = place
-                with collecting(len(random)) as checks:      # a scan's body is traced apart: its own block
-                    moved = model.sample_substep(current, control, time, random.at(index))
-                return jnp.asarray(moved, current.dtype), checks.codes
+        with collecting(len(random)) as checks:
+            if _overrides(model, "sample_transition"):          # a transition that is not a sequence of substeps
+                state = model.sample_transition(state, control, inputs.times, random)
+            elif substeps == 1:
+                state = model.sample_substep(model.reset_accumulators(state), control, inputs.times[0], random)
+            else:
+                def substep(current, place):
+                    index, time = place
+                    with collecting(len(random)) as substep_checks:      # a scan's body is traced apart
+                        moved = model.sample_substep(current, control, time, random.at(index))
+                    return jnp.asarray(moved, current.dtype), substep_checks.codes
 
-            state, codes = jax.lax.scan(substep, model.reset_accumulators(state), (jnp.arange(substeps), inputs.times))
-            merge_codes(codes)
+                state, codes = jax.lax.scan(substep, model.reset_accumulators(state),
+                                            (jnp.arange(substeps), inputs.times))
+                merge_codes(codes)
         state = jnp.asarray(state)
         _check_shape(model, f"the transition ({model.transition_method()})", state, cloud.particles.shape)
-        return self._park_lost(state, cloud.log_weights)
+        return state, None, self._broken_rules(checks, len(random))
 
-    def _park_lost(self, state, log_weights):
-        state = state.astype(self.dtype)
-        lost = ~jnp.all(jnp.isfinite(state), axis=-1)
-        state = jnp.where(lost[..., None], 0.0, state)
-        return state, lost, jnp.where(lost, -jnp.inf, log_weights)
-
-    def propose(self, cloud: Cloud, inputs: StepInputs, random: KeyStreams):
-        """x_k from the guided proposal (``filter.proposal``): the NumPy engine's own
-        :meth:`~pfx.filters.particle.proposals.BoundGaussianProposal.propose_from`, on every trial
-        (a trial without a measurement draws from the transition, adjustment 0), around the
-        predictions made from the compiled step's control and substep times; (x_k, lost,
-        log-weights, the weight adjustment log p(x_k | x_k-1) - log q)."""
-        predicted = self.after_resampling.parent_means(cloud.particles, inputs)
-        state, adjustment = self.bound.proposal.propose_from(
-            predicted, inputs.measurement.astype(self.dtype), inputs.observed, random)
+    def propose(self, cloud, inputs: StepInputs, random: KeyStreams):
+        """x_k from the guided proposal around the predictions made from the compiled step's
+        control and substep times (a trial without a measurement draws from the transition,
+        adjustment 0): (x_k, the adjustment log p(x_k | x_k-1) - log q, failures)."""
+        predicted = self.mean_prediction(cloud.particles, inputs)
+        with collecting(len(random)) as checks:
+            state, adjustment = self.bound.proposal.propose_from(
+                predicted, inputs.measurement.astype(self.dtype), inputs.observed, random)
         _check_shape(self.model, "the proposal", state, cloud.particles.shape)
-        return (*self._park_lost(jnp.asarray(state), cloud.log_weights), jnp.asarray(adjustment, self.dtype))
+        return jnp.asarray(state), jnp.asarray(adjustment, self.dtype), self._broken_rules(checks, len(random))
 
-    def update_weights(self, log_weights, state, inputs: StepInputs, adjustment=None, active=None):
-        r"""log w_k = log w_{k-1} + log p(z_k | x_k) (or the configured weighting's increment),
-        normalised by log-sum-exp; L_k the normaliser
-        (0 for a trial without a measurement); a trial whose weights all underflow is degenerate
-        and restarts from uniform weights (over its ``active`` particles with an adaptive count);
-        a zero-weight particle stays at zero whatever its
-        likelihood evaluates to."""
-        count = self.particles
+    @staticmethod
+    def _broken_rules(checks, trials: int):
+        """The failure codes of the laws' broken rules (none where the transition checks no law)."""
+        if checks.recorded:
+            return checks.codes << BROKEN_RULE_SHIFT
+        return jnp.zeros(trials, jnp.int32)
+
+    def find_lost(self, state):
+        state = state.astype(self.dtype)
+        return state, ~jnp.all(jnp.isfinite(state), axis=-1)
+
+    def park(self, state, lost):
+        return jnp.where(lost[..., None], 0.0, state)
+
+    def mean_prediction(self, parents, inputs: StepInputs):
+        r""":math:`\\bar f_k(x_{k-1})` of each parent (:meth:`pfx.models.base.Model.mean_transition`'s
+        substeps without noise), from the compiled step's control and substep times, which the
+        model's method reads on the host by the step number."""
+        model = self.model
+        control = None if inputs.control is None else inputs.control.astype(self.dtype)
+        state = model.reset_accumulators(parents)
+        zeros = jnp.zeros(parents.shape[:-1] + (model.process_noise_dimension,), parents.dtype)
+        for substep in range(inputs.times.shape[0]):
+            state = model.propagate_at(state, control, zeros, inputs.times[substep])
+        return jnp.asarray(state, parents.dtype)
+
+    def look_ahead_weights(self, previous, inputs: StepInputs):
+        """g (R, N) of the particles ``previous`` of step k-1, as the model evaluates it (NaN where
+        a prediction left its domain); a missing measurement's stand-in is 0."""
         measurement = inputs.measurement.astype(self.dtype)[:, None, :]
-        # the configured weighting (filter.weighting; the likelihood by default) reads the
-        # predicted cloud's weights, as on numpy (lost particles at zero)
-        likelihood = jnp.asarray(self.bound.weighting.log_weights(self.model, measurement, state, jnp.exp(log_weights)))
-        _check_shape(self.model, "log_likelihood", likelihood, log_weights.shape)
-        observed = inputs.observed
-        likelihood = likelihood.astype(self.dtype)
-        if adjustment is not None:        # a guided proposal's log p(x_k | x_k-1) - log q, 0 where unobserved
-            likelihood = likelihood + adjustment
-        increment = jnp.where(observed[:, None], likelihood, 0.0)
+        if self.own_look_ahead:
+            return jnp.asarray(self.model.look_ahead_log_weight(previous, inputs.step, measurement))
+        return jnp.asarray(self.model.log_likelihood(measurement, self.mean_prediction(previous, inputs)))
+
+    def measured(self, inputs: StepInputs):
+        # NaN where a measurement is missing, as the NumPy driver hands a move its row
+        return jnp.where(inputs.observed[:, None], inputs.measurement.astype(self.dtype), jnp.nan)
+
+    def check_weights_shape(self, likelihood, expected: tuple, k):
+        likelihood = jnp.asarray(likelihood)
+        _check_shape(self.model, "log_likelihood", likelihood, expected)
+        return likelihood.astype(self.dtype)
+
+    def normalise(self, log_weights, increment, lost, active, k):
+        """log-sum-exp of log w + increment by rows, as selects (a zero-weight particle stays at
+        zero whatever its likelihood evaluates to); a row whose weights all underflow is degenerate
+        and restarts uniform (over its ``active`` particles with an adaptive count); a NaN or +inf
+        normaliser is a flag."""
+        count = self.particles
         updated = jnp.where(jnp.isneginf(log_weights), -jnp.inf, log_weights + increment)
         peak = jnp.max(updated, axis=-1, keepdims=True)
         shifted = updated - jnp.where(jnp.isfinite(peak), peak, 0.0)
@@ -419,53 +389,26 @@ class JaxParticleFilter:
             uniform_log, uniform = active_uniform(active, count)
         normalised = jnp.where(degenerate[:, None], uniform_log, shifted - jnp.log(total)).astype(self.dtype)
         weights = jnp.where(degenerate[:, None], uniform, jnp.exp(shifted) / total).astype(self.dtype)
-        return normalised, weights, jnp.where(observed, normaliser, 0.0), degenerate, bad
+        return normalised, weights, normaliser, degenerate, bad
 
-    def estimate(self, weights, state):
-        """The weighted mean, the model's angular components averaged on the circle."""
-        mean = jnp.einsum("rn,rnd->rd", weights, state)
-        angular = list(self.model.angular_components)
-        if angular:
-            mean = mean.at[:, angular].set(circular_mean(weights, state[..., angular], self.model.full_turn))
-        return mean
+    def flag(self, failures, condition, bit: int, step):
+        return failures | jnp.where(condition, bit, 0)
 
-    def resample(self, state, log_weights, weights, ess, random: KeyStreams, previous, after, inputs: StepInputs,
-                 resampled=None):
-        """The trials whose ESS is below the threshold (every trial at 1, none at 0) take their
-        resampled particles, then the move, the diffusion and the injection
-        (:mod:`pfx.filters.particle.jax_after_resampling`; ``previous``: x_{k-1}, ``after``: its
-        carried values), and uniform weights; the others keep theirs (a select: every trial
-        drew). Returns the cloud, the ancestors, which trials resampled, ``after`` updated and
-        the particles injected per trial (None without injection). ``resampled``: the trials to
-        resample when the caller has applied the ESS rule (the auxiliary filter's first stage)."""
-        trials, count = weights.shape
-        identity = jnp.broadcast_to(jnp.arange(count, dtype=jnp.int32), (trials, count))
-        if resampled is None:
-            resampled = self.picks(ess, after.active)
-        if resampled is None:            # sis, or a threshold of 0: never (so nothing moved or injected)
-            nothing = jnp.zeros(trials, jnp.int32) if self.bound.injection is not None else None
-            return state, log_weights, weights, identity, jnp.zeros(trials, bool), after, nothing
-        indices = self.resampler(weights, random)
-        chosen = jnp.where(resampled[:, None], indices, identity)
-        offspring = jnp.take_along_axis(state, chosen[..., None], axis=1)
-        offspring, ancestors, after, injected = self.after_resampling.apply(
-            after, offspring, chosen, resampled, (previous, state, log_weights, weights), inputs, random)
-        state = jnp.where(resampled[:, None, None], offspring, state)
-        uniform_log, uniform = -np.log(count), 1.0 / count
-        if after.active is not None:         # uniform over the active particles only
-            uniform_log, uniform = active_uniform(after.active, count)
-        log_weights = jnp.where(resampled[:, None], uniform_log, log_weights).astype(log_weights.dtype)
-        weights = jnp.where(resampled[:, None], uniform, weights).astype(weights.dtype)
-        return state, log_weights, weights, ancestors, resampled, after, injected
+    def accumulate(self, total, first, increment):
+        increment = increment.astype(jnp.float64)
+        return total + (increment if first is None else first + increment)
 
-    def picks(self, ess, active=None):
-        """The ESS rule: which trials resample (R,) bool, every one at threshold 1; None at
-        threshold 0 (none ever does, so none need draw). The threshold is a share of the
-        ``active`` count with an adaptive count, as on numpy."""
-        if self.threshold <= 0.0:
-            return None
-        count = self.particles if active is None else active
-        return jnp.ones(ess.shape, bool) if self.threshold >= 1.0 else ess < self.threshold * count
+    def gather(self, state, rows: "Mask", indices):
+        return jnp.take_along_axis(state, indices[..., None], axis=1)
+
+    def uniforms(self, streams, shape):
+        return streams.uniform(shape, jnp.float64)
+
+    def as_state(self, values):
+        return jnp.asarray(values, self.dtype)
+
+    def put(self, mask, new, old):
+        return jnp.where(mask[..., None], new, old)
 
     # -- the predictive scores (a static flag; the other diagnostics: jax_diagnostics) ---------
 
@@ -511,24 +454,34 @@ def _raise_first_failure(model, failures: np.ndarray) -> None:
         raise error
 
 
-def first_failure(model, failures: np.ndarray) -> Optional[Exception]:
-    """The error the NumPy engine would have raised for a run's failure bits (T, R), at the
-    first step with one; None when no bit is set. A law's parameter out of its domain comes
-    first, as NumPy raises it in the transition, before the weights."""
-    flagged = np.argwhere(failures != 0)        # (step, trial) pairs, in step order
-    if flagged.size == 0:
-        return None
-    index = int(flagged[0, 0])
-    step = index + 1
-    codes = failures[index].astype(np.int64) >> BROKEN_RULE_SHIFT
-    if codes.any():
-        return ModelContractError(f"model {model.kind}: {model.transition_method()} raised ValueError: "
-                                  f"{broken_rule_message(int(codes[codes != 0][0]))} (step {step} of the filter)")
-    bits = int(np.bitwise_or.reduce(failures[index]))
-    if bits & EVERY_PARTICLE_LOST:
-        return ModelNumericalError(f"model {model.kind}: every particle of a trial became NaN or infinite at step "
-                                   f"{step} of the filter (check the prior and the noise)")
-    if bits & BAD_LIKELIHOOD:
-        return ModelNumericalError(bad_log_likelihood_message(model, step, "NaN or an infinite"))
-    return ModelNumericalError(f"model {model.kind} produced NaN or infinite particles at step {step} of the filter "
-                               "(check the prior and the noise)")
+class Mask(RowSelection):
+    """The rows a stage acts on, as a mask (R,): every row is computed, a select keeps the
+    unselected rows as they were."""
+
+    def __init__(self, mask, particles: int):
+        self.selected, self.particles = mask, particles
+
+    def _rows(self, values):
+        return self.selected.reshape(self.selected.shape + (1,) * (jnp.ndim(values) - 1))
+
+    def take(self, values):
+        return values
+
+    def streams(self, random):
+        return random
+
+    def indices(self, drawn):
+        identity = jnp.arange(self.particles, dtype=drawn.dtype)
+        return jnp.where(self.selected[:, None], drawn, identity)
+
+    def merge(self, new, old):
+        return jnp.where(self._rows(old), new, old).astype(old.dtype)
+
+    def scatter(self, values, fill):
+        return jnp.where(self._rows(values), values, fill)
+
+    def mask(self):
+        return self.selected
+
+    def within(self, condition):
+        return Mask(self.selected & condition, self.particles)

@@ -84,8 +84,8 @@ A move and a diffusion both rejuvenate the resampled cloud, so a move other than
 with a diffusion other than ``none`` is refused; so is a move on ``sis``, which never resamples.
 
 Both moves are written once against the array namespace (:func:`pfx.numerics.arrays.namespace`):
-the NumPy engine calls them on the resampled trials, the jax engine on every trial, keeping the
-moved particles where a trial resampled (:mod:`pfx.filters.particle.jax_after_resampling`). On
+the kernel's resampling stage (:mod:`pfx.filters.particle.kernel`) calls them on the resampled
+trials (on JAX on every trial, keeping the moved particles where a trial resampled). On
 jax a singular covariance is repaired as on NumPy (:func:`square_root`'s clipped eigenvalues),
 never raised, and the mcmc move's Metropolis steps are one compiled loop
 (:func:`pfx.numerics.arrays.repeat`).

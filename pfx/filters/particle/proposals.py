@@ -63,7 +63,7 @@ would lead the particles astray: a model whose own ``log_likelihood`` is not of 
 here, before the run, and pointed to the bootstrap proposal.
 
 The drawing is written once, against the array namespace (:mod:`pfx.numerics.arrays`):
-:meth:`BoundGaussianProposal.propose_from` runs on NumPy arrays in the NumPy engine and on JAX
+:meth:`BoundGaussianProposal.propose_from` runs on NumPy arrays in the NumPy driver and on JAX
 arrays in the compiled step (:mod:`pfx.filters.particle.jax_engine`), which applies it to every
 trial with ``observed`` a mask. All three guided proposals run on both backends (the unscented
 transform's sigma points and moments are written against the namespace too). On JAX a Cholesky

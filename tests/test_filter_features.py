@@ -1,32 +1,28 @@
-"""The particle filter's oracle (issue 48): pfx's code path and a frozen copy of the NumPy engine agree, bit for bit.
+"""The particle filter's feature matrix: one small run per feature, each checked to reach its feature.
 
-Each case of the feature matrix below builds a small plan from a config dict, takes its cell's bound
-particle filter, and runs it twice from identically seeded fresh streams: through pfx
-(``BoundParticleFilter.run``) and through the oracle (:func:`particle_filter_oracle.oracle_run`, today's
-engine copied into tests/). Every field of the two traces must be identical (arrays: same dtype, shape
-and values, NaN equal to NaN; DataFrames exactly; dicts, lists and dataclasses field by field, so that
-a field added to the trace is compared without a change here), so must what the recording's requests
-kept (snapshots, forecast clouds and samples), and both filter streams must end in the same state, so
-that a change in the order of the draws is caught even where the numbers happen to agree.
+Each case of the matrix below builds a small plan from a config dict (3 trials, at most 40 particles, at
+most 12 steps: the file runs in seconds) and runs its cell's bound particle filter on the numpy backend:
+every resampler at ESS thresholds 0, 0.5 and 1; missing measurements, lost particles, substeps, a model's
+fused numba step; the auxiliary filter, each move, KLD, injection, each proposal and each weighting;
+scores, forecasts, the genealogy and each smoother. Each case checks that its feature was exercised (a
+resampling at ESS threshold 0.5, lost particles, an injection, ...): a case that silently stopped reaching
+its feature would prove nothing, and the matrix covers every registered component
+(:func:`test_the_matrix_covers_every_registered_component`).
 
-Each case also checks that its feature was exercised (a resampling at ESS threshold 0.5, lost
-particles, an injection, ...): a case that silently stopped reaching its feature would prove nothing.
-The matrix is small (3 trials, at most 40 particles, at most 12 steps) so that the file runs in seconds.
+The matrix guarded the kernel refactor (issue 48), when a frozen copy of the old NumPy engine was run beside
+pfx on every case, bit for bit. Its cases now serve tests/test_kernel_replay.py, which runs both drivers of
+the one kernel on the same draws.
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 import numpy as np
-import pandas as pd
 import pytest
 from conftest import REPO_ROOT
-from particle_filter_oracle import oracle_run
 
 from pfx.config.plan import build_plan
 from pfx.errors import ModelNumericalError
@@ -397,14 +393,14 @@ CASES: dict[str, Case] = {
 }
 
 
-# -- running a case both ways ------------------------------------------------------------------------------
+# -- running a case ------------------------------------------------------------------------------------------
 
 def _cell(case: Case):
-    raw = {"name": "oracle", "seed": SEED, "trials": TRIALS, "model": copy.deepcopy(case.model),
+    raw = {"name": "features", "seed": SEED, "trials": TRIALS, "model": copy.deepcopy(case.model),
            "filter": copy.deepcopy(case.filter)}
     if case.plugins:
         raw["plugins"] = list(case.plugins)
-    return build_plan(raw, "oracle.yaml").cells[0]
+    return build_plan(raw, "features.yaml").cells[0]
 
 
 def _measurements(cell, missing: tuple) -> np.ndarray:
@@ -421,82 +417,27 @@ def _filter_streams(cell) -> TrialStreams:
     return TrialStreams.from_seeds([filter_seed(SEED, cell.stream_key, trial) for trial in range(TRIALS)])
 
 
-def run_both(case: Case) -> tuple[Run, Run, TrialStreams, TrialStreams]:
+def run(case: Case) -> Run:
     cell = _cell(case)
     bound = cell.planned_filter.bound
     assert bound.backend == "numpy" and bound.compiled is None
     measurements = _measurements(cell, case.missing)
-    ours_streams, oracle_streams = _filter_streams(cell), _filter_streams(cell)
-    ours_recording, oracle_recording = case.recording(), case.recording()
-    ours = bound.run(measurements.copy(), ours_streams, ours_recording)
-    oracle = oracle_run(bound, measurements.copy(), oracle_streams, oracle_recording)
-    return (Run(bound, measurements, ours, ours_recording), Run(bound, measurements, oracle, oracle_recording),
-            ours_streams, oracle_streams)
-
-
-# -- comparing: every field, exactly -----------------------------------------------------------------------
-
-def assert_identical(ours: Any, oracle: Any, where: str = "trace") -> None:
-    """``ours`` and ``oracle`` hold the same values, bit for bit, all the way down: arrays of the same
-    dtype and shape (NaN equal to NaN), DataFrames exactly, dataclasses field by field, dicts key by key
-    (in the same order), lists and tuples item by item."""
-    assert type(ours) is type(oracle), f"{where}: {type(ours).__name__} != {type(oracle).__name__}"
-    if dataclasses.is_dataclass(ours):
-        for item in dataclasses.fields(ours):
-            assert_identical(getattr(ours, item.name), getattr(oracle, item.name), f"{where}.{item.name}")
-    elif isinstance(ours, np.ndarray):
-        assert ours.dtype == oracle.dtype, f"{where}: dtype {ours.dtype} != {oracle.dtype}"
-        assert ours.shape == oracle.shape, f"{where}: shape {ours.shape} != {oracle.shape}"
-        inexact = np.issubdtype(ours.dtype, np.inexact)
-        assert np.array_equal(ours, oracle, equal_nan=inexact), f"{where}: values differ"
-    elif isinstance(ours, pd.DataFrame):
-        pd.testing.assert_frame_equal(ours, oracle, check_exact=True, obj=where)
-    elif isinstance(ours, dict):
-        assert list(ours) == list(oracle), f"{where}: keys {list(ours)} != {list(oracle)}"
-        for key in ours:
-            assert_identical(ours[key], oracle[key], f"{where}[{key!r}]")
-    elif isinstance(ours, (list, tuple)):
-        assert len(ours) == len(oracle), f"{where}: length {len(ours)} != {len(oracle)}"
-        for index, (mine, theirs) in enumerate(zip(ours, oracle)):
-            assert_identical(mine, theirs, f"{where}[{index}]")
-    elif isinstance(ours, float) and math.isnan(ours):
-        assert math.isnan(oracle), f"{where}: nan != {oracle!r}"
-    else:
-        assert ours == oracle, f"{where}: {ours!r} != {oracle!r}"
-
-
-def assert_same_stream_state(ours: TrialStreams, oracle: TrialStreams) -> None:
-    """Both runs left every trial's generator in the same state: they made the same draws (a
-    change in the order of two draws of equal size is caught by the numbers, this catches the rest);
-    then one more draw from each, through pfx's own batched path, agrees."""
-    for trial, (mine, theirs) in enumerate(zip(ours.generators, oracle.generators)):
-        assert mine.bit_generator.state == theirs.bit_generator.state, f"trial {trial}'s stream ended elsewhere"
-    assert np.array_equal(ours.uniform((1,)), oracle.uniform((1,)))
-    assert np.array_equal(ours.standard_normal((1,)), oracle.standard_normal((1,)))
+    recording = case.recording()
+    return Run(bound, measurements, bound.run(measurements.copy(), _filter_streams(cell), recording), recording)
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_pfx_and_the_oracle_agree_to_the_last_bit(name):
+def test_each_case_reaches_its_feature(name):
     case = CASES[name]
-    ours, oracle, ours_streams, oracle_streams = run_both(case)
-    if case.exercised is not None:
-        case.exercised(ours)
-    assert_identical(ours.trace, oracle.trace, "trace")
-    assert_identical(ours.recording, oracle.recording, "recording")
-    assert_same_stream_state(ours_streams, oracle_streams)
+    case.exercised(run(case))
 
 
-def test_a_model_error_is_the_same_error():
-    """A trial that loses every particle stops both engines at the same step, with the same message."""
+def test_a_trial_that_loses_every_particle_stops_the_run_at_its_step():
     case = Case(LOSING_FALLING_BODY, _filter(initial={**LOSING_PRIOR, "covariance": [1.0e6, 4.0e6, 1.0]}))
-    messages = []
-    for run in (lambda bound, m, s: bound.run(m, s), lambda bound, m, s: oracle_run(bound, m, s)):
-        cell = _cell(case)
-        with pytest.raises(ModelNumericalError) as raised:
-            run(cell.planned_filter.bound, _measurements(cell, ()), _filter_streams(cell))
-        messages.append(str(raised.value))
-    assert "every particle of a trial became NaN or infinite" in messages[0]
-    assert messages[0] == messages[1]
+    cell = _cell(case)
+    with pytest.raises(ModelNumericalError, match=r"model falling_body: every particle of a trial became NaN or "
+                                                  r"infinite at step \d+ of the filter"):
+        cell.planned_filter.bound.run(_measurements(cell, ()), _filter_streams(cell))
 
 
 @dataclass
