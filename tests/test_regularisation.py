@@ -207,6 +207,7 @@ def first_step(move: str, trials: int, particles: int):
     bound = bind_particle_filter("particle", model, settings, model.default_prior())
     measurements = np.tile(np.array([0.4, -0.3]), (trials, model.steps, 1))
     run = ParticleFilter(bound, measurements, TrialStreams.from_seeds(range(trials)))
+    run.keeps_stages = True                 # hand back the step's clouds, stage by stage
     _, _, clouds = run.step(run.start(run.state, trials), run.step_inputs(1), run.random)
     return clouds.predicted, clouds.weights, clouds.resampled, bound.move
 

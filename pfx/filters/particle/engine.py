@@ -62,6 +62,7 @@ class ParticleFilter(ParticleKernel):
         self.recorders = recorders_for(bound.model, recording)
         if recording.scores:         # the predictive law's scores (its log score needs to know the weighting)
             self.recorders.append(PredictiveRecorder(bound.model, bound.weighting.is_likelihood))
+        self.keeps_stages = bool(self.recorders)
         # (trials, T) True where a trial's measurement is missing; None when every one is there
         missing = np.isnan(measurements).any(axis=-1)
         self.missing: Optional[np.ndarray] = missing if missing.any() else None
@@ -93,6 +94,7 @@ class ParticleFilter(ParticleKernel):
                 for k in range(1, self.steps + 1):
                     cloud, outputs, clouds = self.step(cloud, self.step_inputs(k), self.random)
                     self.keep(k, outputs, clouds)
+                    self.state, self.log_weights, self.weights = cloud.particles, cloud.log_weights, cloud.weights
         except Exception as error:        # where it happened, for the one-line report
             note_step(error, k, "filter")
             raise
@@ -120,10 +122,8 @@ class ParticleFilter(ParticleKernel):
             trace.particle_counts[:, t] = outputs.particle_counts
         if outputs.injected is not None:
             trace.injected[:, t] = outputs.injected
-        if self.recorders:
+        if clouds is not None:
             self.record_stages(k, outputs, clouds)
-        self.state, self.log_weights, self.weights = clouds.resampled, clouds.resampled_log_weights, clouds.resampled_weights
-        self.active = clouds.active
 
     def record_stages(self, k: int, outputs, clouds) -> None:
         """The recorders after each stage of step k, reading the stage's cloud."""
@@ -242,6 +242,9 @@ class ParticleFilter(ParticleKernel):
         self.log_weights = normalised
         return normalised, weights, normaliser, degenerate, None
 
+    def non_finite_rows(self, values):
+        return None if np.isfinite(values).all() else ~np.isfinite(values).all(axis=-1)
+
     def flag(self, failures, condition, bit: int, step):
         if condition is not None and condition.any():
             raise failure_error(self.model, bit, step)
@@ -257,6 +260,9 @@ class ParticleFilter(ParticleKernel):
         return streams.uniform(shape)
 
     def as_state(self, values):
+        return values
+
+    def as_measurement(self, values):
         return values
 
     def park(self, state, lost):
@@ -288,7 +294,7 @@ class Rows(RowSelection):
 
     def merge(self, new, old):
         if self.every:
-            return new if np.shape(new) == old.shape else np.full_like(old, new)
+            return new if np.shape(new) == old.shape else np.full(old.shape, new, dtype=old.dtype)
         out = old.copy(order="K")
         out[self.rows] = new
         return out
@@ -301,6 +307,8 @@ class Rows(RowSelection):
         return out
 
     def mask(self):
+        if self.every:
+            return np.ones(self.total, dtype=bool)
         out = np.zeros(self.total, dtype=bool)
         out[self.rows] = True
         return out

@@ -76,7 +76,7 @@ class JaxParticleFilter(ParticleKernel):
     the batch and per set of diagnostics asked for, and reused. The other methods are the
     kernel's primitives (:mod:`pfx.filters.particle.kernel`) on JAX arrays."""
 
-    count_dtype, index_dtype = jnp.int32, jnp.int32
+    xp, count_dtype, index_dtype = jnp, jnp.int32, jnp.int32
 
     def __init__(self, bound):
         super().__init__(bound)
@@ -391,6 +391,9 @@ class JaxParticleFilter(ParticleKernel):
         weights = jnp.where(degenerate[:, None], uniform, jnp.exp(shifted) / total).astype(self.dtype)
         return normalised, weights, normaliser, degenerate, bad
 
+    def non_finite_rows(self, values):
+        return ~jnp.all(jnp.isfinite(values), axis=-1)
+
     def flag(self, failures, condition, bit: int, step):
         return failures | jnp.where(condition, bit, 0)
 
@@ -406,6 +409,9 @@ class JaxParticleFilter(ParticleKernel):
 
     def as_state(self, values):
         return jnp.asarray(values, self.dtype)
+
+    def as_measurement(self, values):
+        return values.astype(self.dtype)
 
     def put(self, mask, new, old):
         return jnp.where(mask[..., None], new, old)

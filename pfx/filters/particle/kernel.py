@@ -62,7 +62,6 @@ from pfx.filters.particle.cloud import active_uniform, posterior_mean
 from pfx.filters.particle.injection import injection_probability, observed_averages
 from pfx.filters.particle.likelihood_failure import bad_log_likelihood_message
 from pfx.filters.particle.moves import MoveContext
-from pfx.numerics.arrays import namespace
 from pfx.numerics.log_weights import effective_sample_size
 from pfx.numerics.parameter_checks import broken_rule_message
 
@@ -160,6 +159,16 @@ class Prediction(NamedTuple):
     failures: Any             # (R,) bits so far (JAX), or None
 
 
+class Weighted(NamedTuple):
+    """G_k's result."""
+
+    log_weights: Any          # (R, N) normalised
+    weights: Any              # (R, N)
+    increment: Any            # (R,) L_k, 0 where the measurement is missing
+    degenerate: Any           # (R,) bool: every weight underflowed (NumPy: None where none did)
+    failures: Any             # (R,) bits so far (JAX), or None
+
+
 class Resampled(NamedTuple):
     """The resampling stage's result."""
 
@@ -178,16 +187,19 @@ class ParticleKernel:
     :class:`~pfx.filters.particle.bound.BoundParticleFilter`), written once against the array
     namespace; a driver subclass supplies the primitives (module docstring) and the loop."""
 
+    xp: Any = np                  # the driver's array namespace
     dtype: Any = np.float64
     tracks_ancestors = True
+    keeps_stages = True           # whether the step hands back its stages' clouds (StageClouds)
     skips_unobserved = False
 
     def __init__(self, bound):
         self.bound, self.model, self.particles = bound, bound.model, bound.particles
+        self.uniform_log_weight = float(-np.log(bound.particles))
 
     def start(self, state, trials: int) -> Cloud:
         """The cloud before step 1: the prior's particles, uniform weights, nothing counted."""
-        count, xp = self.particles, namespace(state)
+        count, xp = self.particles, self.xp
         bound = self.bound
         never = xp.full(trials, -np.inf, dtype=np.float64) if bound.injection is not None else None
         tally = xp.zeros(trials, dtype=np.float64) if bound.move is not None and bound.move.reports_acceptance else None
@@ -199,26 +211,30 @@ class ParticleKernel:
                      after=Carried(log_slow=never, log_fast=never, acceptance_sum=tally, moved_steps=tally,
                                    active=active))
 
-    def step(self, cloud: Cloud, inputs: StepInputs, random) -> tuple[Cloud, StepOutputs, StageClouds]:
-        """Step k (module docstring): the next cloud, the trace's columns and the stages' clouds."""
+    def step(self, cloud: Cloud, inputs: StepInputs, random) -> tuple[Cloud, StepOutputs, Optional[StageClouds]]:
+        """Step k (module docstring): the next cloud, the trace's columns and the stages' clouds
+        (None where the driver keeps none)."""
         first = None
-        if self.bound.auxiliary is not None:
+        if self.bound.auxiliary is not None:         # resample by the look-ahead before moving
             cloud, first = self.look_ahead(cloud, inputs, random)
         prediction = self.predict(cloud, inputs, random, None if first is None else first.adjustment)
-        active = cloud.after.active
-        log_weights, weights, increment, degenerate, failures = self.update_weights(prediction, inputs, active)
-        after = self.observe_likelihood(cloud.after, increment, inputs.observed)
-        ess = effective_sample_size(weights)
-        estimate = posterior_mean(self.model, weights, prediction.state)
-        xp = namespace(estimate)
-        failures = self.flag(failures, ~xp.all(xp.isfinite(estimate), axis=-1), NON_FINITE_ESTIMATE, inputs.step)
+        weighted = self.update_weights(prediction, inputs, cloud.after.active)
+        estimate, ess, failures = self.estimate(prediction.state, weighted, inputs.step)
+        after = self.observe_likelihood(cloud.after, weighted.increment, inputs.observed)
         if first is None:
-            result = self.resample(prediction.state, log_weights, weights, self.picks(ess, active), random,
-                                   cloud.particles, after, inputs)
-            resampled, carried_ancestors, used_ancestors = result.resampled, result.ancestors, cloud.ancestors
+            result = self.resample(prediction.state, weighted.log_weights, weighted.weights,
+                                   self.picks(ess, cloud.after.active), random, cloud.particles, after, inputs)
         else:                # the auxiliary filter resamples at its next look-ahead, not here
-            result = Resampled(prediction.state, log_weights, weights, None, None, first.resampled, after, None)
-            resampled, carried_ancestors, used_ancestors = first.resampled, first.ancestors, first.ancestors
+            result = Resampled(prediction.state, weighted.log_weights, weighted.weights, first.ancestors, None,
+                               first.resampled, after, None)
+        return self.advance(cloud, first, prediction, weighted, estimate, ess, failures, result)
+
+    def advance(self, cloud: Cloud, first, prediction: "Prediction", weighted: "Weighted", estimate, ess, failures,
+                result: "Resampled") -> tuple[Cloud, StepOutputs, StageClouds]:
+        """The step's results: the cloud carried to the next step (the log-likelihood and the lost
+        particles counted), the trace's columns and the stages' clouds."""
+        xp = self.xp
+        increment = weighted.increment
         log_likelihood = self.accumulate(cloud.log_likelihood, None if first is None else first.increment, increment)
         if first is not None:           # L_k = L1_k + L2_k
             increment = first.increment + increment.astype(np.float64)
@@ -227,15 +243,18 @@ class ParticleKernel:
             lost_particles = lost_particles + xp.sum(prediction.lost, axis=-1, dtype=self.count_dtype)
         carried = Cloud(particles=result.state, log_weights=result.log_weights,
                         weights=self.carried_weights(result.weights), log_likelihood=log_likelihood,
-                        lost_particles=lost_particles, ancestors=carried_ancestors, after=result.after)
-        outputs = StepOutputs(estimate=estimate, ess=ess, resampled=resampled, degenerate=degenerate,
-                              increment=increment, failures=failures, ancestors=used_ancestors,
-                              injected=result.injected, particle_counts=active)
+                        lost_particles=lost_particles, ancestors=result.ancestors, after=result.after)
+        outputs = StepOutputs(estimate=estimate, ess=ess, resampled=result.resampled, degenerate=weighted.degenerate,
+                              increment=increment, failures=failures,
+                              ancestors=cloud.ancestors if first is None else first.ancestors,
+                              injected=result.injected, particle_counts=cloud.after.active)
+        if not self.keeps_stages:         # no diagnostic reads them
+            return carried, outputs, None
         clouds = StageClouds(predicted=prediction.state, predicted_log_weights=prediction.log_weights,
                              predicted_weights=prediction.weights, adjustment=prediction.adjustment,
-                             log_weights=log_weights, weights=weights, estimate=estimate, resampled=result.state,
-                             resampled_log_weights=result.log_weights, resampled_weights=result.weights,
-                             active=result.after.active)
+                             log_weights=weighted.log_weights, weights=weighted.weights, estimate=estimate,
+                             resampled=result.state, resampled_log_weights=result.log_weights,
+                             resampled_weights=result.weights, active=result.after.active)
         return carried, outputs, clouds
 
     # -- the stages ------------------------------------------------------------------------------
@@ -248,13 +267,13 @@ class ParticleKernel:
         log_first = log_first.astype(cloud.log_weights.dtype)
         rows = self.select(self.picks(effective_sample_size(first), cloud.after.active))
         if rows is None:            # no trial resamples: lambda are the weights the second stage starts from
-            xp = namespace(first)
+            xp = self.xp
             return cloud._replace(log_weights=log_first, weights=self.carried_weights(first)), FirstStage(
                 increment=increment.astype(np.float64), adjustment=-look_ahead.astype(self.dtype),
                 resampled=xp.zeros(len(first), dtype=bool), ancestors=self.identity(len(first), xp))
         # no move, count or injection combines with the auxiliary filter: the ancestors are the draws
         result = self.resample(cloud.particles, log_first, first, rows, random, None, cloud.after, inputs)
-        xp = namespace(look_ahead)
+        xp = self.xp
         look_ahead = rows.merge(xp.take_along_axis(rows.take(look_ahead), result.indices, axis=1), look_ahead)
         return Cloud(particles=result.state, log_weights=result.log_weights, weights=self.carried_weights(result.weights),
                      log_likelihood=cloud.log_likelihood, lost_particles=cloud.lost_particles,
@@ -274,7 +293,7 @@ class ParticleKernel:
         state, lost = self.find_lost(state)
         log_weights = cloud.log_weights
         if lost is not None:
-            xp = namespace(log_weights)
+            xp = self.xp
             log_weights = xp.where(lost, -np.inf, log_weights)
             failures = self.flag(failures, xp.all(xp.isneginf(log_weights), axis=-1), EVERY_PARTICLE_LOST, inputs.step)
             state = self.park(state, lost)        # at 0 until resampling replaces it
@@ -282,17 +301,17 @@ class ParticleKernel:
         return Prediction(state=state, log_weights=log_weights, weights=weights, adjustment=adjustment,
                           likelihood=likelihood, lost=lost, failures=failures)
 
-    def update_weights(self, prediction: Prediction, inputs: StepInputs, active):
+    def update_weights(self, prediction: Prediction, inputs: StepInputs, active) -> "Weighted":
         r"""G_k: log w_k = log w_{k-1} + log l_k(x_k) (+ the adjustment), normalised; the normaliser
-        L_k (0 where the measurement is missing). (log w_k, w_k, L_k, degenerate, failures)."""
-        xp = namespace(prediction.log_weights)
+        L_k (0 where the measurement is missing)."""
+        xp = self.xp
         observed = inputs.observed
         if observed is not None and self.skips_unobserved and not observed.any():
             likelihood = xp.zeros_like(prediction.log_weights)   # no measurement anywhere: nothing to weigh
         else:
             likelihood = prediction.likelihood
             if likelihood is None:
-                measurement = inputs.measurement.astype(self.dtype)[:, None, :]
+                measurement = self.as_measurement(inputs.measurement)[:, None, :]
                 likelihood = self.bound.weighting.log_weights(self.model, measurement, prediction.state,
                                                               prediction.weights)
             likelihood = self.check_weights_shape(likelihood, prediction.log_weights.shape, inputs.step)
@@ -305,7 +324,13 @@ class ParticleKernel:
         failures = self.flag(prediction.failures, bad, BAD_LIKELIHOOD, inputs.step)
         if observed is not None:    # a predict-only step adds nothing (its normaliser is only the lost mass)
             normaliser = xp.where(observed, normaliser, 0.0)
-        return log_weights, weights, normaliser, degenerate, failures
+        return Weighted(log_weights, weights, normaliser, degenerate, failures)
+
+    def estimate(self, state, weighted: "Weighted", step):
+        """The weighted (circular) mean and the ESS before resampling; a non-finite estimate is a failure."""
+        estimate = posterior_mean(self.model, weighted.weights, state)
+        failures = self.flag(weighted.failures, self.non_finite_rows(estimate), NON_FINITE_ESTIMATE, step)
+        return estimate, effective_sample_size(weighted.weights), failures
 
     def resample(self, state, log_weights, weights, picks, random, previous, after: Carried,
                  inputs: StepInputs) -> Resampled:
@@ -314,7 +339,7 @@ class ParticleKernel:
         and uniform weights; the others keep theirs."""
         bound, count = self.bound, self.particles
         rows = picks if isinstance(picks, RowSelection) else self.select(picks)
-        xp = namespace(log_weights)
+        xp = self.xp
         trials = len(log_weights)
         if rows is None:              # no trial resamples (sis, or none below the threshold)
             return Resampled(state, log_weights, weights, self.identity(trials, xp) if self.tracks_ancestors else None,
@@ -336,12 +361,12 @@ class ParticleKernel:
         injected = None
         if bound.injection is not None:
             offspring, ancestors, injected = self.inject(rows, offspring, ancestors, after, streams)
-        uniform_log, uniform = -np.log(count), 1.0 / count
+        uniform_log, uniform = self.uniform_log_weight, 1.0 / count
         if bound.adaptive is not None:            # uniform over the active particles only
             uniform_log, uniform = active_uniform(rows.take(after.active), count)
         return Resampled(
-            state=rows.merge(offspring, state), log_weights=rows.merge(uniform_log, log_weights).astype(log_weights.dtype),
-            weights=rows.merge(uniform, weights).astype(weights.dtype),
+            state=rows.merge(offspring, state), log_weights=rows.merge(uniform_log, log_weights),
+            weights=rows.merge(uniform, weights),
             ancestors=rows.merge(ancestors, self.identity(trials, xp)) if self.tracks_ancestors else None,
             indices=indices, resampled=rows.mask(), after=after, injected=injected)
 
@@ -368,7 +393,7 @@ class ParticleKernel:
         max(0, 1 - w_fast/w_slow), by a draw from the filter's prior; only the rows with a positive
         probability draw. (offspring, ancestors (-1: a prior draw), the count replaced per trial)."""
         count = offspring.shape[1]
-        xp = namespace(offspring)
+        xp = self.xp
         probability = injection_probability(rows.take(after.log_slow), rows.take(after.log_fast))
         drawing = rows.within(probability > 0.0)
         if drawing is None:
