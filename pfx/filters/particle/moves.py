@@ -1,4 +1,5 @@
-r"""Moves after resampling (``filter.move``): the particle filter's ``resample_and_move`` stage.
+r"""Moves after resampling (``filter.move``), in the resampling stage of the particle filter's step
+(:meth:`pfx.filters.particle.kernel.ParticleKernel.resample`).
 
 Resampling duplicates the heavy particles; a *move* then spreads the copies again. Unlike a
 diffusion (:mod:`pfx.filters.particle.diffusion`, which sees only the resampled cloud), a move
