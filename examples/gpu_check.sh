@@ -21,23 +21,26 @@
 #    named file that this tree lacks is left out, and said so).
 # 5. On a GPU, times pomp's two models (cholera at N = 1000 and 5000, measles at N = 2000) on the
 #    jax backend in batches of 64 and 192 runs: seconds per run and replicates per second once
-#    compiled (examples/benchmarks/pomp_speed_session.py; PFX_POMP_ARGS, PFX_POMP_TIMEOUT).
+#    compiled (examples/benchmarks/pomp_speed_session.py; PFX_POMP_ARGS, PFX_POMP_TIMEOUT). Where
+#    pypomp imports (its wheel among the carried ones), pypomp's filter too, 64 replicates a call.
 # Everything goes to $OUT (the GPU machine's folder that comes back), else ./gpu-check-output:
 # gpu-check.txt (this script's own lines), bench.txt, tests.txt, pomp.txt. Exit status: 0 when the
 # bench, the tests and the pomp timings passed, else the first failure's.
 #
 # Variables: PFX_PYTHON (default .venv/bin/python where it exists, else python3), PFX_WHEELS,
 # PFX_BENCH_ARGS, PFX_GPU_TESTS, PFX_POMP_ARGS, PFX_BENCH_TIMEOUT, PFX_TESTS_TIMEOUT and PFX_POMP_TIMEOUT
-# (seconds, default 170, 110 and 200: the whole check stays under 9 minutes).
+# (seconds, default 170, 110 and 200, or 300 with pypomp: the whole check stays under 10 minutes).
 
 set -u
 cd "$(dirname "$0")/.." || exit 2
 # The packages such a machine was seen to lack (Python 3.12, x86-64; docs/backends.md).
 MISSING="pydantic pydantic-core annotated-types typing-inspection typing-extensions arviz-stats"
+# pypomp, for its filter timed beside pfx's in the pomp step (pure Python; its needs are on such a machine)
+PEERS="pypomp==1.1.0"
 if [ "${1:-}" = --download-wheels ]; then
     # shellcheck disable=SC2086
     python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
-        --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 -d "${PFX_WHEELS:-.whl}" $MISSING || exit 2
+        --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 -d "${PFX_WHEELS:-.whl}" $MISSING $PEERS || exit 2
     [ "${PFX_WHEELS:-.whl}" = .whl ] && ! grep -qx '/.whl/' "$(git rev-parse --git-common-dir 2>/dev/null)/info/exclude" \
         2>/dev/null && echo "gpu-check: add /.whl/ to .git/info/exclude, so that the wheels stay out of git"
     exit 0
@@ -121,8 +124,13 @@ fi
 # is given (on a CPU the measles model alone takes minutes: the session script's table has it).
 pomp_status=0
 if [ "$gpu" = yes ] || [ -n "${PFX_POMP_ARGS:-}" ]; then
-    pomp_args=${PFX_POMP_ARGS:-"--no-numpy --models cholera measles --jax cholera measles --trials 64"}
+    pomp_args=${PFX_POMP_ARGS:-"--no-numpy --models measles cholera --jax measles cholera --trials 64"}
     limit=${PFX_POMP_TIMEOUT:-200}
+    # pypomp beside pfx on the same card, where its wheel came along: its calls of 64 replicates side by side
+    if [ -z "${PFX_POMP_ARGS:-}" ] && "$python" -c 'import pypomp' >/dev/null 2>&1; then
+        pomp_args="$pomp_args --pypomp-python $python --replicates 2 --pypomp-batch 64"
+        limit=${PFX_POMP_TIMEOUT:-300}
+    fi
     say "pomp_speed_session.py $pomp_args (at most $limit s) > $out/pomp.txt"
     started=$SECONDS
     # shellcheck disable=SC2086  # the arguments are words

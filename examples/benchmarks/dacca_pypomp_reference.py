@@ -12,9 +12,11 @@ per J:
   the figure pfx's trials give beside it (pfx reports the mean over trials),
 * their log-mean-exp (pypomp's own summary: the log of the mean of the likelihood estimates,
   which are unbiased for the likelihood),
-* the wall time of one filter run, **excluding JAX's compilation**: one warm-up run per J is
-  timed separately (compilation plus a run) and left out; every replicate after it is one
-  ``pfilter(J, reps=1)`` call timed on its own.
+* the wall time of one filter run, **excluding JAX's compilation**: one warm-up call per J is
+  timed separately (compilation plus its runs) and left out; every replicate after it is one
+  ``pfilter(J, reps=1)`` call timed on its own. With ``--batch B`` each timed call is
+  ``pfilter(J, reps=B)``, ``--replicates`` calls make B x ``--replicates`` estimates, and a run's
+  time is its call's over B (on a GPU, the replicates side by side: ``make gpu-check``).
 
 It needs pypomp in its own environment (pfx never imports pypomp or JAX)::
 
@@ -46,12 +48,13 @@ def log_mean_exp(values: list[float]) -> float:
     return largest + math.log(sum(math.exp(v - largest) for v in values) / len(values))
 
 
-def one_filter_run(model, particles: int, key) -> tuple[float, float]:
-    """(the log-likelihood estimate, the wall seconds) of one pfilter run of ``particles``."""
+def filter_runs(model, particles: int, key, batch: int) -> tuple[list[float], float]:
+    """(the log-likelihood estimates, the wall seconds) of one pfilter call of ``batch`` runs of
+    ``particles`` (pypomp runs a call's replicates side by side, as pfx runs a cell's trials)."""
     started = time.perf_counter()
-    model.pfilter(J=particles, key=key, reps=1)
-    estimate = float(model.results_history[-1].logLiks.values.ravel()[0])   # on the host: finished
-    return estimate, time.perf_counter() - started
+    model.pfilter(J=particles, key=key, reps=batch)
+    estimates = [float(value) for value in model.results_history[-1].logLiks.values.ravel()]   # on the host: finished
+    return estimates, time.perf_counter() - started
 
 
 def main() -> None:
@@ -59,6 +62,8 @@ def main() -> None:
     parser.add_argument("--particles", type=int, nargs="+", default=[1000])
     parser.add_argument("--replicates", type=int, default=20)
     parser.add_argument("--seed", type=int, default=2008)
+    parser.add_argument("--batch", type=int, default=1,
+                        help="runs per pfilter call (reps); a run's time is the call's over the batch")
     arguments = parser.parse_args()
 
     import jax
@@ -71,13 +76,13 @@ def main() -> None:
     for particles in arguments.particles:
         model = pypomp.models.dacca()
         key, warm_up_key = jax.random.split(key)
-        warm_up_estimate, warm_up_seconds = one_filter_run(model, particles, warm_up_key)
+        warm_up_estimates, warm_up_seconds = filter_runs(model, particles, warm_up_key, arguments.batch)
         estimates, seconds = [], []
         for _ in range(arguments.replicates):
             key, run_key = jax.random.split(key)
-            estimate, elapsed = one_filter_run(model, particles, run_key)
-            estimates.append(estimate)
-            seconds.append(elapsed)
+            batch_estimates, elapsed = filter_runs(model, particles, run_key, arguments.batch)
+            estimates += batch_estimates
+            seconds.append(elapsed / arguments.batch)
         mean = statistics.fmean(estimates)
         standard_error = statistics.stdev(estimates) / math.sqrt(len(estimates))
         print(json.dumps({
@@ -91,7 +96,8 @@ def main() -> None:
             "seconds_per_run_median": round(statistics.median(seconds), 3),
             "seconds_per_run_mean": round(statistics.fmean(seconds), 3),
             "first_run_seconds_with_compilation": round(warm_up_seconds, 3),
-            "first_run_estimate": round(warm_up_estimate, 3),
+            "first_run_estimate": round(warm_up_estimates[0], 3),
+            "batch": arguments.batch,
             "estimates": [round(value, 3) for value in estimates],
         }), flush=True)
 

@@ -8,7 +8,8 @@ after the other, in one command:
 
 1. pypomp's reference scripts (``measles_pypomp_reference.py``, ``dacca_pypomp_reference.py``),
    run by the Python of an environment that has pypomp 1.1.0 (``--pypomp-python``): the median
-   time of ``--replicates`` filter runs after a warm-up run that compiles;
+   time of ``--replicates`` filter runs after a warm-up run that compiles (with
+   ``--pypomp-batch B``, of calls of B runs side by side, over B: a GPU's way);
 2. ``pfx run`` on the benchmarks' configs (numpy backend) with ``--trials`` runs in one batch
    (pfx's usual way: a cell's trials are rows of one batch, and the time per run is the batch's
    wall time divided by the runs) and with one run alone;
@@ -51,12 +52,20 @@ CASES = {   # model: (pypomp script, pfx config, particle counts)
 }
 
 
-def pypomp_seconds(python: str, script: str, particles: list[int], replicates: int) -> dict[int, float]:
-    """The median seconds per run of pypomp's reference script at each N (its JSON lines)."""
+def pypomp_seconds(python: str, script: str, particles: list[int], replicates: int, batch: int) -> dict[int, float]:
+    """The median seconds per run of pypomp's reference script at each N (its JSON lines), ``batch``
+    runs per pfilter call; {} with a line saying why where pypomp failed (pfx's rows still come)."""
     command = [python, str(REPOSITORY / "examples" / "benchmarks" / script), "--particles",
-               *map(str, particles), "--replicates", str(replicates)]
-    output = subprocess.run(command, check=True, capture_output=True, text=True).stdout
-    rows = [json.loads(line) for line in output.splitlines() if line.startswith("{")]
+               *map(str, particles), "--replicates", str(replicates), "--batch", str(batch)]
+    finished = subprocess.run(command, capture_output=True, text=True)
+    if finished.returncode != 0:
+        last = (finished.stderr.strip().splitlines() or ["no output"])[-1]
+        print(f"pypomp's {script} failed (exit {finished.returncode}): {last}", flush=True)
+        return {}
+    rows = [json.loads(line) for line in finished.stdout.splitlines() if line.startswith("{")]
+    for row in rows:
+        print(json.dumps({"pypomp": script, **{key: value for key, value in row.items() if key != "estimates"}}),
+              flush=True)
     return {row["particles"]: row["seconds_per_run_median"] for row in rows if "particles" in row}
 
 
@@ -96,7 +105,9 @@ def machine_line() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--pypomp-python", help="the python of an environment with pypomp 1.1.0 (without it: pfx only)")
-    parser.add_argument("--replicates", type=int, default=10, help="pypomp's timed runs after its warm-up")
+    parser.add_argument("--replicates", type=int, default=10, help="pypomp's timed calls after its warm-up")
+    parser.add_argument("--pypomp-batch", type=int, default=1,
+                        help="pypomp's runs per call (its reps), side by side as pfx's batch (a GPU: --trials)")
     parser.add_argument("--trials", type=int, default=8, help="pfx's runs in one batch")
     parser.add_argument("--models", nargs="+", default=sorted(CASES), choices=sorted(CASES), help="the models timed")
     parser.add_argument("--particles", nargs="+", type=int,
@@ -112,7 +123,7 @@ def main() -> None:
     for model in arguments.models:
         script, config, counts = CASES[model]
         counts = arguments.particles or counts
-        theirs = (pypomp_seconds(arguments.pypomp_python, script, counts, arguments.replicates)
+        theirs = (pypomp_seconds(arguments.pypomp_python, script, counts, arguments.replicates, arguments.pypomp_batch)
                   if arguments.pypomp_python else {})
         for particles in counts:
             timings = {}
@@ -125,10 +136,12 @@ def main() -> None:
             row = {"model": model, "N": particles}
             if theirs:
                 row["pypomp"] = theirs[particles]
+                if arguments.pypomp_batch > 1:
+                    row["pypomp replicates per second, once compiled"] = f"{1.0 / theirs[particles]:.3g}"
             for label, seconds in timings.items():
                 row[label] = f"{seconds:.3g}" + (f" ({seconds / theirs[particles]:.2f}x)" if theirs else "")
                 if label.endswith("once compiled"):
-                    row["jax replicates per second, once compiled"] = f"{1.0 / seconds:.3g}"
+                    row["pfx jax replicates per second, once compiled"] = f"{1.0 / seconds:.3g}"
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(f"after: {machine_line()}")

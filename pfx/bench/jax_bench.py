@@ -147,6 +147,7 @@ def time_jax_case(case: Case, implementations: list[Implementation], device: Dev
             started = time.perf_counter()
             if _call(row, calls[implementation.name]) is not None:
                 row.first_call = time.perf_counter() - started
+                progress(f"{case.label}: {implementation.name} first call {row.first_call:.3g} s")
 
     live = [row for row in rows if not row.note]
     for repeat in range(repeats):
@@ -163,6 +164,9 @@ def time_jax_case(case: Case, implementations: list[Implementation], device: Dev
             row.runs += 1
             row.spent += elapsed
             row.seconds = min(row.seconds, elapsed)
+            # the numbers as they come, so that a run stopped before its table still reports them
+            progress(f"{case.label}: {row.implementation.name} run {row.runs}: {elapsed:.3g} s, "
+                     f"{elapsed / row.particle_steps * 1e9:.3g} ns per particle-step")
             estimates, log_likelihoods = outcome
             row.rmse = float(np.sqrt(np.mean((estimates[..., 0] - case.truth[:row.trials, :, 0]) ** 2)))
             row.log_likelihood = float(np.mean(log_likelihoods))
