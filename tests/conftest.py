@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import importlib.metadata
 import importlib.util
 import io
 import logging
@@ -81,9 +82,23 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
 # XLA's own passes, which decide what is computed and in what order, are unchanged (no fast-math):
 # the same numbers, checked array for array on float64 and float32 runs (dacca-jax's cholera,
 # the ekf proposal, the regularising move). `pfx bench` and `make gpu-check` measure the programs
-# users get.
+# users get (gpu-check sets XLA_FLAGS, empty, for its tests too).
+# XLA stops the process, without a Python traceback, at a flag it does not know, and jaxlib 0.11
+# dropped the fusion-emitter switch (its MLIR emitters are the only ones): the switch is given only
+# to the jaxlib versions that have it.
+def _xla_flags() -> str:
+    try:
+        version = tuple(int(part) for part in importlib.metadata.version("jaxlib").split(".")[:2])
+    except (importlib.metadata.PackageNotFoundError, ValueError):
+        version = (0, 0)
+    flags = ["--xla_backend_optimization_level=1"]
+    if version < (0, 11):
+        flags.append("--xla_cpu_use_fusion_emitters=false")
+    return " ".join(flags)
+
+
 if "XLA_FLAGS" not in os.environ:
-    os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=1 --xla_cpu_use_fusion_emitters=false"
+    os.environ["XLA_FLAGS"] = _xla_flags()
 
 # The particle filter's backends, for ``@pytest.fixture(params=BACKENDS)``: the jax one is
 # skipped without the extra (found, not imported: a test imports JAX only when it runs on it).

@@ -330,7 +330,12 @@ def test_an_extended_jax_run_equals_a_fresh_one(tmp_path, tiny_config_dict, pfx_
     pfx.run(config, out=tmp_path / "extended")
     pfx.run(config, out=tmp_path / "fresh")
     tables = [pd.read_csv(tmp_path / name / "trials.csv").drop(columns=["run_time_s"]) for name in ("extended", "fresh")]
-    pd.testing.assert_frame_equal(*tables, check_exact=True)
+    import jax
+
+    if jax.default_backend() == "cpu":
+        pd.testing.assert_frame_equal(*tables, check_exact=True)
+    else:   # a GPU's reductions may take their order from the batch's shape (docs/backends.md): the last bits
+        pd.testing.assert_frame_equal(*tables, check_exact=False, rtol=1e-12, atol=0.0)
     (tmp_path / "transition_as_plugin.py").write_text(TRANSITION_PROPOSAL_PLUGIN)
     refused = pfx_in_process("run", str(tmp_path / "extended" / "config.yaml"), "--set",
                              f"plugins=[{tmp_path / 'transition_as_plugin.py'}]", "--set",

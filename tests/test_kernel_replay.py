@@ -46,6 +46,12 @@ What cannot replay, and why (left out):
   increments (~1e9) carry that inverse's condition number: they agree to ~1e-11 relative, not 1e-12. It is
   replayed on the linear model, whose 1x1 covariance is well conditioned.
 
+On a GPU the move cases are skipped: a move's kernel is scaled by a square root of the cloud's covariance,
+``V sqrt(L)`` from ``eigh`` (:func:`pfx.filters.particle.moves.square_root`), and eigenvectors are unique only
+up to sign. JAX on a CPU calls LAPACK as NumPy does and gets the same signs; on a GPU cuSOLVER may choose
+others, an equally valid square root (the kernels are symmetric) that turns the same draws into other moves.
+On an H200 the five move cases differed from the second step on; the other cases agreed to 1e-12 there too.
+
 The cases with an adaptive count (KLD) found the one discrepancy: the JAX driver took the uniform log-weight over
 the active particles, ``-log(n)`` (:func:`pfx.filters.particle.cloud.active_uniform`), of the int32 active count,
 which JAX computes in float32 even in a float64 run (increments off by up to ~6e-8); the count is now cast to
@@ -248,6 +254,9 @@ def _exercised(case: Case, result: Replay) -> None:
 
 @pytest.mark.parametrize("name", list(FEATURES))
 def test_both_drivers_compute_the_same_filter_from_the_same_draws(name):
+    if ("move" in name or "mcmc" in name) and jax.default_backend() != "cpu":
+        pytest.skip("the moves' square root of the cloud's covariance comes from eigh, whose eigenvectors are "
+                    "unique up to sign: on a GPU the JAX driver's (cuSOLVER's) signs differ from NumPy's (LAPACK's)")
     case = FEATURES[name].case()
     result = replay(case)
     _exercised(case, result)

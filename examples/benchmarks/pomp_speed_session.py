@@ -26,8 +26,10 @@ backend, replicates per second once compiled: one over a run's added time), with
 
     python examples/benchmarks/pomp_speed_session.py --pypomp-python /path/to/pypomp-env/bin/python --jax cholera
 
-Without ``--pypomp-python`` it times pfx alone; ``make gpu-check`` runs it that way on a GPU
-(``--no-numpy --jax cholera measles --trials 64``), for the replicates per second there.
+Without ``--pypomp-python`` it times pfx alone. ``make gpu-check`` runs it on a GPU with
+``--no-numpy --models measles cholera --jax measles cholera --trials 16``, and with pypomp's
+calls of 64 replicates side by side (``--pypomp-batch 64``) where pypomp imports, for the
+replicates per second there.
 """
 
 from __future__ import annotations
