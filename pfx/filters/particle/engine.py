@@ -30,6 +30,7 @@ stage; they only read.
 
 from __future__ import annotations
 
+import functools
 from typing import Optional
 
 import numpy as np
@@ -275,6 +276,16 @@ class ParticleFilter(ParticleKernel):
         return out
 
 
+@functools.lru_cache(maxsize=8)
+def uniform_rows(shape: tuple, value: float, dtype) -> np.ndarray:
+    """A read-only (R, N) array of one value: the uniform weights every resampled trial takes,
+    made once per run rather than at every step (no stage writes into a cloud's weights: each
+    makes its own)."""
+    rows = np.full(shape, value, dtype=dtype)
+    rows.flags.writeable = False
+    return rows
+
+
 class Rows(RowSelection):
     """The rows a stage acts on, as indices into the batch's ``total`` rows: only they are
     taken, draw and are written back (a copy: the step's earlier clouds stay as they were)."""
@@ -294,7 +305,9 @@ class Rows(RowSelection):
 
     def merge(self, new, old):
         if self.every:
-            return new if np.shape(new) == old.shape else np.full(old.shape, new, dtype=old.dtype)
+            if type(new) is np.ndarray and new.shape == old.shape:
+                return new
+            return uniform_rows(old.shape, new, old.dtype) if np.ndim(new) == 0 else np.full(old.shape, new, old.dtype)
         out = old.copy(order="K")
         out[self.rows] = new
         return out
