@@ -197,3 +197,38 @@ def test_a_table_that_ends_at_the_last_substep_read_is_enough(pfx_in_process, tm
     config = write_config_file(tmp_path, drift_config(tmp_path))
     result = pfx_in_process("run", config, "--out", tmp_path / "out", cwd=tmp_path)
     assert result.returncode == 0, result.output
+
+
+START_PLUGIN = DRIFT_PLUGIN.replace(
+    '"initial": pfx.PointLaw(state=[0.0])}',
+    '"initial": pfx.PointLaw(state=[float(self.covariates_at(self.start_time)[0])])}').replace(
+    'kind: Literal["drift"] = "drift"', 'kind: Literal["drift_from_start"] = "drift_from_start"').replace(
+    "class Drift(", "class DriftFromStart(")
+
+
+@pytest.mark.parametrize("with_measurements", [True, False])
+def test_presets_may_read_the_covariates_at_the_start_of_a_record_that_starts_late(pfx_in_process, tmp_path,
+                                                                                    with_measurements):
+    """docs/plugins.md: presets may read a covariate at ``start_time`` (t_0), which with recorded
+    data is the data's first time less dt. Before the data's times are attached, presets run once
+    with t_0 = 0, outside a table of 1950's: that provisional lookup may not fail the model (its
+    fields are derived again from the data's times). Without recorded data t_0 really is 0, and the
+    table's span check refuses the run, naming the covariates."""
+    (tmp_path / "drift.csv").write_text("time,drift\n1949,7\n1956,14\n")
+    config = drift_config(tmp_path)
+    (tmp_path / "drift_from_start.py").write_text(START_PLUGIN)
+    config["plugins"] = ["drift_from_start.py"]
+    config["model"] = {"kind": "drift_from_start", "steps": 6}
+    if with_measurements:
+        (tmp_path / "z.csv").write_text("time,z1\n" + "".join(f"{1949 + k},{k}\n" for k in range(1, 7)))
+        config["data"]["measurements"] = "z.csv"
+    path = write_config_file(tmp_path, config)
+    result = pfx_in_process("validate", path, cwd=tmp_path)
+    if with_measurements:
+        assert result.returncode == 0, result.output
+        model = build_plan(path).cells[0].filter_model
+        assert model.start_time == 1949.0
+        assert model.initial.state == [7.0]             # the covariate at t_0 = 1949, not at the provisional 0
+    else:
+        assert result.returncode == 2, result.output
+        assert "covariates" in result.output and "from 1949 to 1956" in result.output, result.output

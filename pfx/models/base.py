@@ -110,7 +110,8 @@ class Model(TimeAxis, BaseModel):
         """The fields holding what :meth:`presets` derives (left out, or given equal to it): a
         model rebuilt from the other fields derives them again, so that they follow a changed
         parameter (a filter's model with its own overrides, a PMMH chain's stationary initial law)."""
-        return {name for name, value in self.presets().items() if plain_data(getattr(self, name)) == plain_data(value)}
+        return {name for name, value in self.derived_presets().items()
+                if plain_data(getattr(self, name)) == plain_data(value)}
 
     def check(self) -> None:
         """Cross-field checks; raise ValueError('@key: reason')."""
@@ -216,6 +217,7 @@ class Model(TimeAxis, BaseModel):
     _recorded_times: Optional[np.ndarray] = PrivateAttr(None)    # set by use_recorded_times
     _transition_density: Any = PrivateAttr(None)                   # derived on first use (transition_density)
     _covariate_table: Optional[tuple[np.ndarray, np.ndarray]] = PrivateAttr(None)   # (times, values (n, c))
+    _provisional_times: bool = PrivateAttr(False)   # presets running before recorded times may come (derived_presets)
 
     def control(self, step: int) -> Optional[np.ndarray]:
         """The control input u_k applied between step k-1 and step k (k = 1..T)."""
@@ -431,7 +433,7 @@ class Model(TimeAxis, BaseModel):
     @model_validator(mode="after")
     def _resolve(self) -> "Model":
         self._covariate_table = covariate_table(self)     # first: presets may read the covariates
-        for name, value in self.presets().items():
+        for name, value in self.derived_presets().items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
         if self.dt is None:     # a model without a time step of its own counts time in steps

@@ -131,7 +131,7 @@ class TimeAxis:
         """Set ``fields`` (some of the model's ``preset_fields()``, found before a change of what
         its presets read, such as the recorded times) to what ``presets()`` derives now, and redo
         what follows from them (checks, the laws' binding, ``setup()``); nothing when none changes."""
-        values = self.presets() if fields else {}
+        values = self.derived_presets() if fields else {}
         changed = {name: values[name] for name in fields
                    if name in values and plain_data(values[name]) != plain_data(getattr(self, name))}
         if not changed:
@@ -139,6 +139,19 @@ class TimeAxis:
         for name, value in changed.items():
             object.__setattr__(self, name, value)
         self._bind_and_set_up()
+
+    def derived_presets(self) -> dict:
+        """``presets()``, as pfx calls it. Until recorded data's times are attached, the times
+        are provisional (t_0 = 0), and presets that read a covariate at :attr:`start_time` may
+        ask outside a table that starts later (a record of 1950's): such a lookup gives the
+        table's nearest end rather than failing the model. The values are never used by a run:
+        the presets are derived again from the data's times (:meth:`use_recorded_times`), and
+        without recorded data t_0 really is 0 and :meth:`check_covariate_span` refuses the run."""
+        self._provisional_times = self._recorded_times is None
+        try:
+            return self.presets()
+        finally:
+            self._provisional_times = False
 
     @property
     def start_time(self) -> float:
@@ -199,7 +212,7 @@ class TimeAxis:
             return _interpolate_traced(self._covariate_table, time, xp)
         times, values = self._covariate_table
         slack = time_slack(times)
-        if not times[0] - slack <= time <= times[-1] + slack:
+        if not times[0] - slack <= time <= times[-1] + slack and not self._provisional_times:
             raise ValueError(f"model {self.kind}: covariates asked at time {time:.12g}, outside their table "
                              f"({times[0]:.12g} to {times[-1]:.12g})")
         time = min(max(time, times[0]), times[-1])      # an end's row, for a time within the slack of it
