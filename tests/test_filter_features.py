@@ -74,9 +74,8 @@ MISSING_STEPS = ((0, 3), (0, 4), (None, 6), (1, 9), (2, STEPS))
 
 @dataclass(frozen=True)
 class Case:
-    """One run of the matrix: a config's model and filter, the recording (made fresh for each of the
-    two runs: snapshot and forecast requests keep what they record), the measurements made missing,
-    and ``exercised(run)``, which asserts that the case reached its feature."""
+    """One run of the matrix: a config's model and filter, the recording, the measurements made
+    missing, and ``exercised(run)``, which asserts that the case reached its feature."""
 
     model: dict
     filter: dict
@@ -218,11 +217,11 @@ def _energy_score(run: Run) -> None:
 
 def _forecasts(run: Run) -> None:
     forecasts = run.trace.forecasts
-    assert forecasts and len(forecasts["row"]) > 0 and run.recording.forecast.samples
+    assert forecasts and len(forecasts["row"]) > 0 and run.trace.forecast_samples and run.trace.forecast_clouds
 
 
 def _snapshots(run: Run) -> None:
-    assert {cloud["stage"] for cloud in run.recording.snapshot.clouds} == STAGES
+    assert {cloud.stage for cloud in run.trace.snapshots} == STAGES
 
 
 def _traced(run: Run) -> None:

@@ -9,7 +9,7 @@
   covariance is the weighted covariance of the recorded weighted cloud about the estimate, and
   the NIS that of the recorded predicted cloud with the previous step's weights, both
   recomputed on the host from first principles; NaN where the measurement is missing, as on
-  numpy. The snapshots of the same run hold those clouds and weights.
+  numpy. The snapshots the same run returns (``trace.snapshots``) hold those clouds and weights.
 * **particles.csv.** A config with ``outputs.particles`` on jax runs through the command line
   and writes the rows and columns the same config writes on numpy.
 * **pfx.filter.** ``consistency=True`` on jax returns the NIS and the covariances.
@@ -24,6 +24,7 @@ from conftest import write_config_file
 
 import pfx
 from pfx.filters.particle.recorders import SnapshotRequest
+from pfx.filters.trace import Snapshot
 from pfx.numerics.quadratic_forms import normalised_squares
 from pfx.numerics.seeding import TrialStreams
 
@@ -131,22 +132,22 @@ def test_the_nis_is_that_of_the_predicted_cloud_with_the_previous_weights(never_
 
 def test_the_snapshots_hold_the_clouds_of_their_stages(never_resampling):
     _, _, trace, snapshot = never_resampling
-    clouds = {(cloud["stage"], cloud["step"]): cloud for cloud in snapshot.clouds}
-    order = [(cloud["stage"], cloud["step"]) for cloud in snapshot.clouds]
+    clouds = {(cloud.stage, cloud.step): cloud for cloud in trace.snapshots}
+    order = [(cloud.stage, cloud.step) for cloud in trace.snapshots]
     assert order == [("prior", 0)] + [(stage, step) for step in range(1, STEPS + 1)
                                       for stage in ("predicted", "weighted", "resampled")]
-    assert all(set(cloud) == {"stage", "step", "rows", "state", "weights"} for cloud in snapshot.clouds)
-    np.testing.assert_array_equal(clouds[("prior", 0)]["weights"], np.full((1, 64), 1 / 64))
+    assert all(isinstance(cloud, Snapshot) and list(cloud.rows) == [1] for cloud in trace.snapshots)
+    np.testing.assert_array_equal(clouds[("prior", 0)].weights, np.full((1, 64), 1 / 64))
     weights = np.exp(trace.log_weights[1])
     for step in range(1, STEPS + 1):
         weighted = clouds[("weighted", step)]
-        assert weighted["state"].shape == (1, 64, 2) and weighted["state"].dtype == np.float64
-        np.testing.assert_array_equal(weighted["state"][0], trace.particles[1, step - 1])
-        np.testing.assert_allclose(weighted["weights"][0], weights[step - 1], rtol=1e-12)
+        assert weighted.state.shape == (1, 64, 2) and weighted.state.dtype == np.float64
+        np.testing.assert_array_equal(weighted.state[0], trace.particles[1, step - 1])
+        np.testing.assert_allclose(weighted.weights[0], weights[step - 1], rtol=1e-12)
         previous = weights[step - 2] if step > 1 else np.full(64, 1 / 64)
-        np.testing.assert_allclose(clouds[("predicted", step)]["weights"][0], previous, rtol=1e-12)
-        np.testing.assert_array_equal(clouds[("predicted", step)]["state"], weighted["state"])
-        np.testing.assert_array_equal(clouds[("resampled", step)]["state"], weighted["state"])
+        np.testing.assert_allclose(clouds[("predicted", step)].weights[0], previous, rtol=1e-12)
+        np.testing.assert_array_equal(clouds[("predicted", step)].state, weighted.state)
+        np.testing.assert_array_equal(clouds[("resampled", step)].state, weighted.state)
 
 
 # -- particles.csv through the command line -----------------------------------------------------------

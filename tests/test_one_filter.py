@@ -101,7 +101,7 @@ def test_the_genealogy_names_the_particle_each_one_was_propagated_from():
     ancestors = trace.ancestors
     assert ancestors.shape == (2, 12, particles) and ancestors.dtype == np.int32
     np.testing.assert_array_equal(ancestors[:, 0], np.broadcast_to(np.arange(particles), (2, particles)))
-    clouds = {(cloud["stage"], cloud["step"]): cloud["state"][..., 0] for cloud in snapshot.clouds}
+    clouds = {(cloud.stage, cloud.step): cloud.state[..., 0] for cloud in trace.snapshots}
     resampled_somewhere = False
     for k in range(2, 13):
         before, after = clouds[("weighted", k - 1)], clouds[("predicted", k)]

@@ -64,6 +64,8 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
     draws = posterior_draws(chains, columns, forecasts.trials)
     settings = target.cell.filter
     origins = origin_steps(forecasts, np.asarray(target.cell.filter_model.times(), dtype=float))
+    request = ForecastRequest(rows=np.array([0]), origins=origins, horizons=tuple(forecasts.horizons),
+                              quantiles=tuple(forecasts.quantiles))      # the same for every draw
     by_place: dict[tuple[int, int], list] = {}
     frames = []
     left_out: list[str] = []
@@ -72,18 +74,17 @@ def posterior_forecasts(target, chains: pd.DataFrame, forecasts: ForecastOutputs
         if model is None:            # a draw the model refuses cannot have been accepted; kept for safety
             left_out.append(f"draw {index}: the model refuses its parameters")
             continue
-        request = ForecastRequest(rows=np.array([0]), origins=origins, horizons=tuple(forecasts.horizons),
-                                  quantiles=tuple(forecasts.quantiles))
         prior = target.prior_of(model)
         random = TrialStreams.from_seeds([posterior_forecast_seed(root_seed, cell_key, index)])
         try:
             planned = FILTERS[settings.kind].plan(model, settings, prior)
-            summarised = planned.run(model, target.measurements[None], random, settings=settings, prior=prior,
-                                     forecast=request).forecasts     # one row per sample, in their order
+            trace = planned.run(model, target.measurements[None], random, settings=settings, prior=prior,
+                                forecast=request)
         except ModelNumericalError as error:
             left_out.append(f"draw {index}: {error}")
             continue
-        for position, sample in enumerate(request.samples):
+        summarised = trace.forecasts            # one row per sample, in their order
+        for position, sample in enumerate(trace.forecast_samples):
             by_place.setdefault((sample.origin, sample.horizon), []).append(sample)
             frames.append({"draw": str(index), "chain": int(draw["chain"]), "iteration": int(draw["iteration"]),
                            **{name: float(draw[name]) for name in columns}, **_place(sample),

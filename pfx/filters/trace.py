@@ -14,7 +14,7 @@ own running sum, as it always was; the increments add up to it to rounding.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import numpy as np
 
@@ -47,6 +47,31 @@ class Predictive:
         return cls(mean=blank(trials, steps, dimension), sd=blank(trials, steps, dimension),
                    crps=blank(trials, steps, dimension), pit=blank(trials, steps, dimension),
                    energy_score=blank(trials, steps) if energy else None, log_score=blank(trials, steps))
+
+
+@dataclass(frozen=True, eq=False)
+class Snapshot:
+    """One kept particle cloud (``outputs.particles``, particles.csv): the rows of the batch a
+    :class:`~pfx.filters.particle.recorders.SnapshotRequest` names, at one stage of one step.
+
+    ``stage``: ``prior`` (step 0), ``predicted``, ``weighted`` or ``resampled``; ``rows`` (r,) the
+    batch rows; ``state`` (r, N, d) and ``weights`` (r, N) (float64 on the jax backend at either
+    precision; the NumPy engine's own arrays, copied).
+    """
+
+    stage: str
+    step: int
+    rows: np.ndarray
+    state: np.ndarray
+    weights: np.ndarray
+
+
+class WeightedCloud(NamedTuple):
+    """The weighted cloud (after the weight update, before resampling) of a forecast request's
+    rows at one origin step, float64: what :mod:`pfx.filters.particle.forecasting` forecasts from."""
+
+    state: np.ndarray          # (r, N, d)
+    log_weights: np.ndarray    # (r, N), normalised
 
 
 @dataclass
@@ -97,6 +122,14 @@ class FilterTrace:
     # forecasts from the weighted clouds, when asked for (pfx.filters.particle.forecasting): columns
     # of equal length, one row per forecast trial, origin and horizon; None otherwise
     forecasts: Optional[dict] = None
+    # particle filters, when asked for: the kept particle clouds (a SnapshotRequest, outputs.particles),
+    # a list of :class:`Snapshot` in the order recorded (the prior's, then each step's stages in
+    # their order); the weighted clouds to forecast from (a ForecastRequest), origin step ->
+    # :class:`WeightedCloud`, and the forecasts' weighted samples made from them (a list of
+    # pfx.filters.particle.forecasting.ForecastSample, by origin then horizon). None otherwise
+    snapshots: Optional[list] = None
+    forecast_clouds: Optional[dict] = None
+    forecast_samples: Optional[list] = None
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

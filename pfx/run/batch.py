@@ -4,7 +4,8 @@
 on all of them in one call, and returns the batch's table rows: one row per trial
 (trials.csv), the full per-step traces of the traced trials (steps.csv), the kept particle
 clouds (particles.csv) and every trial's per-step values (for steps_summary.csv). It is what an
-executor sends to a worker, so it depends on nothing but its arguments.
+executor sends to a worker, so it depends on nothing but its arguments. What the filter keeps
+(the particle clouds, the forecasts) it returns in its trace; the requests only say what to keep.
 
 With recorded data (``cell.data``, :mod:`pfx.config.data`) nothing is simulated: every trial
 filters the recorded measurements (trials replicate the filter's randomness), and the truth is
@@ -28,6 +29,7 @@ from pfx.config.plan import Cell
 from pfx.config.schema import ParticleSnapshots
 from pfx.filters.particle.forecasting import ForecastRequest
 from pfx.filters.particle.recorders import SnapshotRequest, SpreadCriterion
+from pfx.filters.trace import Snapshot
 from pfx.models.simulation import simulate_truth
 from pfx.numerics.seeding import TrialStreams, filter_seed, truth_seed
 
@@ -85,7 +87,7 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
                          **metrics, "run_time_s": elapsed / len(trials)})
     with np.errstate(over="ignore", invalid="ignore"):
         steps = _steps_frame(cell, trials, traced, truth, trace, measurements, genealogy_trials)
-    particles = _particles_frame(cell, trials, snapshot) if snapshot is not None else None
+    particles = _particles_frame(cell, trials, trace.snapshots) if snapshot is not None else None
     genealogy = _genealogy_frame(cell, trials, written, trace) if written else None
     forecast_rows = _forecasts_frame(cell, trials, trace.forecasts) if forecast is not None else None
     return BatchResult(cell.key, rows, steps, elapsed, particles, step_values(truth, trace, model), genealogy,
@@ -162,18 +164,19 @@ def _truth_and_measurements(cell: Cell, truth_seeds: list[int]):
     return repeated(cell.data.truth), repeated(cell.data.measurements), repeated(cell.data.observed)
 
 
-def _particles_frame(cell: Cell, trials: list[int], snapshot: SnapshotRequest) -> pd.DataFrame:
-    """particles.csv rows: one per kept particle (cell, labels, trial, step, stage, particle, state, weight)."""
+def _particles_frame(cell: Cell, trials: list[int], snapshots: list[Snapshot]) -> pd.DataFrame:
+    """particles.csv rows: one per kept particle (cell, labels, trial, step, stage, particle, state,
+    weight), from the trace's kept clouds (``FilterTrace.snapshots``)."""
     names = cell.filter_model.state_names
     frames = []
-    for cloud in snapshot.clouds:
-        rows, n = cloud["state"].shape[:2]
+    for cloud in snapshots:
+        rows, n = cloud.state.shape[:2]
         columns = {"cell": cell.key, **cell.labels,
-                   "trial": np.repeat([trials[r] for r in cloud["rows"]], n),
-                   "step": cloud["step"], "stage": cloud["stage"], "particle": np.tile(np.arange(n), rows)}
+                   "trial": np.repeat([trials[r] for r in cloud.rows], n),
+                   "step": cloud.step, "stage": cloud.stage, "particle": np.tile(np.arange(n), rows)}
         for j, name in enumerate(names):
-            columns[name] = cloud["state"][..., j].ravel()
-        columns["weight"] = cloud["weights"].ravel()
+            columns[name] = cloud.state[..., j].ravel()
+        columns["weight"] = cloud.weights.ravel()
         frames.append(pd.DataFrame(columns))
     return pd.concat(frames, ignore_index=True)
 

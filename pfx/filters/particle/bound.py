@@ -36,7 +36,7 @@ import numpy as np
 
 from pfx.filters.particle.auxiliary import AuxiliaryFirstStage
 from pfx.filters.particle.engine import ParticleFilter
-from pfx.filters.particle.forecasting import forecast_table
+from pfx.filters.particle.forecasting import forecast_samples, forecast_table
 from pfx.filters.particle.jax_support import check_jax_settings
 from pfx.filters.particle.recorders import Recording
 from pfx.filters.particle.resampling import RESAMPLERS, Resampling
@@ -91,7 +91,9 @@ class BoundParticleFilter:
             for smoother in self.smoothers:     # after the filter's draws, from the same streams
                 trace.smoothed[smoother.label] = smoother.smooth(history, self.model, random)
         if recording.forecast is not None:      # from the kept clouds, on the forecast streams
-            trace.forecasts = forecast_table(self.model, recording.forecast, measurements, random)
+            trace.forecast_samples = forecast_samples(self.model, recording.forecast, trace.forecast_clouds,
+                                                      measurements, random)
+            trace.forecasts = forecast_table(self.model, recording.forecast, trace.forecast_samples)
         return trace
 
 

@@ -23,39 +23,42 @@ apart from the filter's, so a run with forecasts filters exactly as one without.
 reach past the record's last step are left out: the model's time axis (its controls, covariates
 and substep times) ends there.
 
-The clouds come from the engine that ran the filter (:class:`ForecastRequest` names the rows and
-origin steps to keep), so forecasts are the same on either backend: this module runs on the host,
-with NumPy, on the model's own methods.
+The clouds come from the engine that ran the filter: :class:`ForecastRequest` names the rows and
+origin steps to keep (a description only, frozen), and the engine returns their clouds in its
+trace (``FilterTrace.forecast_clouds``, origin step -> :class:`~pfx.filters.trace.WeightedCloud`).
+So forecasts are the same on either backend: this module runs on the host, with NumPy, on the
+model's own methods. After the run, :func:`forecast_samples` propagates the clouds (the trace
+keeps the samples, ``FilterTrace.forecast_samples``: posterior forecasts pool them) and
+:func:`forecast_table` summarises them (``FilterTrace.forecasts``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import logsumexp
 
+from pfx.filters.particle.recorders import read_only_rows
 from pfx.filters.particle.resampling import inverse_cdf
 from pfx.numerics.proper_scores import sample_crps, sample_energy_score, sample_pit, weighted_moments
 from pfx.numerics.seeding import FORECAST_STREAM
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class ForecastRequest:
     """Which forecasts to make: from the weighted clouds of the batch's ``rows`` at the
-    ``origins`` (steps), ``horizons`` steps ahead, summarised by ``quantiles``. The engine keeps
-    each origin's cloud of those rows in ``clouds``: step -> (state (r, N, d), log-weights (r, N))."""
+    ``origins`` (steps), ``horizons`` steps ahead, summarised by ``quantiles``. A description
+    only: the engine returns each origin's cloud of those rows in its trace
+    (``FilterTrace.forecast_clouds``)."""
 
     rows: np.ndarray
     origins: frozenset
     horizons: tuple
     quantiles: tuple
-    clouds: dict = field(default_factory=dict)
-    samples: list = field(default_factory=list)     # the forecasts' weighted samples, once made
 
-    def keep(self, step: int, state: np.ndarray, log_weights: np.ndarray) -> None:
-        if step in self.origins:
-            self.clouds[step] = (np.array(state[self.rows], dtype=float), np.array(log_weights[self.rows], dtype=float))
+    def __post_init__(self):
+        object.__setattr__(self, "rows", read_only_rows(self.rows))
 
 
 def weighted_quantiles(values: np.ndarray, weights: np.ndarray, probabilities) -> np.ndarray:
@@ -96,15 +99,16 @@ class ForecastSample:
     uniform: np.ndarray
 
 
-def forecast_samples(model, request: ForecastRequest, measurements: np.ndarray, random) -> list[ForecastSample]:
+def forecast_samples(model, request: ForecastRequest, clouds: dict, measurements: np.ndarray,
+                     random) -> list[ForecastSample]:
     """Every forecast of ``request`` as its weighted sample, by origin then horizon (module
-    docstring). ``measurements`` (R, T, m) are the batch's; ``random`` the batch's streams (the
-    forecast streams derive from them)."""
+    docstring), from the kept ``clouds`` (``FilterTrace.forecast_clouds``). ``measurements``
+    (R, T, m) are the batch's; ``random`` the batch's streams (the forecast streams derive from them)."""
     steps = measurements.shape[1]
     streams = random.derived(FORECAST_STREAM).subset(request.rows)
     samples = []
-    for origin in sorted(request.clouds):
-        state, log_weights = request.clouds[origin]
+    for origin in sorted(clouds):
+        state, log_weights = clouds[origin]
         weights = np.exp(log_weights - logsumexp(log_weights, axis=-1, keepdims=True))
         reachable = [h for h in sorted(request.horizons) if origin + h <= steps]
         for horizon in range(1, max(reachable, default=0) + 1):
@@ -165,13 +169,12 @@ def summaries(model, sample: ForecastSample, quantiles) -> dict[str, np.ndarray]
     return columns
 
 
-def forecast_table(model, request: ForecastRequest, measurements: np.ndarray, random) -> dict[str, np.ndarray]:
-    """Every forecast of ``request`` as columns of equal length (one row per forecast trial,
-    origin and horizon): ``row`` (the batch row), ``origin``, ``horizon``, ``step``, then
-    :func:`summaries`'s columns."""
+def forecast_table(model, request: ForecastRequest, samples: list[ForecastSample]) -> dict[str, np.ndarray]:
+    """The forecasts' ``samples`` (:func:`forecast_samples`) as columns of equal length, one row per
+    forecast trial, origin and horizon, in the samples' order: ``row`` (the batch row), ``origin``,
+    ``horizon``, ``step``, then :func:`summaries`'s columns (at the request's quantiles)."""
     rows = []
-    request.samples = forecast_samples(model, request, measurements, random)
-    for sample in request.samples:
+    for sample in samples:
         count = len(sample.rows)
         rows.append({"row": sample.rows, "origin": np.full(count, sample.origin),
                      "horizon": np.full(count, sample.horizon), "step": np.full(count, sample.origin + sample.horizon),

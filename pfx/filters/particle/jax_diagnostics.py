@@ -1,5 +1,5 @@
 r"""The jax backend's diagnostics: what its compiled step records besides the estimate, and how
-the host turns that into the trace and the requests' records.
+the host turns that into the trace.
 
 The NumPy driver calls recorders with each step's clouds, stage by stage
 (:mod:`pfx.filters.particle.recorders`). The compiled step
@@ -9,7 +9,8 @@ output of the step instead, computed only where a static flag asks for it: each 
 hands :func:`step_diagnostics` its clouds at the recorders' stages
 (:class:`~pfx.filters.particle.kernel.StageClouds`); after
 the scan, :func:`fill_trace` turns the outputs, (T, trials, ...), into the trace's fields,
-(trials, T, ...), and the requests' records, as the recorders fill them:
+(trials, T, ...), as the recorders fill them (the kept snapshots and forecast clouds included:
+the requests only describe them):
 
 ====================  ===========================  ==============================================
 diagnostic            asked for by                 the step's output
@@ -31,7 +32,8 @@ namespace (:func:`~pfx.filters.particle.recorders.posterior_covariance`,
 :func:`~pfx.filters.particle.recorders.innovation_squared`), and computed in float64 whatever the
 precision, as the trace keeps them. Snapshots keep only the request's rows, at every step (a
 scan's outputs are per step); the host keeps the steps asked for, in the NumPy recorder's order
-and form (:meth:`~pfx.filters.particle.recorders.SnapshotRequest.add`).
+and form (:meth:`~pfx.filters.particle.recorders.SnapshotRequest.snapshot`), in
+``FilterTrace.snapshots``; the forecast origins' clouds go to ``FilterTrace.forecast_clouds``.
 
 This module is written against the array namespace (:mod:`pfx.numerics.arrays`) and imports no
 JAX: the engine, which does, imports it.
@@ -45,7 +47,7 @@ import numpy as np
 
 from pfx.filters.particle.kernel import StageClouds
 from pfx.filters.particle.recorders import innovation_squared, posterior_covariance
-from pfx.filters.trace import Predictive
+from pfx.filters.trace import Predictive, WeightedCloud
 from pfx.numerics.angles import wrap_difference
 from pfx.numerics.arrays import namespace, with_values
 
@@ -176,36 +178,40 @@ def by_trial(values) -> Optional[np.ndarray]:
 
 
 def fill_trace(trace, outputs, recording, observed: np.ndarray, particles: int) -> None:
-    """The trace's fields and the requests' records that come from the diagnostics' outputs:
-    the predictive law, the forecast clouds, the covariances and NIS, the snapshots.
-    ``observed``: (R, T), whether z_k is there; ``particles``: N."""
+    """The trace's fields that come from the diagnostics' outputs: the predictive law, the
+    forecast clouds, the covariances and NIS, the snapshots. ``observed``: (R, T), whether z_k is
+    there; ``particles``: N."""
     steps = observed.shape[1]
     if outputs.predictive is not None:
         trace.predictive = _predictive(outputs.predictive, observed)
     if recording.forecast is not None:          # the origins' clouds, for the host's forecasts
-        for step in sorted(recording.forecast.origins):
-            if 1 <= step <= steps:
-                recording.forecast.clouds[step] = (np.array(outputs.forecast_particles[step - 1], dtype=float),
-                                                   np.array(outputs.forecast_log_weights[step - 1], dtype=float))
+        trace.forecast_clouds = {
+            step: WeightedCloud(np.array(outputs.forecast_particles[step - 1], dtype=float),
+                                np.array(outputs.forecast_log_weights[step - 1], dtype=float))
+            for step in sorted(recording.forecast.origins) if 1 <= step <= steps}
     if outputs.covariance is not None:
         trace.covariances = by_trial(outputs.covariance).astype(float)
         trace.nis = by_trial(outputs.nis).astype(float)
     if recording.snapshot is not None:
-        _keep_snapshots(recording.snapshot, outputs, steps, particles)
+        trace.snapshots = _snapshots(recording.snapshot, outputs, steps, particles)
 
 
-def _keep_snapshots(request, outputs, steps: int, particles: int) -> None:
-    """Append the kept clouds to the request, as the NumPy recorder does: the prior's at step 0,
-    then each step's stages in their order; states and weights in float64."""
+def _snapshots(request, outputs, steps: int, particles: int) -> list:
+    """The kept clouds, as the NumPy recorder keeps them: the prior's at step 0, then each step's
+    stages in their order; states and weights in float64."""
     rows = len(request.rows)
+    kept_clouds = []
     if outputs.prior_snapshot is not None:
-        request.add("prior", 0, np.array(outputs.prior_snapshot, dtype=float), np.full((rows, particles), 1.0 / particles))
+        kept_clouds.append(request.snapshot("prior", 0, np.array(outputs.prior_snapshot, dtype=float),
+                                            np.full((rows, particles), 1.0 / particles)))
     kept = outputs.snapshots or {}
     for step in range(1, steps + 1):
         for stage in STEP_STAGES:
             if stage in kept and request.wants(stage, step):
                 state, weights = kept[stage]
-                request.add(stage, step, np.array(state[step - 1], dtype=float), np.array(weights[step - 1], dtype=float))
+                kept_clouds.append(request.snapshot(stage, step, np.array(state[step - 1], dtype=float),
+                                                    np.array(weights[step - 1], dtype=float)))
+    return kept_clouds
 
 
 def _predictive(outputs: dict, observed: np.ndarray) -> Predictive:

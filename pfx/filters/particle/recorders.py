@@ -10,55 +10,69 @@ for costs nothing.
   ``spread``) and, for the spread convergence criterion, the share within a radius;
 * :class:`StandardDeviationRecorder`: the posterior standard deviation of each component;
 * :class:`ConsistencyRecorder`: the weighted posterior covariance and the NIS (for NEES and NIS);
-* :class:`SnapshotRecorder`: the particle clouds a :class:`SnapshotRequest` asks for.
+* :class:`SnapshotRecorder`: the particle clouds a :class:`SnapshotRequest` asks for;
+* :class:`ForecastRecorder`: the weighted clouds a forecast request
+  (:class:`~pfx.filters.particle.forecasting.ForecastRequest`) forecasts from.
+
+A request is a description only (frozen: rows, steps, stages; rows, origins, horizons): what a
+run keeps comes back as values in its trace (``FilterTrace.snapshots``, a list of
+:class:`~pfx.filters.trace.Snapshot`; ``FilterTrace.forecast_clouds``, origin step ->
+:class:`~pfx.filters.trace.WeightedCloud`), so one request may serve any number of runs.
 
 What the jax backend computes alike is written here once: the posterior covariance and the NIS
 (:func:`posterior_covariance`, :func:`innovation_squared`) in the array namespace
-(:mod:`pfx.numerics.arrays`), and which clouds a request keeps, in what form
-(:meth:`SnapshotRequest.wants`, :meth:`SnapshotRequest.add`);
+(:mod:`pfx.numerics.arrays`), and which clouds a snapshot request keeps, in what form
+(:meth:`SnapshotRequest.wants`, :meth:`SnapshotRequest.snapshot`);
 :mod:`pfx.filters.particle.jax_diagnostics` calls them inside and after its compiled scan.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
 from pfx.filters.particle.cloud import active_uniform, weighted_mean
+from pfx.filters.trace import Snapshot, WeightedCloud
 from pfx.numerics.angles import wrap_difference
 from pfx.numerics.arrays import namespace
 from pfx.numerics.quadratic_forms import normalised_squares
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class SnapshotRequest:
-    """Which particle clouds to keep: trials (rows of the batch), steps, stages.
+    """Which particle clouds to keep: trials (rows of the batch), steps, stages. A description
+    only: the kept clouds come back in the run's trace (``FilterTrace.snapshots``).
 
     Stages: ``prior`` (step 0), ``predicted`` (after the transition, with the previous
     weights), ``weighted`` (after the weight update, before resampling) and ``resampled``
-    (after resampling and diffusion). Each kept cloud is appended to ``clouds`` as a dict with
-    keys stage, step, rows, state (len(rows), N, d) and weights (len(rows), N).
+    (after resampling and diffusion). Each kept cloud is a :class:`~pfx.filters.trace.Snapshot`
+    of the request's rows: state (len(rows), N, d) and weights (len(rows), N).
     """
 
     rows: np.ndarray
     steps: object                 # a collection of steps, or "all"
     stages: frozenset
-    clouds: list = field(default_factory=list)
+
+    def __post_init__(self):
+        object.__setattr__(self, "rows", read_only_rows(self.rows))
 
     def wants(self, stage: str, step: int) -> bool:
         """Whether the cloud of ``stage`` at ``step`` is kept (the prior's whenever step 0 is asked for)."""
         return (stage in self.stages or stage == "prior") and (self.steps == "all" or step in self.steps)
 
-    def keep(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
-        """Keep the requested rows of the batch's cloud (``state`` (trials, N, d), ``weights``), if wanted."""
-        if self.wants(stage, step):
-            self.add(stage, step, state[self.rows].copy(), weights[self.rows].copy())
+    def snapshot(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> Snapshot:
+        """The kept cloud of the request's rows: ``state`` (len(rows), N, d) and ``weights``
+        (len(rows), N), of those rows already and arrays of their own (kept as given)."""
+        return Snapshot(stage=stage, step=step, rows=self.rows, state=state, weights=weights)
 
-    def add(self, stage: str, step: int, state: np.ndarray, weights: np.ndarray) -> None:
-        """Append the requested rows' cloud, (len(rows), N, d) and (len(rows), N), as kept."""
-        self.clouds.append({"stage": stage, "step": step, "rows": self.rows, "state": state, "weights": weights})
+
+def read_only_rows(rows) -> np.ndarray:
+    """A request's rows of the batch: a read-only index array of its own (the caller's stays writable)."""
+    rows = np.array(rows, dtype=np.intp)
+    rows.flags.writeable = False
+    return rows
 
 
 @dataclass
@@ -148,13 +162,17 @@ class ConsistencyRecorder(Recorder):
 
 
 class SnapshotRecorder(Recorder):
-    """Keeps the particle clouds a :class:`SnapshotRequest` asks for."""
+    """Keeps the particle clouds a :class:`SnapshotRequest` asks for, in ``trace.snapshots``."""
 
     def __init__(self, request: SnapshotRequest):
         self.request = request
 
     def record(self, stage: str, step: int, run) -> None:
-        self.request.keep(stage, step, run.state, run.weights)
+        if stage == "prior":
+            run.trace.snapshots = []
+        if self.request.wants(stage, step):
+            rows = self.request.rows         # an index array: the rows are copies
+            run.trace.snapshots.append(self.request.snapshot(stage, step, run.state[rows], run.weights[rows]))
 
 
 def innovation_squared(model, measurement, state, weights):
@@ -230,8 +248,9 @@ class Recording:
     (``FilterTrace.ancestors``, (trials, T, N): memory T N per trial). ``scores``: the one-step-ahead
     predictive distribution of the measurement and its proper scores (``FilterTrace.predictive``,
     :mod:`pfx.filters.particle.predictive`; one measurement draw per particle and step, from
-    streams apart from the filter's). ``forecast``: the weighted clouds to forecast from (a
-    :class:`~pfx.filters.particle.forecasting.ForecastRequest`, which keeps them).
+    streams apart from the filter's). ``snapshot`` and ``forecast`` name what to keep, and the
+    trace holds it: ``FilterTrace.snapshots``, and the weighted clouds to forecast from,
+    ``FilterTrace.forecast_clouds`` (a :class:`~pfx.filters.particle.forecasting.ForecastRequest`).
     """
 
     spread_criterion: Optional[SpreadCriterion] = None
@@ -246,14 +265,19 @@ class Recording:
 
 class ForecastRecorder(Recorder):
     """Keeps the weighted clouds (before resampling) a forecast request asks for: its rows, at
-    its origin steps (:mod:`pfx.filters.particle.forecasting` forecasts from them after the run)."""
+    its origin steps, in ``trace.forecast_clouds`` (:mod:`pfx.filters.particle.forecasting`
+    forecasts from them after the run)."""
 
     def __init__(self, request):
         self.request = request
 
     def record(self, stage: str, step: int, run) -> None:
-        if stage == "weighted":
-            self.request.keep(step, run.state, run.log_weights)
+        if stage == "prior":
+            run.trace.forecast_clouds = {}
+        elif stage == "weighted" and step in self.request.origins:
+            rows = self.request.rows
+            run.trace.forecast_clouds[step] = WeightedCloud(np.array(run.state[rows], dtype=float),
+                                                            np.array(run.log_weights[rows], dtype=float))
 
 
 class HistoryRecorder(Recorder):
