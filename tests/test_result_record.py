@@ -25,6 +25,7 @@ from conftest import REPO_ROOT, tiny_config_dict, write_config_file
 
 from pfx.config.overrides import apply_overrides
 from pfx.config.plan import build_plan
+from pfx.papers.record import TIMING_COLUMN_PREFIXES
 from pfx.errors import ConfigError
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
@@ -95,7 +96,7 @@ def _tables(folder: Path) -> dict[str, pd.DataFrame]:
     tables = {}
     for path in sorted(folder.glob("*.csv")):
         frame = pd.read_csv(path)
-        tables[path.name] = frame[[c for c in frame.columns if "run_time" not in c]]
+        tables[path.name] = frame[[c for c in frame.columns if not c.startswith(TIMING_COLUMN_PREFIXES)]]
     return tables
 
 

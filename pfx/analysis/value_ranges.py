@@ -48,6 +48,7 @@ METRIC_RANGES: dict[str, ValueRange] = {
     "nis_*": NONNEGATIVE,
     "move_acceptance": UNIT_INTERVAL,
     "run_time_s": NONNEGATIVE,
+    "compile_time_s": NONNEGATIVE,
 }
 
 

@@ -130,6 +130,9 @@ class FilterTrace:
     snapshots: Optional[list] = None
     forecast_clouds: Optional[dict] = None
     forecast_samples: Optional[list] = None
+    # the seconds this run spent compiling its program (the jax backend's first run of a shape;
+    # 0 where a program was reused, and on numpy): trials.csv's compile_time_s, apart from run_time_s
+    compile_time_s: float = 0.0
 
     def posterior_standard_deviations(self) -> Optional[np.ndarray]:
         """(trials, T, d): the recorded standard deviations, else the square root of the

@@ -82,9 +82,14 @@ def run_batch(cell: Cell, seed: int, trials: list[int], trace_trials: int,
         metrics = compute_metrics(MetricInputs(truth=truth, trace=trace, model=cell.truth_model,
                                                config=cell.metrics, observed=observed))
     model = cell.truth_model
+    # the time a trial's run took; on the jax backend its program's compilation apart (a config on
+    # jax gets the column: docs/output-files.md), each trial its share of the batch's
+    timings = {"run_time_s": (elapsed - trace.compile_time_s) / len(trials)}
+    if "backend" in cell.labels:
+        timings["compile_time_s"] = trace.compile_time_s / len(trials)
     rows = pd.DataFrame({"cell": cell.key, **cell.labels, "trial": trials, "seed": seed,
                          "truth_seed": truth_seeds, "filter_seed": filter_seeds, "steps": model.steps,
-                         **metrics, "run_time_s": elapsed / len(trials)})
+                         **metrics, **timings})
     with np.errstate(over="ignore", invalid="ignore"):
         steps = _steps_frame(cell, trials, traced, truth, trace, measurements, genealogy_trials)
     particles = _particles_frame(cell, trials, trace.snapshots) if snapshot is not None else None
