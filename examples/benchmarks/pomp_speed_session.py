@@ -71,13 +71,16 @@ def pypomp_seconds(python: str, script: str, particles: list[int], replicates: i
     return {row["particles"]: row["seconds_per_run_median"] for row in rows if "particles" in row}
 
 
+COUNT_DRAWS = "exact"      # filter.count_draws of pfx's runs (--count-draws)
+
+
 def pfx_seconds(config: Path, particles: int, trials: int, backend: str, precision: str = "float64") -> float:
     """pfx's wall seconds per run: ``trials`` runs at N = ``particles`` in one batch (trials.csv's
     ``run_time_s`` and, on jax, ``compile_time_s``: each run's share of its batch)."""
     with tempfile.TemporaryDirectory() as folder:
         command = [sys.executable, "-m", "pfx", "run", str(config), "--trials", str(trials), "--out", folder,
                    "--set", f"filter.particles={particles}", "--set", f"filter.backend={backend}",
-                   "--set", f"filter.precision={precision}",
+                   "--set", f"filter.precision={precision}", "--set", f"filter.count_draws={COUNT_DRAWS}",
                    "--set", "outputs.figures=[]", "--quiet"]     # the particle count replaces a sweep's
         subprocess.run(command, check=True, capture_output=True, text=True)
         trials = pd.read_csv(next(Path(folder).rglob("trials.csv")))
@@ -122,8 +125,12 @@ def main() -> None:
                         help="models also timed on pfx's jax backend (with and without its compilation)")
     parser.add_argument("--jax-precision", default="float32", choices=["float32", "float64"],
                         help="the jax backend's precision (pypomp's is float32)")
+    parser.add_argument("--count-draws", default="exact", choices=["exact", "inverse_cdf"],
+                        help="pfx's filter.count_draws (pypomp's draws are inverse CDFs)")
     arguments = parser.parse_args()
-    print(f"before: {machine_line()}", flush=True)
+    global COUNT_DRAWS
+    COUNT_DRAWS = arguments.count_draws
+    print(f"before: {machine_line()}; pfx's count draws: {COUNT_DRAWS}", flush=True)
     rows = []
     for model in arguments.models:
         script, config, counts = CASES[model]

@@ -396,6 +396,8 @@ def resolved_config(experiment: Experiment, raw: dict, arms: dict[str, Optional[
     if all(cell.filter.backend == "numpy" for cell in cells):
         for key in ("backend", "precision"):      # the record of a config on numpy alone is unchanged
             resolved["filter"].pop(key, None)
+    if all(cell.filter.count_draws == "exact" for cell in cells):
+        resolved["filter"].pop("count_draws", None)   # likewise the record of a config with exact draws
     if experiment.arms:
         resolved["arms"] = {}
         for name, arm_raw in arms.items():

@@ -168,6 +168,11 @@ def _build(plugins: frozenset) -> ConfigSchema:
         precision: Literal["float64", "float32"] = Field(
             "float64", description="the jax backend's floating point: float64 (default) or float32 (faster on a "
                                    "GPU; the resamplers' sums stay float64); the numpy backend is float64")
+        count_draws: Literal["exact", "inverse_cdf"] = Field(
+            "exact", description="how the filter draws binomial, Poisson and gamma variates (count models): exact "
+                                 "(NumPy's or JAX's exact samplers, the default) or inverse_cdf (the branch-free "
+                                 "quantile of one uniform: fast on both backends, accurate to about float32 "
+                                 "rounding; docs/plugins.md)")
         smoothers: list[Smoother] = Field(  # type: ignore[valid-type]
             default_factory=list,
             description="smoothers run after the filter on the whole record (`pfx list smoothers`): "

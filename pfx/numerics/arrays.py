@@ -25,40 +25,13 @@ JAX is imported only when a JAX array is met: pfx runs without it.
 from __future__ import annotations
 
 import numbers
-from types import ModuleType
 from typing import Any, Callable
 
 import numpy as np
 
+from pfx.numerics.array_namespace import is_jax_array, namespace, special_functions  # noqa: F401 (re-exported)
 from pfx.numerics.key_streams import loop_pass
 from pfx.numerics.parameter_checks import active_checks, collecting
-
-
-def namespace(*values: Any) -> ModuleType:
-    """The array module for ``values``: ``jax.numpy`` if any of them is a JAX array (or a JAX
-    tracer), else ``numpy``. Python numbers, None and NumPy arrays and scalars count as NumPy."""
-    for value in values:
-        if type(value) is np.ndarray:     # the NumPy backend's every call: the cheap test first
-            continue
-        if is_jax_array(value):
-            return value.__array_namespace__()
-    return np
-
-
-def is_jax_array(value: Any) -> bool:
-    """Whether ``value`` is a JAX array or tracer (without importing JAX for anything else)."""
-    return type(value).__module__.startswith("jax") and hasattr(value, "__array_namespace__")
-
-
-def special_functions(xp: ModuleType) -> ModuleType:
-    """``scipy.special`` for NumPy, ``jax.scipy.special`` for JAX (gammaln, log_ndtr, ndtr, ...)."""
-    if xp is np:
-        import scipy.special
-
-        return scipy.special
-    import jax.scipy.special
-
-    return jax.scipy.special
 
 
 def with_values(array: Any, index: Any, values: Any) -> Any:

@@ -85,12 +85,13 @@ class KeyStreams:
     draws are made in ``dtype`` (float64, or float32 for ``precision: float32``).
     """
 
-    def __init__(self, keys: Any, dtype: Any = None, *, counter: int = 0):
+    def __init__(self, keys: Any, dtype: Any = None, *, counter: int = 0, count_draws: str = "exact"):
         import jax.numpy as jnp
 
         self.keys = keys
         self.dtype = jnp.float64 if dtype is None else dtype
         self.counter = counter
+        self.count_draws = count_draws      # how binomial, poisson and gamma draw (seeding.COUNT_DRAWS)
 
     @classmethod
     def from_seeds(cls, seeds: Sequence[int], dtype: Any = None) -> "KeyStreams":
@@ -109,7 +110,11 @@ class KeyStreams:
         keys = self.keys
         for counter in counters:
             keys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(keys, counter)
-        return KeyStreams(keys, self.dtype)
+        return KeyStreams(keys, self.dtype, count_draws=self.count_draws)
+
+    def with_count_draws(self, count_draws: str) -> "KeyStreams":
+        """The same keys, with binomial, Poisson and gamma draws made the ``count_draws`` way."""
+        return KeyStreams(self.keys, self.dtype, counter=self.counter, count_draws=count_draws)
 
     def derived(self, purpose: int) -> "KeyStreams":
         """Each trial's streams for a purpose beside the filter (``SCORE_STREAM``,
@@ -188,6 +193,12 @@ class KeyStreams:
 
         check(BINOMIAL_COUNT, count)
         check(BINOMIAL_PROBABILITY, probability)
+        if self.count_draws == "inverse_cdf":
+            from pfx.numerics.count_quantiles import binomial_quantile
+
+            return self._with_parameters(
+                lambda key, n, p, size: binomial_quantile(jax.random.uniform(key, size, self.dtype), n, p),
+                [count, probability], shape)
         return self._with_parameters(
             lambda key, n, p, size: jax.random.binomial(key, n, p, size, self.dtype), [count, probability], shape)
 
@@ -196,6 +207,11 @@ class KeyStreams:
         import jax
 
         check(POISSON_RATE, rate)
+        if self.count_draws == "inverse_cdf":
+            from pfx.numerics.count_quantiles import poisson_quantile
+
+            return self._with_parameters(
+                lambda key, rate, size: poisson_quantile(jax.random.uniform(key, size, self.dtype), rate), [rate], shape)
         return self._with_parameters(
             lambda key, rate, size: jax.random.poisson(key, rate, size).astype(self.dtype), [rate], shape)
 
@@ -205,6 +221,13 @@ class KeyStreams:
 
         check(GAMMA_SHAPE, shape_parameter)
         check(GAMMA_SCALE, scale)
+        if self.count_draws == "inverse_cdf":
+            from pfx.numerics.gamma_quantiles import GAMMA_UNIFORMS, gamma_variate
+
+            return self._with_parameters(
+                lambda key, k, theta, size: theta * gamma_variate(
+                    jax.random.uniform(key, (GAMMA_UNIFORMS,) + tuple(size), self.dtype), k),
+                [shape_parameter, scale], shape)
         return self._with_parameters(
             lambda key, k, theta, size: theta * jax.random.gamma(key, k, size, self.dtype),
             [shape_parameter, scale], shape)

@@ -124,6 +124,12 @@ def study_generator(root_seed: int) -> np.random.Generator:
     return np.random.default_rng(stream_seed(root_seed, STUDY_ROLE, 0))
 
 
+COUNT_DRAWS = ("exact", "inverse_cdf")
+"""How the streams draw binomial, Poisson and gamma variates (``filter.count_draws``): ``exact``,
+NumPy's (or JAX's) exact samplers; ``inverse_cdf``, the branch-free quantile of one uniform
+(:mod:`pfx.numerics.count_quantiles`; its accuracy is in docs/plugins.md)."""
+
+
 class TrialStreams:
     """One generator per trial; batched draws of shape ``(trials, *shape)``.
 
@@ -146,9 +152,10 @@ class TrialStreams:
     the trial axis), so scalar parameters and no ``shape`` give one draw per trial, ``(R,)``.
     """
 
-    def __init__(self, generators: Sequence[np.random.Generator], *, addresses=None):
+    def __init__(self, generators: Sequence[np.random.Generator], *, addresses=None, count_draws: str = "exact"):
         self.generators = list(generators)
         self.seeds: Optional[list[int]] = None      # the trials' seeds, when made from them (from_seeds)
+        self.count_draws = count_draws              # COUNT_DRAWS: how binomial, poisson and gamma draw
         # The generators' PCG64 state addresses for the compiled loops: found on the first
         # draw (that imports numba), None if some generator is not a PCG64.
         self._addresses = addresses
@@ -158,7 +165,7 @@ class TrialStreams:
         # The addresses are this process's memory of these very generators: a copy (pickled to
         # another process, or deep-copied with new generators) finds its own.
         return {"generators": self.generators, "_addresses": None, "_addresses_known": False,
-                "seeds": self.seeds}
+                "seeds": self.seeds, "count_draws": self.count_draws}
 
     @classmethod
     def from_seeds(cls, seeds: Sequence[int]) -> "TrialStreams":
@@ -177,15 +184,28 @@ class TrialStreams:
         made from generators without seeds spawn a child of each (NumPy's ``Generator.spawn``,
         which does not advance the parent)."""
         if self.seeds is None:
-            return TrialStreams([generator.spawn(1)[0] for generator in self.generators])
-        return TrialStreams.from_seeds([derived_seed(seed, purpose) for seed in self.seeds])
+            derived = TrialStreams([generator.spawn(1)[0] for generator in self.generators])
+        else:
+            derived = TrialStreams.from_seeds([derived_seed(seed, purpose) for seed in self.seeds])
+        return derived.with_count_draws(self.count_draws)
+
+    def with_count_draws(self, count_draws: str) -> "TrialStreams":
+        """The same streams (the same generators: drawing from one advances the other) with
+        binomial, Poisson and gamma draws made the ``count_draws`` way (:data:`COUNT_DRAWS`)."""
+        if count_draws not in COUNT_DRAWS:
+            raise ValueError(f"count_draws must be one of {', '.join(COUNT_DRAWS)}, not {count_draws!r}")
+        streams = TrialStreams(self.generators, addresses=self._addresses if self._addresses_known else None,
+                               count_draws=count_draws)
+        streams.seeds = self.seeds
+        return streams
 
     def subset(self, trial_indices) -> "TrialStreams":
         """The streams of the given trials (positions in this batch): the same generators."""
         trial_indices = np.asarray(trial_indices, dtype=np.intp)
         addresses = self._addresses[trial_indices] if self._addresses_known and self._addresses is not None \
             else None
-        return TrialStreams([self.generators[i] for i in trial_indices.tolist()], addresses=addresses)
+        return TrialStreams([self.generators[i] for i in trial_indices.tolist()], addresses=addresses,
+                            count_draws=self.count_draws)
 
     def compiled_addresses(self):
         """The PCG64 state addresses the compiled loops step (None: NumPy's methods, trial by trial)."""
@@ -246,6 +266,8 @@ class TrialStreams:
         """
         count = _checked(BINOMIAL_COUNT, count)
         probability = _checked(BINOMIAL_PROBABILITY, probability)
+        if self.count_draws == "inverse_cdf":
+            return self._by_inverse_cdf("binomial", "binomial_quantile", [count, probability], shape)
         return self._draw("binomial", [count.astype(np.int64), probability], shape)
 
     def poisson(self, rate: ArrayLike, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -254,6 +276,8 @@ class TrialStreams:
         ``rate`` is λ >= 0 (at most NumPy's bound, about 9.2e18); each trial's ``generator.poisson``.
         """
         rate = _checked(POISSON_RATE, rate)
+        if self.count_draws == "inverse_cdf":
+            return self._by_inverse_cdf("poisson", "poisson_quantile", [rate], shape)
         return self._draw("poisson", [rate], shape)
 
     def gamma(self, shape_parameter: ArrayLike, scale: ArrayLike = 1.0, *,
@@ -265,6 +289,12 @@ class TrialStreams:
         """
         shape_parameter = _checked(GAMMA_SHAPE, shape_parameter)
         scale = _checked(GAMMA_SCALE, scale)
+        if self.count_draws == "inverse_cdf":
+            from pfx.numerics.gamma_quantiles import GAMMA_UNIFORMS, gamma_variate
+
+            (shape_parameter, scale), trial_shape = self._aligned("gamma", [shape_parameter, scale], shape)
+            uniforms = np.moveaxis(self.uniform((GAMMA_UNIFORMS,) + trial_shape), 1, 0)
+            return scale * np.asarray(gamma_variate(uniforms, shape_parameter), dtype=float)
         return self._draw("gamma", [shape_parameter, scale], shape)
 
     def exponential(self, scale: ArrayLike = 1.0, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -321,6 +351,15 @@ class TrialStreams:
             raise ValueError(f"{law}: parameters of shapes {[p.shape for p in parameters]} do not "
                              f"broadcast to {wanted}") from None
         return padded, trial_shape
+
+    def _by_inverse_cdf(self, law: str, quantile: str, parameters: list[np.ndarray], shape) -> np.ndarray:
+        """``count_draws: inverse_cdf``: one uniform per draw from each trial's stream, turned into
+        the law's variate by its branch-free ``quantile`` (:mod:`pfx.numerics.count_quantiles`)."""
+        from pfx.numerics import count_quantiles
+
+        parameters, trial_shape = self._aligned(law, parameters, shape)
+        uniforms = self.uniform(trial_shape)
+        return np.asarray(getattr(count_quantiles, quantile)(uniforms, *parameters), dtype=float)
 
     def _draw(self, law: str, parameters: list[np.ndarray], shape) -> np.ndarray:
         """Trial r's slice: one call of generator r's NumPy method ``law`` on trial r's parameters."""

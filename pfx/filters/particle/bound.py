@@ -64,6 +64,7 @@ class BoundParticleFilter:
     smoothers: tuple = ()               # run after the filter on its recorded clouds (pfx.filters.smoothers)
     backend: str = "numpy"              # where it runs: numpy (engine.py) or jax (jax_engine.py)
     precision: str = "float64"          # the jax backend's floating point
+    count_draws: str = "exact"          # binomial, Poisson, gamma: exact samplers or inverse CDFs (seeding.COUNT_DRAWS)
     compiled: Any = field(default=None, compare=False, repr=False)    # the jax backend's program
 
     @property
@@ -79,6 +80,8 @@ class BoundParticleFilter:
     def run(self, measurements: np.ndarray, random, recording: Recording = Recording()) -> FilterTrace:
         """Filter measurements (trials, T, m), one random stream per trial
         (:class:`~pfx.numerics.seeding.TrialStreams`); see :mod:`pfx.filters.particle.engine`."""
+        if self.count_draws != getattr(random, "count_draws", "exact"):     # every draw of the filter's run, its smoothers' too
+            random = random.with_count_draws(self.count_draws)
         if self.smoothers:          # what they run on is recorded too
             recording = replace(recording, history=recording.history or any(s.needs_history for s in self.smoothers),
                                 genealogy=recording.genealogy or any(s.needs_genealogy for s in self.smoothers))
@@ -131,7 +134,8 @@ def bind_particle_filter(kind: str, model, settings, prior) -> BoundParticleFilt
         weighting=weighting, diffusion=settings.diffusion, proposal=bound_proposal,
         auxiliary=AuxiliaryFirstStage() if settings.auxiliary else None, move=bound_move,
         adaptive=adaptive, injection=injection, smoothers=tuple(getattr(settings, "smoothers", ()) or ()),
-        backend=backend, precision=getattr(settings, "precision", "float64"))
+        backend=backend, precision=getattr(settings, "precision", "float64"),
+        count_draws=getattr(settings, "count_draws", "exact"))
     if backend == "jax":
         from pfx.filters.particle.jax_engine import JaxParticleFilter
 

@@ -251,7 +251,7 @@ class JaxParticleFilter(ParticleKernel):
         """The run as a traceable function: the prior's cloud, then :meth:`scan_step` scanned over the
         steps; (the last cloud, the steps' :class:`StepOutputs`). :meth:`run` compiles it per
         set of ``flags``; estimation traces it inside its own programs, at parameter arrays."""
-        random = KeyStreams(keys, self.dtype)
+        random = KeyStreams(keys, self.dtype, count_draws=self.bound.count_draws)
         trials, count = keys.shape[0], self.particles
         state = jnp.asarray(self.bound.prior.sample(random.at(0), (count,)), self.dtype)
         _check_shape(self.model, "the filter's prior (initial law)", state, (trials, count, self.model.state_dimension))
