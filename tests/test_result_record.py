@@ -25,8 +25,8 @@ from conftest import REPO_ROOT, tiny_config_dict, write_config_file
 
 from pfx.config.overrides import apply_overrides
 from pfx.config.plan import build_plan
-from pfx.papers.record import TIMING_COLUMN_PREFIXES
 from pfx.errors import ConfigError
+from pfx.papers.record import TIMING_COLUMN_PREFIXES
 from pfx.run.runner import run_plan
 from pfx.safe_yaml import load_config_file
 
