@@ -74,7 +74,7 @@ nanoseconds per draw beside NumPy's and JAX's exact samplers.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 from pfx.numerics.array_namespace import namespace, special_functions
 
@@ -147,6 +147,18 @@ def binomial_quantile(uniform: Any, count: Any, probability: Any) -> Any:
 
 
 # -- the pieces --------------------------------------------------------------------------------------
+
+
+
+def inverse_cdf_law(law: str) -> tuple[int, Callable]:
+    """How the random streams draw ``law`` (binomial, poisson or gamma) under ``count_draws:
+    inverse_cdf``: (the uniforms a draw takes, ``variate(uniforms, *parameters)``), the uniforms
+    on the leading axis, the parameters as the streams lay them out (a gamma's scale last)."""
+    from pfx.numerics.gamma_quantiles import GAMMA_UNIFORMS, gamma_variate
+
+    return {"binomial": (1, lambda uniforms, count, probability: binomial_quantile(uniforms[0], count, probability)),
+            "poisson": (1, lambda uniforms, rate: poisson_quantile(uniforms[0], rate)),
+            "gamma": (GAMMA_UNIFORMS, lambda uniforms, shape, scale: scale * gamma_variate(uniforms, shape))}[law]
 
 
 def _as_arrays(uniform: Any, *parameters: Any) -> tuple:

@@ -194,11 +194,7 @@ class KeyStreams:
         check(BINOMIAL_COUNT, count)
         check(BINOMIAL_PROBABILITY, probability)
         if self.count_draws == "inverse_cdf":
-            from pfx.numerics.count_quantiles import binomial_quantile
-
-            return self._with_parameters(
-                lambda key, n, p, size: binomial_quantile(jax.random.uniform(key, size, self.dtype), n, p),
-                [count, probability], shape)
+            return self._by_inverse_cdf("binomial", [count, probability], shape)
         return self._with_parameters(
             lambda key, n, p, size: jax.random.binomial(key, n, p, size, self.dtype), [count, probability], shape)
 
@@ -208,10 +204,7 @@ class KeyStreams:
 
         check(POISSON_RATE, rate)
         if self.count_draws == "inverse_cdf":
-            from pfx.numerics.count_quantiles import poisson_quantile
-
-            return self._with_parameters(
-                lambda key, rate, size: poisson_quantile(jax.random.uniform(key, size, self.dtype), rate), [rate], shape)
+            return self._by_inverse_cdf("poisson", [rate], shape)
         return self._with_parameters(
             lambda key, rate, size: jax.random.poisson(key, rate, size).astype(self.dtype), [rate], shape)
 
@@ -222,15 +215,22 @@ class KeyStreams:
         check(GAMMA_SHAPE, shape_parameter)
         check(GAMMA_SCALE, scale)
         if self.count_draws == "inverse_cdf":
-            from pfx.numerics.gamma_quantiles import GAMMA_UNIFORMS, gamma_variate
-
-            return self._with_parameters(
-                lambda key, k, theta, size: theta * gamma_variate(
-                    jax.random.uniform(key, (GAMMA_UNIFORMS,) + tuple(size), self.dtype), k),
-                [shape_parameter, scale], shape)
+            return self._by_inverse_cdf("gamma", [shape_parameter, scale], shape)
         return self._with_parameters(
             lambda key, k, theta, size: theta * jax.random.gamma(key, k, size, self.dtype),
             [shape_parameter, scale], shape)
+
+    def _by_inverse_cdf(self, law: str, parameters: list, shape: Optional[Sequence[int]]) -> Any:
+        """``count_draws: inverse_cdf``: each draw's uniforms from its trial's key, turned into the
+        law's variate by its branch-free inverse CDF (:func:`pfx.numerics.count_quantiles.inverse_cdf_law`)."""
+        import jax
+
+        from pfx.numerics.count_quantiles import inverse_cdf_law
+
+        per_draw, variate = inverse_cdf_law(law)
+        return self._with_parameters(
+            lambda key, *own: variate(jax.random.uniform(key, (per_draw,) + tuple(own[-1]), self.dtype), *own[:-1]),
+            parameters, shape)
 
     def _with_parameters(self, sample, parameters: list, shape: Optional[Sequence[int]]) -> Any:
         """Trial r's draws from trial r's key and trial r's slice of each parameter: a scalar is

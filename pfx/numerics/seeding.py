@@ -126,7 +126,7 @@ def study_generator(root_seed: int) -> np.random.Generator:
 
 COUNT_DRAWS = ("exact", "inverse_cdf")
 """How the streams draw binomial, Poisson and gamma variates (``filter.count_draws``): ``exact``,
-NumPy's (or JAX's) exact samplers; ``inverse_cdf``, the branch-free quantile of one uniform
+NumPy's (or JAX's) exact samplers; ``inverse_cdf``, branch-free inverse CDFs of uniforms
 (:mod:`pfx.numerics.count_quantiles`; its accuracy is in docs/plugins.md)."""
 
 
@@ -267,7 +267,7 @@ class TrialStreams:
         count = _checked(BINOMIAL_COUNT, count)
         probability = _checked(BINOMIAL_PROBABILITY, probability)
         if self.count_draws == "inverse_cdf":
-            return self._by_inverse_cdf("binomial", "binomial_quantile", [count, probability], shape)
+            return self._by_inverse_cdf("binomial", [count, probability], shape)
         return self._draw("binomial", [count.astype(np.int64), probability], shape)
 
     def poisson(self, rate: ArrayLike, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -277,7 +277,7 @@ class TrialStreams:
         """
         rate = _checked(POISSON_RATE, rate)
         if self.count_draws == "inverse_cdf":
-            return self._by_inverse_cdf("poisson", "poisson_quantile", [rate], shape)
+            return self._by_inverse_cdf("poisson", [rate], shape)
         return self._draw("poisson", [rate], shape)
 
     def gamma(self, shape_parameter: ArrayLike, scale: ArrayLike = 1.0, *,
@@ -290,11 +290,7 @@ class TrialStreams:
         shape_parameter = _checked(GAMMA_SHAPE, shape_parameter)
         scale = _checked(GAMMA_SCALE, scale)
         if self.count_draws == "inverse_cdf":
-            from pfx.numerics.gamma_quantiles import GAMMA_UNIFORMS, gamma_variate
-
-            (shape_parameter, scale), trial_shape = self._aligned("gamma", [shape_parameter, scale], shape)
-            uniforms = np.moveaxis(self.uniform((GAMMA_UNIFORMS,) + trial_shape), 1, 0)
-            return scale * np.asarray(gamma_variate(uniforms, shape_parameter), dtype=float)
+            return self._by_inverse_cdf("gamma", [shape_parameter, scale], shape)
         return self._draw("gamma", [shape_parameter, scale], shape)
 
     def exponential(self, scale: ArrayLike = 1.0, *, shape: Optional[Sequence[int]] = None) -> np.ndarray:
@@ -352,14 +348,15 @@ class TrialStreams:
                              f"broadcast to {wanted}") from None
         return padded, trial_shape
 
-    def _by_inverse_cdf(self, law: str, quantile: str, parameters: list[np.ndarray], shape) -> np.ndarray:
-        """``count_draws: inverse_cdf``: one uniform per draw from each trial's stream, turned into
-        the law's variate by its branch-free ``quantile`` (:mod:`pfx.numerics.count_quantiles`)."""
-        from pfx.numerics import count_quantiles
+    def _by_inverse_cdf(self, law: str, parameters: list[np.ndarray], shape) -> np.ndarray:
+        """``count_draws: inverse_cdf``: each draw's uniforms from its trial's stream, turned into
+        the law's variate by its branch-free inverse CDF (:func:`pfx.numerics.count_quantiles.inverse_cdf_law`)."""
+        from pfx.numerics.count_quantiles import inverse_cdf_law
 
+        per_draw, variate = inverse_cdf_law(law)
         parameters, trial_shape = self._aligned(law, parameters, shape)
-        uniforms = self.uniform(trial_shape)
-        return np.asarray(getattr(count_quantiles, quantile)(uniforms, *parameters), dtype=float)
+        uniforms = np.moveaxis(self.uniform((per_draw,) + trial_shape), 1, 0)
+        return np.asarray(variate(uniforms, *parameters), dtype=float)
 
     def _draw(self, law: str, parameters: list[np.ndarray], shape) -> np.ndarray:
         """Trial r's slice: one call of generator r's NumPy method ``law`` on trial r's parameters."""
