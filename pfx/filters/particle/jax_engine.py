@@ -179,7 +179,7 @@ class JaxParticleFilter(ParticleKernel):
             inputs = self.step_inputs(measurements)
             # compiled ahead of the call, so that its time is known apart from the run's (a
             # program per set of flags and input shapes, as jax.jit would cache it)
-            signature = (flags, jax.tree_util.tree_map(lambda value: (np.shape(value), np.asarray(value).dtype.str),
+            signature = (flags, jax.tree_util.tree_map(lambda value: (np.shape(value), jnp.result_type(value).str),
                                                        (keys, inputs)))
             program = self._programs.get(signature)
             if program is None:
